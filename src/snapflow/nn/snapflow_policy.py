@@ -1,0 +1,43 @@
+"""Turn a plain flow-matching policy into a SnapFlow one without touching its code."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from torch import Tensor, nn
+
+from snapflow.nn.time_embedding import TargetTimeEmbedding
+from snapflow.protocol import Context
+
+
+class SnapFlowPolicy(nn.Module):
+    """Implements :class:`snapflow.protocol.FlowPolicy` for a :class:`snapflow.protocol.TimeEmbeddingModel`.
+
+    The velocity is ``model.velocity_from_time_embedding(x_t, model.embed_time(t) + phi_s(s), context)``.
+    With ``target_time=False`` there is no phi_s and s is ignored: that is the flow-matching teacher, and
+    the "without phi_s" ablation of the paper.
+    """
+
+    def __init__(self, model: nn.Module, target_time: bool = True) -> None:
+        super().__init__()
+        missing = [name for name in ("encode", "embed_time", "velocity_from_time_embedding") if not callable(getattr(model, name, None))]
+        if missing:
+            raise TypeError(
+                f"{type(model).__name__} lacks {', '.join(missing)}(); see snapflow.protocol.TimeEmbeddingModel"
+            )
+        if not isinstance(getattr(model, "time_embedding_dim", None), int):
+            raise TypeError(f"{type(model).__name__} must define an integer time_embedding_dim")
+        self.model = model
+        self.target_time_embedding = TargetTimeEmbedding(model.time_embedding_dim) if target_time else None
+
+    def encode(self, observation: Any) -> Context:
+        return self.model.encode(observation)
+
+    def velocity(self, x_t: Tensor, t: Tensor, s: Tensor, context: Context) -> Tensor:
+        time_embedding = self.model.embed_time(t)
+        if self.target_time_embedding is not None:
+            time_embedding = time_embedding + self.target_time_embedding(s).to(time_embedding.dtype)
+        return self.model.velocity_from_time_embedding(x_t, time_embedding, context)
+
+
+__all__ = ["SnapFlowPolicy"]

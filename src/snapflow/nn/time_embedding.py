@@ -1,0 +1,57 @@
+"""Sinusoidal time features and the target-time embedding phi_s, SnapFlow's only new parameters."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor, nn
+
+
+def sinusoidal_features(t: Tensor, dim: int, min_period: float = 4e-3, max_period: float = 4.0) -> Tensor:
+    """Features [sin(2 pi t / p_k), cos(2 pi t / p_k)] for ``dim // 2`` periods spaced geometrically.
+
+    The default periods are those of pi0 / pi0.5 / SmolVLA, whose times live in [0, 1].
+    """
+    if dim % 2:
+        raise ValueError(f"sinusoidal feature width must be even, got {dim}")
+    if t.ndim != 1:
+        raise ValueError(f"time must have shape (B,), got {tuple(t.shape)}")
+    fraction = torch.linspace(0.0, 1.0, dim // 2, device=t.device, dtype=torch.float64)
+    periods = min_period * (max_period / min_period) ** fraction
+    angles = t.to(torch.float64)[:, None] * (2 * math.pi / periods)[None, :]
+    return torch.cat([angles.sin(), angles.cos()], dim=1).to(torch.float32)
+
+
+class TargetTimeEmbedding(nn.Module):
+    """phi_s(s) = Linear2(SiLU(Linear1(sinusoid(s)))), added to the policy's own time embedding.
+
+    Only Linear2 starts at zero (weights and bias), so the wrapped policy is bit-for-bit the teacher at
+    step 0 while Linear1 keeps a normal init: were both zero, SiLU(0) = 0 would leave only Linear2's bias
+    with a gradient and phi_s would collapse to a constant that ignores s.
+    """
+
+    def __init__(
+        self,
+        output_dim: int,
+        sinusoid_dim: int | None = None,
+        hidden_dim: int | None = None,
+        min_period: float = 4e-3,
+        max_period: float = 4.0,
+    ) -> None:
+        super().__init__()
+        self.sinusoid_dim = sinusoid_dim or output_dim + output_dim % 2
+        self.min_period = min_period
+        self.max_period = max_period
+        self.linear_in = nn.Linear(self.sinusoid_dim, hidden_dim or output_dim)
+        self.linear_out = nn.Linear(hidden_dim or output_dim, output_dim)
+        nn.init.zeros_(self.linear_out.weight)
+        nn.init.zeros_(self.linear_out.bias)
+
+    def forward(self, s: Tensor) -> Tensor:
+        features = sinusoidal_features(s, self.sinusoid_dim, self.min_period, self.max_period)
+        features = features.to(self.linear_in.weight.dtype)
+        return self.linear_out(nn.functional.silu(self.linear_in(features)))
+
+
+__all__ = ["sinusoidal_features", "TargetTimeEmbedding"]

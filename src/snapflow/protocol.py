@@ -1,0 +1,71 @@
+"""The two small protocols that connect a policy to SnapFlow.
+
+``FlowPolicy`` is all the objective and the samplers ever see. ``TimeEmbeddingModel`` is what a plain
+flow-matching policy exposes so that :class:`snapflow.nn.SnapFlowPolicy` can add the target-time
+embedding to it without editing its code.
+
+A *context* is whatever ``encode`` returns: a tensor, or a (nested) dict / list / tuple of tensors whose
+first dimension is the batch (other leaves pass through untouched). The objective computes it once per
+batch and reuses it for every velocity pass, as the real VLAs reuse their prefix (VLM) cache.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol, runtime_checkable
+
+from torch import Tensor
+
+Context = Any
+
+
+@runtime_checkable
+class FlowPolicy(Protocol):
+    """A velocity field F(x_t, s, t | c) with a prefix encoder.
+
+    ``t`` is the current time and ``s`` the target time, both of shape (B,): ``s == t`` asks for the
+    instantaneous (marginal) velocity, ``s < t`` for the average velocity of the jump t -> s.
+    """
+
+    def encode(self, observation: Any) -> Context:
+        """Run the expensive, time-independent part of the policy once per observation batch."""
+        ...
+
+    def velocity(self, x_t: Tensor, t: Tensor, s: Tensor, context: Context) -> Tensor:
+        """Velocity for noisy actions ``x_t`` of shape (B, *action_shape); same shape out."""
+        ...
+
+
+@runtime_checkable
+class TimeEmbeddingModel(Protocol):
+    """A plain flow-matching policy split where its time embedding enters.
+
+    ``velocity_from_time_embedding(x_t, embed_time(t), encode(obs))`` must be the policy's usual velocity;
+    SnapFlow adds phi_s(s) of width ``time_embedding_dim`` to the embedding in between.
+    """
+
+    time_embedding_dim: int
+
+    def encode(self, observation: Any) -> Context: ...
+
+    def embed_time(self, t: Tensor) -> Tensor:
+        """Time embedding of shape (B, time_embedding_dim)."""
+        ...
+
+    def velocity_from_time_embedding(self, x_t: Tensor, time_embedding: Tensor, context: Context) -> Tensor: ...
+
+
+def index_batch(context: Context, index: slice | Tensor) -> Context:
+    """Select batch rows from every tensor in a context; non-tensor leaves are returned as they are."""
+    if isinstance(context, Tensor):
+        return context[index]
+    if isinstance(context, dict):
+        return {key: index_batch(value, index) for key, value in context.items()}
+    if isinstance(context, (list, tuple)):
+        selected = [index_batch(value, index) for value in context]
+        if hasattr(context, "_fields"):  # namedtuple
+            return type(context)(*selected)
+        return type(context)(selected)
+    return context
+
+
+__all__ = ["Context", "FlowPolicy", "TimeEmbeddingModel", "index_batch"]

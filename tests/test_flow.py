@@ -1,0 +1,117 @@
+"""The flow-matching conventions: path, samplers, Euler solver and sampling modes."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from snapflow.flow import (
+    NAIVE_1,
+    SNAPFLOW_1,
+    TEACHER_10,
+    BetaTimeSampler,
+    SamplingMode,
+    UniformTimeSampler,
+    conditional_velocity,
+    euler_sample,
+    interpolate,
+    sample_actions,
+)
+from tests.helpers import RecordingPolicy
+
+
+def test_path_endpoints_and_velocity():
+    actions, noise = torch.randn(4, 3, 2), torch.randn(4, 3, 2)
+    assert torch.equal(interpolate(actions, noise, torch.zeros(4)), actions)
+    assert torch.equal(interpolate(actions, noise, torch.ones(4)), noise)
+    t = torch.tensor([0.1, 0.4, 0.5, 0.9])
+    x_t = interpolate(actions, noise, t)
+    expected = torch.stack([(1 - t[i]) * actions[i] + t[i] * noise[i] for i in range(4)])
+    assert torch.allclose(x_t, expected)
+    # d x_t / d t along the path is eps - a
+    dt = 1e-3
+    finite_difference = (interpolate(actions, noise, t + dt) - x_t) / dt
+    assert torch.allclose(finite_difference, conditional_velocity(actions, noise), atol=1e-3)
+
+
+def test_path_rejects_mismatched_shapes():
+    with pytest.raises(ValueError, match="differ in shape"):
+        interpolate(torch.zeros(2, 3), torch.zeros(2, 4), torch.zeros(2))
+    with pytest.raises(ValueError, match="time must have shape"):
+        interpolate(torch.zeros(2, 3), torch.zeros(2, 3), torch.zeros(3))
+
+
+def test_beta_time_sampler_matches_pi0_distribution():
+    sampler = BetaTimeSampler()
+    t = sampler(200_000, generator=torch.Generator().manual_seed(0))
+    assert t.min() >= 0.001 and t.max() <= 1.0
+    # Beta(1.5, 1) * 0.999 + 0.001 has CDF ((x - 0.001) / 0.999) ** 1.5
+    grid = torch.linspace(0.01, 0.99, 50)
+    empirical = (t[None, :] <= grid[:, None]).double().mean(dim=1)
+    exact = ((grid - 0.001) / 0.999).double() ** 1.5
+    assert (empirical - exact).abs().max() < 0.005
+    assert torch.equal(sampler(8, generator=torch.Generator().manual_seed(3)), sampler(8, generator=torch.Generator().manual_seed(3)))
+    with pytest.raises(ValueError, match="concentration"):
+        BetaTimeSampler(concentration=0)
+
+
+def test_uniform_time_sampler():
+    t = UniformTimeSampler()(100_000, generator=torch.Generator().manual_seed(0))
+    assert 0 <= t.min() and t.max() < 1
+    assert abs(t.mean().item() - 0.5) < 0.005
+
+
+def test_sampling_mode_names_round_trip():
+    assert SamplingMode.parse("teacher-10") == TEACHER_10
+    assert SamplingMode.parse("teacher") == TEACHER_10
+    assert SamplingMode.parse("naive") == NAIVE_1 == SamplingMode.parse("teacher-1")
+    assert SamplingMode.parse("snapflow") == SNAPFLOW_1
+    assert SamplingMode.parse("SnapFlow-2") == SamplingMode(2, jump=True)
+    for mode in (TEACHER_10, NAIVE_1, SNAPFLOW_1, SamplingMode(4, jump=True)):
+        assert SamplingMode.parse(mode.name) == mode
+    for bad in ("fast", "teacher-0", "naive-2", "snapflow--1"):
+        with pytest.raises(ValueError):
+            SamplingMode.parse(bad)
+
+
+def test_euler_is_exact_for_a_constant_velocity_field():
+    # On one straight path the velocity is constant, so any number of Euler steps lands on the data.
+    actions, noise = torch.randn(3, 4, 2), torch.randn(3, 4, 2)
+    for steps in (1, 2, 10):
+        result = euler_sample(lambda x, t, s: noise - actions, noise, SamplingMode(steps, jump=False))
+        assert torch.allclose(result, actions, atol=1e-6)
+
+
+def test_euler_follows_a_time_dependent_field_by_hand():
+    # v(x, t) = x: two Euler steps of dt = -1/2 give x * (1 - 1/2) ** 2.
+    noise = torch.randn(2, 1, 3)
+    result = euler_sample(lambda x, t, s: x, noise, SamplingMode(2, jump=False))
+    assert torch.allclose(result, noise * 0.25)
+
+
+def test_each_mode_asks_for_the_right_target_time(student, batch):
+    observation, _ = batch
+    noise = torch.randn(6, 3, 2)
+    for mode, expected in [
+        (TEACHER_10, [(1 - i / 10, 1 - i / 10) for i in range(10)]),
+        (NAIVE_1, [(1.0, 1.0)]),
+        (SNAPFLOW_1, [(1.0, 0.0)]),
+        (SamplingMode(2, jump=True), [(1.0, 0.5), (0.5, 0.0)]),
+    ]:
+        recorder = RecordingPolicy(student)
+        result = sample_actions(recorder, observation, noise, mode)
+        assert recorder.encodes == 1, "the prefix must be encoded once per chunk"
+        asked = [(c.t[0].item(), c.s[0].item()) for c in recorder.calls]
+        assert len(asked) == len(expected)
+        assert torch.allclose(torch.tensor(asked), torch.tensor(expected, dtype=torch.float32))
+        assert result.shape == noise.shape
+
+
+def test_snapflow_one_step_is_x1_minus_the_jump_velocity(student, batch):
+    observation, _ = batch
+    noise = torch.randn(6, 3, 2)
+    context = student.encode(observation)
+    by_hand = noise - student.velocity(noise, torch.ones(6), torch.zeros(6), context)
+    assert torch.allclose(sample_actions(student, observation, noise, SNAPFLOW_1), by_hand)
+    naive_by_hand = noise - student.velocity(noise, torch.ones(6), torch.ones(6), context)
+    assert torch.allclose(sample_actions(student, observation, noise, NAIVE_1), naive_by_hand)
