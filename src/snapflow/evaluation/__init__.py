@@ -1,0 +1,5 @@
+"""Evaluation metrics."""
+
+from snapflow.evaluation.distances import energy_distance
+
+__all__ = ["energy_distance"]

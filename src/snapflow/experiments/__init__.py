@@ -1,0 +1,1 @@
+"""End-to-end experiments that the CLI runs."""

@@ -1,0 +1,1 @@
+"""Built-in policies, one folder each with its configuration and modeling."""
