@@ -1,0 +1,160 @@
+"""Demonstrations on disk: ``demonstrations.npz`` (arrays) + ``meta.json`` (schema, episodes, statistics).
+
+``demonstrations.npz``:
+    states         float32 (N, state_dim)     observation state at each step
+    actions        float32 (N, action_dim)    action taken at that step
+    episode_index  int64   (N,)               which episode each step belongs to (episodes are contiguous)
+    images         uint8   (N, H, W, 3)       optional camera frames
+``meta.json``: ``format``, ``version``, ``state_dim``, ``action_dim``, ``episodes`` (task, variation, start,
+length), ``instructions`` (task -> text) and ``stats`` (mean / std of states and actions).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from snapflow.io import atomic_write, write_json
+
+FORMAT = "snapflow-demonstrations"
+VERSION = 1
+ARRAYS_FILE = "demonstrations.npz"
+META_FILE = "meta.json"
+
+
+@dataclass(frozen=True)
+class Episode:
+    task: str
+    variation: int
+    start: int
+    length: int
+
+
+@dataclass(frozen=True)
+class NormalizationStats:
+    """Per-dimension mean and std; std is floored so constant dimensions (unused object slots) stay finite."""
+
+    state_mean: list[float]
+    state_std: list[float]
+    action_mean: list[float]
+    action_std: list[float]
+
+    @classmethod
+    def from_arrays(cls, states: np.ndarray, actions: np.ndarray, min_std: float = 1e-2) -> NormalizationStats:
+        return cls(
+            states.mean(0).tolist(), np.maximum(states.std(0), min_std).tolist(),
+            actions.mean(0).tolist(), np.maximum(actions.std(0), min_std).tolist(),
+        )
+
+
+class DemonstrationError(ValueError):
+    """A demonstration set that cannot be used, with the reason."""
+
+
+@dataclass
+class Demonstrations:
+    states: np.ndarray
+    actions: np.ndarray
+    episode_index: np.ndarray
+    episodes: list[Episode]
+    instructions: dict[str, str]
+    images: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    @property
+    def tasks(self) -> list[str]:
+        return list(dict.fromkeys(episode.task for episode in self.episodes))
+
+    def validate(self) -> None:
+        """Reject what would silently corrupt training: bad shapes, dtypes, non-finite values, empty episodes."""
+        if self.states.ndim != 2 or self.actions.ndim != 2 or len(self.states) != len(self.actions):
+            raise DemonstrationError(f"states {self.states.shape} and actions {self.actions.shape} must be (N, dim) with one N")
+        for name in ("states", "actions"):
+            array = getattr(self, name)
+            if not np.issubdtype(array.dtype, np.floating):
+                raise DemonstrationError(f"{name} must be floating point, got {array.dtype}")
+            if not np.isfinite(array).all():
+                bad = np.argwhere(~np.isfinite(array))[0]
+                raise DemonstrationError(f"{name} contains NaN or inf (first at step {bad[0]}, dimension {bad[1]})")
+        if not self.episodes:
+            raise DemonstrationError("no episodes")
+        position = 0
+        for number, episode in enumerate(self.episodes):
+            if episode.length < 1:
+                raise DemonstrationError(f"episode {number} ({episode.task}) is empty")
+            if episode.start != position:
+                raise DemonstrationError(f"episode {number} starts at {episode.start}, expected {position}")
+            if episode.task not in self.instructions:
+                raise DemonstrationError(f"episode {number}: task {episode.task!r} has no instruction")
+            position += episode.length
+        if position != len(self.states) or len(self.episode_index) != position:
+            raise DemonstrationError(f"episodes cover {position} steps but the arrays hold {len(self.states)}")
+        if self.images is not None and (self.images.shape[0] != position or self.images.dtype != np.uint8):
+            raise DemonstrationError(f"images must be uint8 (N, H, W, 3) with N = {position}, got {self.images.dtype} {self.images.shape}")
+
+    def stats(self, episodes: list[int] | None = None) -> NormalizationStats:
+        rows = self.rows(episodes) if episodes is not None else slice(None)
+        return NormalizationStats.from_arrays(self.states[rows], self.actions[rows])
+
+    def rows(self, episodes: list[int]) -> np.ndarray:
+        return np.concatenate([np.arange(self.episodes[e].start, self.episodes[e].start + self.episodes[e].length) for e in episodes])
+
+    def split(self, val_fraction: float) -> tuple[list[int], list[int]]:
+        """Hold out the last ``val_fraction`` of each task's episodes (at least one when a task has two)."""
+        train, val = [], []
+        for task in self.tasks:
+            ids = [i for i, episode in enumerate(self.episodes) if episode.task == task]
+            held_out = min(max(round(val_fraction * len(ids)), 1 if val_fraction > 0 and len(ids) > 1 else 0), len(ids) - 1)
+            train += ids[: len(ids) - held_out]
+            val += ids[len(ids) - held_out :]
+        return train, val
+
+    def save(self, directory: str | Path) -> Path:
+        directory = Path(directory)
+        arrays = {"states": self.states, "actions": self.actions, "episode_index": self.episode_index}
+        if self.images is not None:
+            arrays["images"] = self.images
+        atomic_write(directory / ARRAYS_FILE, lambda path: np.savez_compressed(open(path, "wb"), **arrays))
+        write_json(directory / META_FILE, {
+            "format": FORMAT, "version": VERSION,
+            "state_dim": int(self.states.shape[1]), "action_dim": int(self.actions.shape[1]),
+            "num_steps": int(len(self.states)), "has_images": self.images is not None,
+            "instructions": self.instructions, "episodes": [asdict(e) for e in self.episodes],
+            "stats": asdict(self.stats()),
+        })
+        return directory
+
+    @classmethod
+    def load(cls, directory: str | Path) -> Demonstrations:
+        directory = Path(directory)
+        meta_path, arrays_path = directory / META_FILE, directory / ARRAYS_FILE
+        for path in (meta_path, arrays_path):
+            if not path.is_file():
+                raise DemonstrationError(f"{path} not found; run `snapflow collect --output {directory}` first")
+        try:
+            meta = json.loads(meta_path.read_text())
+        except json.JSONDecodeError as error:
+            raise DemonstrationError(f"{meta_path} is not valid JSON: {error}") from None
+        if meta.get("format") != FORMAT or meta.get("version") != VERSION:
+            raise DemonstrationError(f"{meta_path}: expected format {FORMAT!r} version {VERSION}, got {meta.get('format')!r} {meta.get('version')!r}")
+        missing = [key for key in ("episodes", "instructions") if key not in meta]
+        if missing:
+            raise DemonstrationError(f"{meta_path} lacks {missing}")
+        try:
+            with np.load(arrays_path, allow_pickle=False) as arrays:
+                loaded = {key: arrays[key] for key in arrays.files}
+        except (OSError, ValueError) as error:
+            raise DemonstrationError(f"{arrays_path} cannot be read: {error}") from None
+        missing = [key for key in ("states", "actions", "episode_index") if key not in loaded]
+        if missing:
+            raise DemonstrationError(f"{arrays_path} lacks arrays {missing}")
+        episodes = [Episode(**episode) for episode in meta["episodes"]]
+        return cls(loaded["states"], loaded["actions"], loaded["episode_index"], episodes, meta["instructions"], loaded.get("images"))
+
+
+__all__ = ["Demonstrations", "DemonstrationError", "Episode", "NormalizationStats", "FORMAT", "VERSION"]

@@ -1,0 +1,1 @@
+"""Simulated benchmarks. Import the submodule you need (``snapflow.envs.metaworld``); each pulls in its simulator."""
