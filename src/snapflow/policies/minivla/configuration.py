@@ -1,0 +1,56 @@
+"""Configuration of MiniVLA, the built-in compact vision-language-action policy."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+
+
+@dataclass(frozen=True)
+class MiniVLAConfig:
+    """Sizes of the prefix encoder (instruction, state, optional image) and of the action expert.
+
+    Both share ``num_heads`` x ``head_dim`` attention so that each expert layer can attend to the
+    keys and values its prefix layer cached, as pi0's action expert attends to the VLM's.
+    """
+
+    state_dim: int = 39
+    action_dim: int = 4
+    chunk_length: int = 8
+    vocab_size: int = 512
+    max_instruction_tokens: int = 12
+    use_image: bool = False
+    image_size: int = 64
+    patch_size: int = 16
+    prefix_width: int = 192
+    expert_width: int = 128
+    num_layers: int = 3
+    num_heads: int = 4
+    head_dim: int = 32
+    mlp_ratio: int = 4
+
+    def __post_init__(self) -> None:
+        for field in fields(self):
+            value = getattr(self, field.name)
+            if field.type == "int" and value < 1:
+                raise ValueError(f"MiniVLAConfig.{field.name} must be at least 1, got {value}")
+        if self.use_image and self.image_size % self.patch_size:
+            raise ValueError(f"MiniVLAConfig.image_size ({self.image_size}) must be a multiple of patch_size ({self.patch_size})")
+
+    @property
+    def num_patches(self) -> int:
+        return (self.image_size // self.patch_size) ** 2 if self.use_image else 0
+
+    @property
+    def prefix_length(self) -> int:
+        return self.max_instruction_tokens + 1 + self.num_patches
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> MiniVLAConfig:
+        known = {field.name for field in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"unknown MiniVLAConfig field(s) {unknown}")
+        return cls(**data)
