@@ -1,0 +1,1 @@
+"""Training teachers and SnapFlow students: data, loop, checkpoints."""

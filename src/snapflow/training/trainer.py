@@ -1,0 +1,182 @@
+"""Training loop for teachers (flow matching) and students (SnapFlow), on Hugging Face Accelerate.
+
+Everything random in step k (batch indices, noise, FM times) comes from a generator seeded by
+(seed, process, k), and the learning rate is a function of k, so ``resume`` continues the same loss curve.
+Under ``accelerate launch`` each process draws its own batches and Accelerate averages the gradients.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from accelerate import Accelerator
+from torch import Tensor, nn
+from tqdm.auto import tqdm
+
+from snapflow.io import write_json
+from snapflow.nn.snapflow_policy import SnapFlowPolicy
+from snapflow.objective.snapflow import SnapFlowObjective
+from snapflow.training.checkpoint import (
+    LATEST,
+    CheckpointError,
+    mark_latest,
+    restore_training,
+    save_checkpoint,
+)
+from snapflow.training.data import ChunkData
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    steps: int = 3000
+    batch_size: int = 64
+    learning_rate: float = 3e-4
+    warmup_steps: int = 100
+    min_learning_rate_ratio: float = 0.1
+    weight_decay: float = 0.0
+    grad_clip: float = 1.0
+    seed: int = 0
+    log_every: int = 50
+    validate_every: int = 500
+    checkpoint_every: int = 500
+    keep_checkpoints: int = 2
+    mixed_precision: str = "no"
+
+    def __post_init__(self) -> None:
+        for name in ("steps", "batch_size", "log_every", "validate_every", "checkpoint_every", "keep_checkpoints"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"TrainConfig.{name} must be at least 1, got {getattr(self, name)}")
+        if self.learning_rate <= 0:
+            raise ValueError(f"TrainConfig.learning_rate must be positive, got {self.learning_rate}")
+
+    def learning_rate_at(self, step: int) -> float:
+        """Linear warm-up, then cosine decay to ``min_learning_rate_ratio`` of the peak."""
+        if step < self.warmup_steps:
+            return self.learning_rate * (step + 1) / self.warmup_steps
+        progress = (step - self.warmup_steps) / max(self.steps - self.warmup_steps, 1)
+        floor = self.min_learning_rate_ratio
+        return self.learning_rate * (floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * min(progress, 1.0))))
+
+
+class ObjectiveModule(nn.Module):
+    """Policy + objective behind one ``forward``, so data-parallel wrappers see every pass."""
+
+    def __init__(self, policy: SnapFlowPolicy, objective: SnapFlowObjective) -> None:
+        super().__init__()
+        self.policy = policy
+        self.objective = objective
+
+    def forward(self, observation: dict[str, Tensor], actions: Tensor, noise: Tensor, time: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        output = self.objective(self.policy, observation, actions, noise=noise, time=time)
+        return output.loss, output.flow_matching_loss, output.consistency_loss
+
+
+def _step_generator(seed: int, process: int, step: int) -> torch.Generator:
+    return torch.Generator().manual_seed(seed * 1_000_003 + process * 7_919 + step)
+
+
+def _draw(objective: SnapFlowObjective, data: ChunkData, batch_size: int, generator: torch.Generator):
+    indices = torch.randint(len(data), (batch_size,), generator=generator)
+    observation, actions = data.batch(indices)
+    noise = torch.randn(actions.shape, generator=generator)
+    time = objective.time_sampler(objective.num_flow_matching(batch_size), generator=generator)
+    return observation, actions, noise, time
+
+
+def _to(device: torch.device, observation: dict[str, Tensor], *tensors: Tensor):
+    return {k: v.to(device) for k, v in observation.items()}, *(t.to(device) for t in tensors)
+
+
+@torch.no_grad()
+def validation_loss(module: ObjectiveModule, data: ChunkData, batch_size: int, device: torch.device, batches: int = 8) -> dict[str, float]:
+    """Objective on held-out chunks with fixed draws, so values are comparable across steps and runs."""
+    generator = torch.Generator().manual_seed(12345)
+    totals = torch.zeros(3)
+    for _ in range(batches):
+        observation, actions, noise, time = _to(device, *_draw(module.objective, data, batch_size, generator))
+        totals += torch.stack([value.float().cpu() for value in module(observation, actions, noise, time)])
+    loss, fm, sc = (totals / batches).tolist()
+    return {"loss": loss, "flow_matching": fm, "consistency": sc}
+
+
+def train(
+    policy: SnapFlowPolicy, objective: SnapFlowObjective, train_data: ChunkData, val_data: ChunkData | None,
+    config: TrainConfig, run_directory: str | Path, metadata: dict[str, Any], resume: bool = False,
+    trainable: list[nn.Parameter] | None = None, progress: bool = True,
+) -> dict[str, Any]:
+    """Optimise ``objective`` on ``policy``; checkpoints under ``run_directory/checkpoints``.
+
+    ``trainable`` restricts the optimised parameters (e.g. the action expert and phi_s); default: all.
+    ``metadata`` is the policy description saved beside the weights (see ``policy_metadata``).
+    Returns the trainer state (history of losses and validation).
+    """
+    run_directory = Path(run_directory)
+    accelerator = Accelerator(mixed_precision=config.mixed_precision)
+    parameters = trainable if trainable is not None else [p for p in policy.parameters()]
+    trainable_ids = {id(p) for p in parameters}
+    for parameter in policy.parameters():
+        parameter.requires_grad_(id(parameter) in trainable_ids)
+    optimizer = torch.optim.AdamW(parameters, lr=config.learning_rate, weight_decay=config.weight_decay)
+
+    state: dict[str, Any] = {"step": 0, "history": [], "validation": [], "train_config": asdict(config), "wall_time_s": 0.0}
+    if resume and (run_directory / LATEST).is_file():
+        state = restore_training(run_directory, policy, optimizer)
+        if state["train_config"] != asdict(config):
+            changed = sorted(k for k in asdict(config) if state["train_config"].get(k) != asdict(config)[k])
+            raise CheckpointError(f"cannot resume {run_directory}: training settings differ from the checkpoint's in {changed}")
+        accelerator.print(f"resuming {run_directory} at step {state['step']}")
+    elif resume:
+        accelerator.print(f"nothing to resume in {run_directory}; starting at step 0")
+    elif (run_directory / LATEST).is_file():
+        raise FileExistsError(f"{run_directory} already holds a run; pass --resume to continue it or choose another --output")
+
+    module = ObjectiveModule(policy, objective)
+    module, optimizer = accelerator.prepare(module, optimizer)
+    device = accelerator.device
+    started = time.perf_counter() - state["wall_time_s"]
+
+    def checkpoint_now(step: int) -> None:
+        if accelerator.is_main_process:
+            state.update(step=step, wall_time_s=time.perf_counter() - started)
+            path = save_checkpoint(run_directory / "checkpoints" / f"step_{step:07d}", accelerator.unwrap_model(module).policy,
+                                   metadata, optimizer.optimizer, state)
+            mark_latest(run_directory, path, config.keep_checkpoints)
+        accelerator.wait_for_everyone()
+
+    bar = tqdm(range(state["step"], config.steps), initial=state["step"], total=config.steps, desc=metadata.get("stage", "training"),
+               disable=not progress or not accelerator.is_main_process, dynamic_ncols=True)
+    running = []
+    for step in bar:
+        for group in optimizer.param_groups:
+            group["lr"] = config.learning_rate_at(step)
+        generator = _step_generator(config.seed, accelerator.process_index, step)
+        observation, actions, noise, time_ = _to(device, *_draw(objective, train_data, config.batch_size, generator))
+        module.train()
+        loss, fm, sc = module(observation, actions, noise, time_)
+        optimizer.zero_grad(set_to_none=True)
+        accelerator.backward(loss)
+        if config.grad_clip:
+            accelerator.clip_grad_norm_(parameters, config.grad_clip)
+        optimizer.step()
+        running.append([loss.item(), fm.item(), sc.item()])
+        done = step + 1
+        if done % config.log_every == 0 or done == config.steps:
+            mean = torch.tensor(running).mean(0).tolist()
+            state["history"].append({"step": done, "loss": mean[0], "flow_matching": mean[1], "consistency": mean[2], "lr": config.learning_rate_at(step)})
+            bar.set_postfix(loss=f"{mean[0]:.4f}", refresh=False)
+            running = []
+        if val_data is not None and (done % config.validate_every == 0 or done == config.steps):
+            module.eval()
+            state["validation"].append({"step": done, **validation_loss(accelerator.unwrap_model(module), val_data, config.batch_size, device)})
+            bar.set_postfix(loss=f"{state['history'][-1]['loss']:.4f}" if state["history"] else "", val=f"{state['validation'][-1]['loss']:.4f}", refresh=False)
+        if done % config.checkpoint_every == 0 or done == config.steps:
+            checkpoint_now(done)
+    bar.close()
+    if accelerator.is_main_process:
+        write_json(run_directory / "history.json", state)
+    return state

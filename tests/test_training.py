@@ -1,0 +1,116 @@
+"""Training, checkpoints and the whole Meta-World pipeline on one task, on real files."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+from safetensors.torch import load_file
+
+from snapflow.cli import main
+from snapflow.data.collect import collect_demonstrations
+from snapflow.experiments.metaworld import DistillSettings, distill, train_teacher
+from snapflow.policies.minivla import MiniVLAConfig
+from snapflow.training.checkpoint import CheckpointError, load_policy
+from snapflow.training.trainer import TrainConfig
+
+TINY = MiniVLAConfig(chunk_length=4, prefix_width=32, expert_width=32, num_layers=1, num_heads=2, head_dim=16)
+TASK = "drawer-close-v3"
+
+
+@pytest.fixture(scope="module")
+def demonstrations(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("demos")
+    collect_demonstrations([TASK], 4, progress=False).save(directory)
+    return directory
+
+
+def _config(steps: int, **changes) -> TrainConfig:
+    return TrainConfig(steps=steps, batch_size=8, warmup_steps=2, log_every=1, validate_every=3, checkpoint_every=3, **changes)
+
+
+def test_resume_continues_exactly_where_training_stopped(demonstrations, tmp_path):
+    straight = train_teacher(demonstrations, tmp_path / "straight", TINY, _config(6), progress=False)
+    # the same run, stopped after its step-3 checkpoint and resumed
+    interrupted = tmp_path / "interrupted"
+    train_teacher(demonstrations, interrupted, TINY, _config(6), progress=False)
+    (interrupted / "latest.json").write_text(json.dumps({"checkpoint": "checkpoints/step_0000003"}))
+    for name in ("history.json",):
+        (interrupted / name).unlink()
+    import shutil
+
+    shutil.rmtree(interrupted / "checkpoints" / "step_0000006")
+    resumed = train_teacher(demonstrations, interrupted, TINY, _config(6), resume=True, progress=False)
+    assert resumed["step"] == 6
+    assert [h["loss"] for h in resumed["history"]] == [h["loss"] for h in straight["history"]]
+    a = load_file(tmp_path / "straight" / "checkpoints" / "step_0000006" / "policy.safetensors")
+    b = load_file(interrupted / "checkpoints" / "step_0000006" / "policy.safetensors")
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_resume_refuses_changed_settings_and_fresh_runs_refuse_to_overwrite(demonstrations, tmp_path):
+    train_teacher(demonstrations, tmp_path / "run", TINY, _config(3), progress=False)
+    with pytest.raises(CheckpointError, match="learning_rate"):
+        train_teacher(demonstrations, tmp_path / "run", TINY, _config(3, learning_rate=1e-2), resume=True, progress=False)
+    with pytest.raises(FileExistsError, match="--resume"):
+        train_teacher(demonstrations, tmp_path / "run", TINY, _config(3), progress=False)
+
+
+def test_corrupt_and_mismatched_checkpoints_give_clear_errors(demonstrations, tmp_path, capsys):
+    train_teacher(demonstrations, tmp_path / "run", TINY, _config(3), progress=False)
+    checkpoint = tmp_path / "run" / "checkpoints" / "step_0000003"
+    weights = checkpoint / "policy.safetensors"
+    original = weights.read_bytes()
+
+    weights.write_bytes(original[: len(original) // 2])
+    with pytest.raises(CheckpointError, match="corrupt or not a safetensors file"):
+        load_policy(tmp_path / "run")
+    assert main(["eval", "--policy", str(tmp_path / "run"), "--tasks", TASK, "--episodes", "1", "--no-progress"]) == 2
+    assert "corrupt" in capsys.readouterr().err
+
+    weights.write_bytes(original)
+    metadata = json.loads((checkpoint / "policy.json").read_text())
+    metadata["config"]["expert_width"] = 64
+    (checkpoint / "policy.json").write_text(json.dumps(metadata))
+    with pytest.raises(CheckpointError, match="shape mismatch"):
+        load_policy(checkpoint)
+    metadata["config"]["expert_widht"] = 64
+    (checkpoint / "policy.json").write_text(json.dumps(metadata))
+    with pytest.raises(CheckpointError, match="expert_widht"):
+        load_policy(checkpoint)
+    with pytest.raises(CheckpointError, match="does not exist"):
+        load_policy(tmp_path / "nowhere")
+
+
+def test_collect_train_distill_eval_on_one_task(demonstrations, tmp_path, capsys):
+    teacher = tmp_path / "teacher"
+    train_teacher(demonstrations, teacher, TINY, _config(6), progress=False)
+    student = tmp_path / "student"
+    state = distill(teacher, demonstrations, student, _config(3), DistillSettings(), progress=False)
+    assert state["step"] == 3 and state["validation"][-1]["consistency"] > 0
+    # the student starts as the teacher: the frozen prefix is unchanged, phi_s is new
+    teacher_weights = load_file(teacher / "checkpoints" / "step_0000006" / "policy.safetensors")
+    student_weights = load_file(student / "checkpoints" / "step_0000003" / "policy.safetensors")
+    assert torch.equal(teacher_weights["model.prefix_layers.0.attention.qkv.weight"], student_weights["model.prefix_layers.0.attention.qkv.weight"])
+    assert "target_time_embedding.linear_out.weight" in student_weights
+    assert not torch.equal(teacher_weights["model.velocity_head.weight"], student_weights["model.velocity_head.weight"])
+
+    output = tmp_path / "eval"
+    code = main(["eval", "--policy", str(student), "--modes", "snapflow-1,teacher-2", "--tasks", TASK, "--episodes", "1",
+                 "--n-act", "4", "--data", str(demonstrations), "--output-dir", str(output), "--no-progress"])
+    assert code == 0
+    report = json.loads((output / "report.json").read_text())
+    for label in ("snapflow-1", "teacher-2"):
+        row = report["rows"][label]
+        assert row["success"][TASK]["episodes"] == 1 and row["offline"]["samples"] > 0
+        assert -1 <= row["offline"]["cosine"] <= 1 and row["offline"]["mse_p95"] >= row["offline"]["mse_median"]
+    assert report["latency"]["teacher-2"]["nfe"] == 2
+    assert (output / "success.png").is_file() and (output / "latency.png").is_file()
+    assert "Closed-loop success" in (output / "report.md").read_text()
+    assert "snapflow-1" in capsys.readouterr().out
+
+
+def test_unknown_task_is_a_clear_cli_error(capsys):
+    assert main(["collect", "--tasks", "reach-v3,teleport-v3", "--episodes", "1", "--output", "unused", "--no-progress"]) == 2
+    assert "unknown Meta-World task(s) ['teleport-v3']" in capsys.readouterr().err
