@@ -5,10 +5,17 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from snapflow.experiments.toy import ToyConfig
 from snapflow.io import write_json
+
+
+def _tasks(value: str) -> list[str]:
+    from snapflow.envs.metaworld import MT10_TASKS, check_tasks
+
+    return list(MT10_TASKS) if value == "all" else check_tasks([task.strip() for task in value.split(",") if task.strip()])
 
 
 def _toy(args: argparse.Namespace) -> int:
@@ -36,17 +43,125 @@ def _toy(args: argparse.Namespace) -> int:
     return 0
 
 
+def _collect(args: argparse.Namespace) -> int:
+    from snapflow.experiments.metaworld import collect
+
+    demonstrations = collect(_tasks(args.tasks), args.episodes, args.output, args.image_size, not args.no_progress)
+    print(f"wrote {len(demonstrations.episodes)} successful expert episodes ({len(demonstrations.states)} steps) to {args.output}")
+    return 0
+
+
+def _train_config(args: argparse.Namespace, base):
+    overrides = {name: getattr(args, name) for name in ("steps", "batch_size", "learning_rate", "seed") if getattr(args, name) is not None}
+    return replace(base, **overrides)
+
+
+def _train(args: argparse.Namespace) -> int:
+    from snapflow.experiments.metaworld import PRESETS, train_teacher
+
+    preset = PRESETS["fast"]
+    policy = replace(preset.policy, chunk_length=args.chunk_length or preset.policy.chunk_length)
+    state = train_teacher(args.data, args.output, policy, _train_config(args, preset.teacher), args.val_fraction, args.resume, not args.no_progress)
+    print(f"teacher trained to step {state['step']} in {state['wall_time_s']:.0f} s; checkpoints in {args.output}")
+    return 0
+
+
+def _distill(args: argparse.Namespace) -> int:
+    from snapflow.experiments.metaworld import PRESETS, DistillSettings, distill
+
+    settings = DistillSettings(args.alpha, args.consistency_weight, args.clamp, not args.train_prefix)
+    state = distill(args.teacher, args.data, args.output, _train_config(args, PRESETS["fast"].student), settings, resume=args.resume, progress=not args.no_progress)
+    print(f"SnapFlow student trained to step {state['step']} in {state['wall_time_s']:.0f} s; checkpoints in {args.output}")
+    return 0
+
+
+def _eval(args: argparse.Namespace) -> int:
+    from snapflow.evaluation.report import markdown_report, write_report
+    from snapflow.experiments.metaworld import evaluate
+    from snapflow.flow.solver import SamplingMode
+    from snapflow.training.checkpoint import load_policy
+
+    modes = [SamplingMode.parse(name) for name in args.modes.split(",")]
+    loaded = {path: load_policy(path) for path in args.policy}
+    runs = [(f"{mode.name}" if len(loaded) == 1 else f"{Path(path).name} {mode.name}", policy, mode) for path, policy in loaded.items() for mode in modes]
+    report = evaluate(runs, _tasks(args.tasks), args.episodes, args.n_act, args.data, seed=args.seed, progress=not args.no_progress)
+    write_report(report, args.output_dir)
+    print(markdown_report(report))
+    print(f"wrote report.json, report.md and PNG plots to {args.output_dir}")
+    return 0
+
+
+def _demo(args: argparse.Namespace) -> int:
+    from snapflow.evaluation.report import markdown_report
+    from snapflow.experiments.metaworld import PRESETS, run_demo
+
+    report = run_demo(PRESETS["full" if args.full else "fast"], args.output_dir, not args.no_progress, args.resume)
+    print(markdown_report(report))
+    print(f"wrote report.json, report.md and PNG plots to {args.output_dir}")
+    return 0
+
+
+def _add_training_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--data", required=True, help="demonstrations directory written by `snapflow collect`")
+    parser.add_argument("--output", required=True, help="run directory for checkpoints")
+    parser.add_argument("--steps", type=int)
+    parser.add_argument("--batch-size", type=int)
+    parser.add_argument("--learning-rate", type=float)
+    parser.add_argument("--seed", type=int)
+    parser.add_argument("--resume", action="store_true", help="continue from the run's latest checkpoint")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="snapflow", description=__doc__.split("\n")[0] if __doc__ else None)
+    parser = argparse.ArgumentParser(prog="snapflow", description="One-step action generation for flow-matching policies.")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--no-progress", action="store_true", help="hide progress bars")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    toy = commands.add_parser("toy", help="distill a 2-D conditional mixture and compare 10-step, naive 1-step, SnapFlow 1-step")
+    toy = commands.add_parser("toy", parents=[common], help="distill a 2-D conditional mixture and compare 10-step, naive 1-step, SnapFlow 1-step")
     toy.add_argument("--seed", type=int, default=ToyConfig.seed)
     toy.add_argument("--teacher-steps", type=int, default=ToyConfig.teacher_steps, help="flow-matching training steps")
     toy.add_argument("--distill-steps", type=int, default=ToyConfig.distill_steps, help="SnapFlow distillation steps")
     toy.add_argument("--output-dir", default="outputs/toy", help="where the PNG and JSON go")
-    toy.add_argument("--no-progress", action="store_true", help="hide progress bars")
     toy.set_defaults(run=_toy)
+
+    collect = commands.add_parser("collect", parents=[common], help="Meta-World expert demonstrations (successful episodes only)")
+    collect.add_argument("--tasks", default="all", help="'all' (MT10) or comma-separated task names")
+    collect.add_argument("--episodes", type=int, default=30, help="successful episodes per task")
+    collect.add_argument("--image-size", type=int, help="also store camera images of this size (needs MUJOCO_GL=osmesa or egl)")
+    collect.add_argument("--output", required=True)
+    collect.set_defaults(run=_collect)
+
+    train = commands.add_parser("train", parents=[common], help="train a MiniVLA flow-matching teacher on demonstrations")
+    _add_training_options(train)
+    train.add_argument("--chunk-length", type=int)
+    train.add_argument("--val-fraction", type=float, default=0.1, help="share of each task's episodes held out")
+    train.set_defaults(run=_train)
+
+    distill = commands.add_parser("distill", parents=[common], help="SnapFlow-distill a teacher into a 1-NFE student")
+    _add_training_options(distill)
+    distill.add_argument("--teacher", required=True, help="teacher run or checkpoint directory")
+    distill.add_argument("--alpha", type=float, default=0.5, help="flow-matching share of each batch")
+    distill.add_argument("--consistency-weight", "--lambda", type=float, default=0.1, dest="consistency_weight")
+    distill.add_argument("--clamp", type=float, help="bound on the no-grad teacher velocities")
+    distill.add_argument("--train-prefix", action="store_true", help="also train the prefix encoder (frozen by default)")
+    distill.set_defaults(run=_distill)
+
+    evaluate = commands.add_parser("eval", parents=[common], help="closed-loop success, offline metrics and latency on Meta-World")
+    evaluate.add_argument("--policy", required=True, nargs="+", help="run or checkpoint directories")
+    evaluate.add_argument("--modes", default="teacher-10,naive,snapflow-1", help="comma-separated: teacher-N, naive, snapflow-N")
+    evaluate.add_argument("--tasks", default="all")
+    evaluate.add_argument("--episodes", type=int, default=10, help="episodes per task")
+    evaluate.add_argument("--n-act", type=int, default=4, help="actions executed per predicted chunk")
+    evaluate.add_argument("--data", help="demonstrations for offline metrics on the held-out episodes")
+    evaluate.add_argument("--seed", type=int, default=0)
+    evaluate.add_argument("--output-dir", default="outputs/eval")
+    evaluate.set_defaults(run=_eval)
+
+    demo = commands.add_parser("demo", parents=[common], help="MT10: collect -> train -> distill -> eval, one final table")
+    demo.add_argument("--full", action="store_true", help="stronger, longer preset")
+    demo.add_argument("--resume", action="store_true", help="continue an interrupted demo in the same output directory")
+    demo.add_argument("--output-dir", default="outputs/demo")
+    demo.set_defaults(run=_demo)
     return parser
 
 
@@ -54,9 +169,12 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.run(args)
-    except (ValueError, TypeError, FileNotFoundError) as error:
+    except (ValueError, TypeError, FileNotFoundError, FileExistsError) as error:
         print(f"snapflow {args.command}: error: {error}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"snapflow {args.command}: interrupted; the last checkpoint is intact (use --resume)", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

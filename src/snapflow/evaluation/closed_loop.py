@@ -1,0 +1,98 @@
+"""Closed-loop success on Meta-World: all episodes of all tasks run side by side, one batched policy call
+for every environment that needs a new chunk, so inference uses every core while environments step."""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from snapflow.envs.metaworld import MetaWorldEnv, check_tasks, num_variations
+from snapflow.flow.solver import SamplingMode, sample_actions
+from snapflow.nn.snapflow_policy import SnapFlowPolicy
+from snapflow.policies.minivla import MiniVLAProcessor
+
+
+@dataclass(frozen=True)
+class EpisodeResult:
+    task: str
+    variation: int
+    success: bool
+    steps: int
+
+
+class MetaWorldEvaluator:
+    """Holds one environment per (task, episode) on the evaluation split, reused across policies and modes."""
+
+    def __init__(self, tasks: list[str], episodes_per_task: int, image_size: int | None = None) -> None:
+        check_tasks(tasks)
+        available = num_variations("eval")
+        if not 1 <= episodes_per_task <= available:
+            raise ValueError(f"episodes per task must be in [1, {available}] (Meta-World's evaluation variations), got {episodes_per_task}")
+        self.slots = [(task, variation) for task in tasks for variation in range(episodes_per_task)]
+        self.envs = [MetaWorldEnv(task, "eval", image_size) for task, _ in self.slots]
+
+    @torch.no_grad()
+    def run(
+        self, policy: SnapFlowPolicy, processor: MiniVLAProcessor, mode: SamplingMode, n_act: int,
+        seed: int = 0, progress: bool = True,
+    ) -> list[EpisodeResult]:
+        """Roll out every slot to success or the step limit, re-planning a chunk every ``n_act`` actions."""
+        chunk_length = processor.config.chunk_length
+        if not 1 <= n_act <= chunk_length:
+            raise ValueError(f"n_act must be in [1, {chunk_length}] (the policy's chunk length), got {n_act}")
+        policy.eval()
+        generator = torch.Generator().manual_seed(seed)
+        observations = [env.reset(variation) for env, (_, variation) in zip(self.envs, self.slots)]
+        queues: list[deque] = [deque() for _ in self.envs]
+        results: dict[int, EpisodeResult] = {}
+        bar = tqdm(total=len(self.envs), desc=f"closed loop {mode.name}", disable=not progress, leave=False)
+        while len(results) < len(self.envs):
+            replan = [i for i in range(len(self.envs)) if i not in results and not queues[i]]
+            if replan:
+                batch = processor.observation(
+                    np.stack([observations[i].state for i in replan]), [observations[i].instruction for i in replan],
+                    np.stack([observations[i].image for i in replan]) if processor.config.use_image else None,
+                )
+                noise = torch.randn(len(replan), chunk_length, processor.config.action_dim, generator=generator)
+                chunks = processor.unnormalize_actions(sample_actions(policy, batch, noise, mode)).numpy()
+                for row, i in enumerate(replan):
+                    queues[i].extend(chunks[row, :n_act])
+            for i, env in enumerate(self.envs):
+                if i in results:
+                    continue
+                action = queues[i].popleft()
+                # render only where the next step re-plans: the image is needed nowhere else
+                observations[i], success, done = env.step(action, render=not queues[i])
+                if done:
+                    results[i] = EpisodeResult(self.slots[i][0], self.slots[i][1], success, env.steps)
+                    bar.update()
+        bar.close()
+        return [results[i] for i in range(len(self.envs))]
+
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()
+
+
+def success_by_task(results: list[EpisodeResult]) -> dict[str, dict[str, float]]:
+    """Per task: successes, episodes and rate; plus ``mean`` over tasks."""
+    table: dict[str, dict[str, float]] = {}
+    for result in results:
+        entry = table.setdefault(result.task, {"successes": 0, "episodes": 0})
+        entry["successes"] += int(result.success)
+        entry["episodes"] += 1
+    for entry in table.values():
+        entry["success_rate"] = entry["successes"] / entry["episodes"]
+    table["mean"] = {
+        "successes": sum(e["successes"] for e in table.values()),
+        "episodes": sum(e["episodes"] for e in table.values()),
+        "success_rate": float(np.mean([e["success_rate"] for e in table.values()])),
+    }
+    return table
+
+
+__all__ = ["EpisodeResult", "MetaWorldEvaluator", "success_by_task"]
