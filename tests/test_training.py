@@ -114,3 +114,30 @@ def test_collect_train_distill_eval_on_one_task(demonstrations, tmp_path, capsys
 def test_unknown_task_is_a_clear_cli_error(capsys):
     assert main(["collect", "--tasks", "reach-v3,teleport-v3", "--episodes", "1", "--output", "unused", "--no-progress"]) == 2
     assert "unknown Meta-World task(s) ['teleport-v3']" in capsys.readouterr().err
+
+
+def test_camera_images_flow_through_collect_train_and_closed_loop(tmp_path):
+    from dataclasses import replace
+
+    from snapflow.data import Demonstrations
+    from snapflow.envs.metaworld import MetaWorldEnv
+
+    env = MetaWorldEnv(TASK, "eval", image_size=32)
+    try:
+        first = env.reset(0)
+        assert first.image.shape == (32, 32, 3) and first.image.dtype == "uint8" and first.image.std() > 0
+        assert env.step(first.state[:4] * 0, render=False)[0].image is None
+    finally:
+        env.close()
+
+    collect_demonstrations([TASK], 2, image_size=32, progress=False).save(tmp_path / "demos")
+    demonstrations = Demonstrations.load(tmp_path / "demos")
+    assert demonstrations.images.shape == (len(demonstrations.states), 32, 32, 3)
+    config = replace(TINY, use_image=True, image_size=32, patch_size=16)
+    train_teacher(tmp_path / "demos", tmp_path / "teacher", config, _config(3), progress=False)
+    loaded = load_policy(tmp_path / "teacher")
+    assert loaded.processor.config.use_image and loaded.processor.config.num_patches == 4
+    code = main(["eval", "--policy", str(tmp_path / "teacher"), "--modes", "naive", "--tasks", TASK, "--episodes", "1",
+                 "--output-dir", str(tmp_path / "eval"), "--no-progress"])
+    assert code == 0
+    assert json.loads((tmp_path / "eval" / "report.json").read_text())["rows"]["naive-1"]["success"][TASK]["episodes"] == 1

@@ -127,7 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
     collect = commands.add_parser("collect", parents=[common], help="Meta-World expert demonstrations (successful episodes only)")
     collect.add_argument("--tasks", default="all", help="'all' (MT10) or comma-separated task names")
     collect.add_argument("--episodes", type=int, default=30, help="successful episodes per task")
-    collect.add_argument("--image-size", type=int, help="also store camera images of this size (needs MUJOCO_GL=osmesa or egl)")
+    collect.add_argument("--image-size", type=int, help="also store camera images of this size (rendered off-screen with MUJOCO_GL=egl or osmesa)")
     collect.add_argument("--output", required=True)
     collect.set_defaults(run=_collect)
 

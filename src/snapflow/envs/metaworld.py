@@ -1,6 +1,7 @@
 """Meta-World MT10 as a language-conditioned benchmark, with its own scripted experts for demonstrations.
 
-Observation = Meta-World's 39-d state vector + a natural-language instruction. Success is the
+Observation = Meta-World's 39-d state vector + a natural-language instruction + optionally a camera
+image, rendered off-screen on the CPU (``MUJOCO_GL=egl`` by default, ``osmesa`` also works). Success is the
 environment's own ``info["success"]``; an episode stops at success or at the benchmark's 500-step limit.
 Task variations (object and goal positions) come from Meta-World's own sampler: training demonstrations
 use the variations of ``MT10(seed=TRAIN_SEED)``, evaluation those of ``MT10(seed=EVAL_SEED)``, which no
@@ -16,6 +17,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+# MuJoCo picks its off-screen GL backend when first imported; EGL (Mesa) renders on a CPU-only machine.
+os.environ.setdefault("MUJOCO_GL", "egl")
 
 MT10_INSTRUCTIONS: dict[str, str] = {
     "reach-v3": "reach the goal position with the gripper",
@@ -98,7 +102,6 @@ class MetaWorldEnv:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             if image_size:
-                os.environ.setdefault("MUJOCO_GL", "osmesa")
                 self._env = benchmark.train_classes[task](
                     render_mode="rgb_array", camera_name="corner", width=image_size, height=image_size
                 )

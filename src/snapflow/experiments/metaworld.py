@@ -117,7 +117,9 @@ def evaluate(
 ) -> dict[str, Any]:
     """Closed-loop success, offline metrics (when ``data`` is given) and batch-1 latency for each
     (label, policy, mode); latency speedups are relative to the first entry."""
-    evaluator = MetaWorldEvaluator(tasks, episodes_per_task, runs[0][1].processor.config.image_size if runs[0][1].processor.config.use_image else None)
+    first = runs[0][1].processor.config
+    evaluator = MetaWorldEvaluator(tasks, episodes_per_task, first.image_size if first.use_image else None)
+    demonstrations = Demonstrations.load(data) if data is not None else None
     report: dict[str, Any] = {"tasks": tasks, "episodes_per_task": episodes_per_task, "n_act": n_act, "rows": {}}
     try:
         for label, loaded, mode in runs:
@@ -125,11 +127,11 @@ def evaluate(
             episodes = evaluator.run(loaded.policy, loaded.processor, mode, n_act, seed, progress)
             row: dict[str, Any] = {"policy": str(loaded.path), "mode": mode.name, "nfe": mode.num_steps,
                                    "success": success_by_task(episodes), "closed_loop_s": time.perf_counter() - started}
-            if data is not None:
-                demonstrations = Demonstrations.load(data)
+            if demonstrations is not None:
                 _, val_episodes = demonstrations.split(loaded.metadata.get("data", {}).get("val_fraction", 0.1))
                 if val_episodes:
-                    row["offline"] = offline_metrics(loaded.policy, ChunkData(demonstrations, val_episodes, loaded.processor), mode, offline_samples, seed)
+                    held_out = ChunkData(demonstrations, val_episodes, loaded.processor)
+                    row["offline"] = offline_metrics(loaded.policy, held_out, mode, offline_samples, seed)
             report["rows"][label] = row
     finally:
         evaluator.close()
