@@ -11,6 +11,16 @@ import torch
 from snapflow.io import atomic_write, write_json
 
 
+def pyplot():
+    """matplotlib.pyplot on the file-only Agg backend (no display needed)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
 def machine_description() -> str:
     if torch.cuda.is_available():
         return torch.cuda.get_device_name(0)
@@ -61,11 +71,7 @@ def markdown_report(report: dict[str, Any]) -> str:
 
 
 def plot_success(report: dict[str, Any], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     tasks = [*report["tasks"], "mean"]
     labels = list(report["rows"])
     width = 0.8 / len(labels)
@@ -85,11 +91,7 @@ def plot_success(report: dict[str, Any], path: Path) -> None:
 
 
 def plot_latency(report: dict[str, Any], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     labels = list(report["latency"])
     prefix = [report["latency"][label]["prefix"]["median_ms"] for label in labels]
     denoise = [report["latency"][label]["denoising"]["median_ms"] for label in labels]

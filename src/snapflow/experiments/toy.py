@@ -19,6 +19,7 @@ from tqdm.auto import tqdm
 from snapflow.evaluation.distances import energy_distance
 from snapflow.flow.solver import NAIVE_1, SNAPFLOW_1, TEACHER_10, SamplingMode, sample_actions
 from snapflow.flow.time_sampling import UniformTimeSampler
+from snapflow.evaluation.report import pyplot
 from snapflow.io import atomic_write
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
 from snapflow.objective.snapflow import SnapFlowObjective
@@ -140,11 +141,7 @@ def run_toy_experiment(config: ToyConfig = ToyConfig(), progress: bool = True) -
 
 def plot_toy_result(result: ToyResult, path: Path, num_contexts: int = 3) -> None:
     """PNG grid: one row per evaluation context, the exact data then each sampling mode."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     columns = [("data (exact)", result.data_samples)] + [
         (f"{name}  ED={result.distances[name]:.3f}", samples) for name, samples in result.model_samples.items()
     ]

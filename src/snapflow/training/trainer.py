@@ -117,7 +117,7 @@ def train(
     """
     run_directory = Path(run_directory)
     accelerator = Accelerator(mixed_precision=config.mixed_precision)
-    parameters = trainable if trainable is not None else [p for p in policy.parameters()]
+    parameters = trainable if trainable is not None else list(policy.parameters())
     trainable_ids = {id(p) for p in parameters}
     for parameter in policy.parameters():
         parameter.requires_grad_(id(parameter) in trainable_ids)
