@@ -61,7 +61,7 @@ def _read_json(path: Path) -> dict[str, Any]:
         raise CheckpointError(f"{path} is corrupt (not JSON: {error})") from None
 
 
-def _read_tensors(path: Path) -> dict[str, torch.Tensor]:
+def read_tensors(path: Path) -> dict[str, torch.Tensor]:
     if not path.is_file():
         raise CheckpointError(f"{path} not found")
     try:
@@ -120,7 +120,7 @@ def load_policy(path: str | Path, target_time: bool | None = None) -> LoadedPoli
         raise CheckpointError(f"{directory / POLICY_CONFIG}: invalid field: {error}") from None
     saved_target_time = bool(metadata["target_time"])
     policy = SnapFlowPolicy(MiniVLA(config), target_time=saved_target_time)
-    load_state_strict(policy, _read_tensors(directory / POLICY_WEIGHTS), directory / POLICY_WEIGHTS)
+    load_state_strict(policy, read_tensors(directory / POLICY_WEIGHTS), directory / POLICY_WEIGHTS)
     if target_time and not saved_target_time:
         policy = SnapFlowPolicy(policy.model, target_time=True)
     elif target_time is False and saved_target_time:
@@ -137,7 +137,7 @@ def optimizer_tensors(optimizer: torch.optim.Optimizer) -> tuple[dict[str, torch
 
 
 def restore_optimizer(optimizer: torch.optim.Optimizer, directory: Path) -> None:
-    tensors = _read_tensors(directory / OPTIMIZER_STATE)
+    tensors = read_tensors(directory / OPTIMIZER_STATE)
     meta = _read_json(directory / TRAINER_STATE)["optimizer"]
     state: dict[int, dict[str, Any]] = {}
     for name, value in list(tensors.items()) + list(meta["scalars"].items()):
@@ -152,7 +152,7 @@ def restore_optimizer(optimizer: torch.optim.Optimizer, directory: Path) -> None
 def restore_training(run_directory: Path, policy: nn.Module, optimizer: torch.optim.Optimizer) -> dict[str, Any]:
     """Load the latest checkpoint of a run into ``policy`` and ``optimizer``; return its trainer state."""
     checkpoint = resolve_checkpoint(run_directory)
-    load_state_strict(policy, _read_tensors(checkpoint / POLICY_WEIGHTS), checkpoint / POLICY_WEIGHTS)
+    load_state_strict(policy, read_tensors(checkpoint / POLICY_WEIGHTS), checkpoint / POLICY_WEIGHTS)
     restore_optimizer(optimizer, checkpoint)
     return {key: value for key, value in _read_json(checkpoint / TRAINER_STATE).items() if key != "optimizer"}
 

@@ -1,0 +1,89 @@
+"""A tiny SmolVLA built fully offline: a SmolVLM config, word-level tokenizer and processor written to a
+local folder, then LeRobot's SmolVLAPolicy with load_vlm_weights=False (about 200k parameters)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+IMAGE_SIZE, PATCH_SIZE, SCALE_FACTOR = 64, 16, 2
+IMAGE_TOKENS = {
+    "fake_image_token": "<fake_token_around_image>",
+    "image_token": "<image>",
+    "global_image_token": "<global-img>",
+    "end_of_utterance_token": "<end_of_utterance>",
+}
+OTHER_SPECIAL = ["<|im_start|>", "<|endoftext|>", "<video>"]
+ROW_COL = [f"<row_{i}_col_{j}>" for i in range(1, 5) for j in range(1, 5)]
+WORDS = "pick place push pull open close the a to cube drawer door red green blue goal robot".split()
+
+
+def write_tiny_smolvlm(directory: Path) -> Path:
+    from tokenizers import Tokenizer, normalizers, pre_tokenizers
+    from tokenizers.models import WordLevel
+    from transformers import PreTrainedTokenizerFast, SmolVLMConfig, SmolVLMImageProcessor, SmolVLMProcessor
+    from transformers.models.smolvlm.video_processing_smolvlm import SmolVLMVideoProcessor
+
+    vocabulary: dict[str, int] = {}
+    for token in ["[PAD]", "[UNK]", *OTHER_SPECIAL, *IMAGE_TOKENS.values(), *ROW_COL, *WORDS]:
+        vocabulary.setdefault(token, len(vocabulary))
+    core = Tokenizer(WordLevel(vocab=vocabulary, unk_token="[UNK]"))
+    core.normalizer = normalizers.Lowercase()
+    core.pre_tokenizer = pre_tokenizers.Whitespace()
+    specials = [*OTHER_SPECIAL[2:], *IMAGE_TOKENS.values(), *ROW_COL]
+    tokenizer = PreTrainedTokenizerFast(
+        tokenizer_object=core, pad_token="[PAD]", unk_token="[UNK]", bos_token="<|im_start|>",
+        eos_token="<end_of_utterance>", additional_special_tokens=specials, extra_special_tokens=dict(IMAGE_TOKENS),
+        model_max_length=512, padding_side="right",
+    )
+    size = {"longest_edge": IMAGE_SIZE}
+    SmolVLMProcessor(
+        image_processor=SmolVLMImageProcessor(do_resize=True, size=size, do_image_splitting=False, max_image_size=size, do_pad=True),
+        tokenizer=tokenizer,
+        video_processor=SmolVLMVideoProcessor(size=size, max_image_size=size, do_image_splitting=False),
+        image_seq_len=(IMAGE_SIZE // PATCH_SIZE) ** 2 // SCALE_FACTOR**2,
+    ).save_pretrained(directory)
+    SmolVLMConfig(
+        vision_config=dict(hidden_size=32, intermediate_size=64, num_hidden_layers=1, num_attention_heads=2,
+                           image_size=IMAGE_SIZE, patch_size=PATCH_SIZE),
+        text_config=dict(model_type="llama", hidden_size=64, intermediate_size=128, num_hidden_layers=2,
+                         num_attention_heads=4, num_key_value_heads=2, head_dim=16, vocab_size=len(tokenizer),
+                         max_position_embeddings=256, pad_token_id=tokenizer.pad_token_id, tie_word_embeddings=False),
+        scale_factor=SCALE_FACTOR, image_token_id=tokenizer.convert_tokens_to_ids("<image>"), pad_token_id=tokenizer.pad_token_id,
+    ).save_pretrained(directory)
+    return directory
+
+
+def build_tiny_smolvla(vlm_directory: Path, seed: int = 0):
+    from lerobot.configs.types import FeatureType, PolicyFeature
+    from lerobot.policies.smolvla.configuration_smolvla import SmolVLAConfig
+    from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
+
+    torch.manual_seed(seed)
+    config = SmolVLAConfig(
+        vlm_model_name=str(vlm_directory), load_vlm_weights=False, num_vlm_layers=2, expert_width_multiplier=0.5,
+        resize_imgs_with_padding=(IMAGE_SIZE, IMAGE_SIZE), chunk_size=4, n_action_steps=4, max_state_dim=8,
+        max_action_dim=4, tokenizer_max_length=16, device="cpu", push_to_hub=False,
+        input_features={
+            "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(6,)),
+            "observation.images.top": PolicyFeature(type=FeatureType.VISUAL, shape=(3, IMAGE_SIZE, IMAGE_SIZE)),
+        },
+        output_features={"action": PolicyFeature(type=FeatureType.ACTION, shape=(4,))},
+    )
+    return SmolVLAPolicy(config)
+
+
+def tiny_batch(batch_size: int = 4, seed: int = 0) -> dict[str, torch.Tensor]:
+    """What SmolVLA's pre-processor hands the model: normalised state, images in [0, 1], tokens and mask."""
+    generator = torch.Generator().manual_seed(seed)
+    first_word = 2 + len(OTHER_SPECIAL) + len(IMAGE_TOKENS) + len(ROW_COL)  # after [PAD], [UNK] and the special tokens
+    tokens = torch.randint(first_word, first_word + len(WORDS), (batch_size, 16), generator=generator)
+    mask = torch.arange(16)[None, :] < torch.randint(3, 16, (batch_size, 1), generator=generator)
+    return {
+        "observation.state": torch.randn(batch_size, 6, generator=generator),
+        "observation.images.top": torch.rand(batch_size, 3, IMAGE_SIZE, IMAGE_SIZE, generator=generator),
+        "observation.language.tokens": tokens * mask,
+        "observation.language.attention_mask": mask,
+        "action": torch.randn(batch_size, 4, 4, generator=generator),
+    }

@@ -1,0 +1,139 @@
+"""SnapFlow on LeRobot's SmolVLAPolicy (lerobot 0.4.4), built offline at tiny size."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+import torch
+
+os.environ.setdefault("HF_HUB_OFFLINE", "1")  # nothing may come from a hub: the tiny model is built locally
+os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
+pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test command; this environment lacks it")
+
+from snapflow import NAIVE_1, SNAPFLOW_1, SamplingMode, SnapFlowObjective, sample_actions  # noqa: E402
+from snapflow.adapters.lerobot import SmolVLAFlowPolicy, load_smolvla, save_smolvla  # noqa: E402
+from snapflow.training.checkpoint import CheckpointError  # noqa: E402
+from tests.lerobot_tiny import build_tiny_smolvla, tiny_batch, write_tiny_smolvlm  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def vlm_directory(tmp_path_factory):
+    return write_tiny_smolvlm(tmp_path_factory.mktemp("tiny_smolvlm"))
+
+
+def _lerobot_inputs(policy, batch):
+    images, image_masks = policy.prepare_images(batch)
+    return images, image_masks, batch["observation.language.tokens"], batch["observation.language.attention_mask"], policy.prepare_state(batch)
+
+
+def _lerobot_sample(policy, batch, noise, steps):
+    """LeRobot's own Euler sampler on the (possibly wrapped) policy: s = t throughout."""
+    policy.config.num_steps = steps
+    with torch.no_grad():
+        return policy.model.sample_actions(*_lerobot_inputs(policy, batch), noise=noise)
+
+
+def _randomise_target_time(adapter: SmolVLAFlowPolicy) -> None:
+    with torch.no_grad():
+        for parameter in adapter.target_time_embedding.linear_out.parameters():
+            parameter.normal_(0, 0.2)
+
+
+def test_wrapping_changes_no_output_bit_at_init(vlm_directory):
+    reference = build_tiny_smolvla(vlm_directory)
+    adapter = SmolVLAFlowPolicy(build_tiny_smolvla(vlm_directory))
+    batch, noise = tiny_batch(), torch.randn(4, 4, 4)
+    for steps in (1, 2):
+        expected = _lerobot_sample(reference, batch, noise, steps)
+        assert torch.equal(sample_actions(adapter, batch, noise, SamplingMode(steps, jump=False)), expected)
+    # phi_s starts at zero, so even the jump (s = 0) reproduces LeRobot's one-step sample bit for bit
+    assert torch.equal(sample_actions(adapter, batch, noise, SNAPFLOW_1), _lerobot_sample(reference, batch, noise, 1))
+
+
+def test_target_time_changes_only_the_jump_and_leaves_lerobot_sampling_as_the_teacher(vlm_directory):
+    adapter = SmolVLAFlowPolicy(build_tiny_smolvla(vlm_directory))
+    _randomise_target_time(adapter)
+    batch, noise = tiny_batch(), torch.randn(4, 4, 4)
+    # LeRobot's own sampler passes a (B,) time, read as s = t: it is exactly our teacher mode
+    assert torch.equal(sample_actions(adapter, batch, noise, NAIVE_1), _lerobot_sample(adapter.policy, batch, noise, 1))
+    assert not torch.allclose(sample_actions(adapter, batch, noise, SNAPFLOW_1), sample_actions(adapter, batch, noise, NAIVE_1))
+
+
+def test_loss_equals_a_hand_computation_from_the_policys_own_outputs(vlm_directory):
+    adapter = SmolVLAFlowPolicy(build_tiny_smolvla(vlm_directory))
+    _randomise_target_time(adapter)
+    policy = adapter.policy
+    batch = tiny_batch()
+    actions = policy.prepare_action(batch)
+    noise, time = torch.randn(4, 4, 4), torch.rand(2)
+    output = SnapFlowObjective()(adapter, batch, actions, noise=noise, time=time)
+
+    fm_rows = {key: value[:2] for key, value in batch.items()}
+    sc_rows = {key: value[2:] for key, value in batch.items()}
+    # FM branch: LeRobot's own joint training forward returns the elementwise squared errors
+    fm = policy.model.forward(*_lerobot_inputs(policy, fm_rows), actions[:2], noise[:2], time).mean()
+    # consistency target: two LeRobot Euler steps from x_1 land on x_1 - target
+    target = noise[2:] - _lerobot_sample(policy, sc_rows, noise[2:], 2)
+    jump = adapter.velocity(noise[2:], torch.ones(2), torch.zeros(2), adapter.encode(sc_rows))
+    sc = (jump - target).pow(2).mean()
+    assert torch.allclose(output.flow_matching_loss, fm, atol=1e-5)
+    assert torch.allclose(output.consistency_loss, sc, atol=1e-5)
+    assert torch.allclose(output.loss, 0.5 * fm + 0.5 * 0.1 * sc, atol=1e-5)
+
+
+def test_gradients_reach_only_the_expert_and_the_embedding(vlm_directory):
+    adapter = SmolVLAFlowPolicy(build_tiny_smolvla(vlm_directory))
+    trainable = {id(p) for p in adapter.expert_parameters()}
+    for parameter in adapter.parameters():
+        parameter.requires_grad_(id(parameter) in trainable)
+    batch = tiny_batch()
+    SnapFlowObjective()(adapter, batch, adapter.policy.prepare_action(batch)).loss.backward()
+    for name, parameter in adapter.policy.named_parameters():
+        if id(parameter) in trainable:
+            assert parameter.grad is not None, f"{name} got no gradient"
+        else:
+            assert parameter.grad is None, f"{name} is frozen but got a gradient"
+    # at step 0 phi_s's last layer is zero, so only it receives a non-zero gradient; Linear1 follows a step later
+    assert adapter.target_time_embedding.linear_in.weight.grad is not None
+    assert adapter.target_time_embedding.linear_out.weight.grad.abs().sum() > 0
+    assert sum(p.grad.abs().sum() for p in adapter.policy.model.vlm_with_expert.lm_expert.parameters() if p.grad is not None) > 0
+
+
+def test_distillation_lowers_the_consistency_loss(vlm_directory):
+    adapter = SmolVLAFlowPolicy(build_tiny_smolvla(vlm_directory))
+    parameters = adapter.expert_parameters()
+    trainable = {id(p) for p in parameters}
+    for parameter in adapter.parameters():
+        parameter.requires_grad_(id(parameter) in trainable)
+    batch = tiny_batch(batch_size=8)
+    actions = adapter.policy.prepare_action(batch)
+    objective = SnapFlowObjective()
+    noise, time = torch.randn(8, 4, 4, generator=torch.Generator().manual_seed(1)), torch.rand(4)
+
+    def consistency() -> float:
+        with torch.no_grad():
+            return objective(adapter, batch, actions, noise=noise, time=time).consistency_loss.item()
+
+    before = consistency()
+    optimizer = torch.optim.AdamW(parameters, lr=1e-3)
+    generator = torch.Generator().manual_seed(2)
+    for _ in range(15):
+        optimizer.zero_grad()
+        objective(adapter, batch, actions, generator=generator).loss.backward()
+        optimizer.step()
+    assert consistency() < 0.8 * before
+
+
+def test_save_reload_and_one_step_sampling(vlm_directory, tmp_path):
+    adapter = SmolVLAFlowPolicy(build_tiny_smolvla(vlm_directory))
+    _randomise_target_time(adapter)
+    batch, noise = tiny_batch(), torch.randn(4, 4, 4)
+    expected = sample_actions(adapter, batch, noise, SNAPFLOW_1)
+    save_smolvla(adapter, tmp_path / "distilled")
+    reloaded = load_smolvla(tmp_path / "distilled")
+    assert torch.equal(sample_actions(reloaded, batch, noise, SNAPFLOW_1), expected)
+    assert torch.equal(sample_actions(reloaded, batch, noise, SamplingMode(10, jump=False)),
+                       sample_actions(adapter, batch, noise, SamplingMode(10, jump=False)))
+    with pytest.raises(CheckpointError, match="not a SnapFlow-distilled"):
+        load_smolvla(tmp_path)
