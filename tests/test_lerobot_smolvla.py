@@ -137,3 +137,18 @@ def test_save_reload_and_one_step_sampling(vlm_directory, tmp_path):
                        sample_actions(adapter, batch, noise, SamplingMode(10, jump=False)))
     with pytest.raises(CheckpointError, match="not a SnapFlow-distilled"):
         load_smolvla(tmp_path)
+
+
+def test_lerobot_action_api_samples_one_step_by_default_and_the_teacher_on_request(vlm_directory, tmp_path):
+    adapter = SmolVLAFlowPolicy(build_tiny_smolvla(vlm_directory))
+    _randomise_target_time(adapter)
+    save_smolvla(adapter, tmp_path / "distilled")
+    reloaded = load_smolvla(tmp_path / "distilled")
+    batch, noise = tiny_batch(), torch.randn(4, 4, 4)
+    one_step = reloaded.policy.predict_action_chunk(batch, noise=noise)
+    assert torch.equal(one_step, sample_actions(adapter, batch, noise, SNAPFLOW_1))
+    assert reloaded.policy.select_action(batch).shape == (4, 4)  # LeRobot's queue of n_action_steps actions
+    reloaded.use_sampling_mode(SamplingMode(10, jump=False))
+    teacher = reloaded.policy.predict_action_chunk(batch, noise=noise)
+    assert torch.equal(teacher, sample_actions(adapter, batch, noise, SamplingMode(10, jump=False)))
+    assert not torch.allclose(teacher, one_step)

@@ -19,6 +19,7 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
+from snapflow.flow.solver import SNAPFLOW_1, SamplingMode, euler_sample
 from snapflow.io import write_json
 from snapflow.nn.time_embedding import TargetTimeEmbedding
 from snapflow.training.checkpoint import CheckpointError, load_state_strict, read_tensors
@@ -80,17 +81,33 @@ class SmolVLAFlowPolicy(nn.Module):
 
     def encode(self, batch: dict[str, Tensor]) -> dict[str, Any]:
         """Prefix pass: images, instruction and state through the VLM once, keeping its key/value cache."""
-        policy, model = self.policy, self.policy.model
-        images, image_masks = policy.prepare_images(batch)
-        state = policy.prepare_state(batch)
-        prefix, pad_masks, att_masks = model.embed_prefix(
-            images, image_masks, batch[OBS_LANGUAGE_TOKENS], batch[OBS_LANGUAGE_ATTENTION_MASK], state=state
-        )
+        images, image_masks = self.policy.prepare_images(batch)
+        return self.encode_inputs(images, image_masks, batch[OBS_LANGUAGE_TOKENS], batch[OBS_LANGUAGE_ATTENTION_MASK],
+                                  self.policy.prepare_state(batch))
+
+    def encode_inputs(self, images: list[Tensor], image_masks: list[Tensor], tokens: Tensor, token_masks: Tensor, state: Tensor) -> dict[str, Any]:
+        """:meth:`encode` from the model-level inputs LeRobot's ``sample_actions`` receives."""
+        model = self.policy.model
+        prefix, pad_masks, att_masks = model.embed_prefix(images, image_masks, tokens, token_masks, state=state)
         _, cache = model.vlm_with_expert.forward(
-            attention_mask=make_att_2d_masks(pad_masks, att_masks), position_ids=torch.cumsum(pad_masks, dim=1) - 1, past_key_values=None,
-            inputs_embeds=[prefix, None], use_cache=True, fill_kv_cache=True,
+            attention_mask=make_att_2d_masks(pad_masks, att_masks), position_ids=torch.cumsum(pad_masks, dim=1) - 1,
+            past_key_values=None, inputs_embeds=[prefix, None], use_cache=True, fill_kv_cache=True,
         )
         return {"cache": cache, "prefix_pad_masks": pad_masks}
+
+    def use_sampling_mode(self, mode: SamplingMode) -> None:
+        """Make LeRobot's own ``predict_action_chunk`` / ``select_action`` sample with ``mode``: SnapFlow 1-NFE
+        for deployment, or ``teacher-N`` to run the same checkpoint as the N-step teacher."""
+        adapter = self
+
+        def sample_actions(model, images, img_masks, lang_tokens, lang_masks, state, noise=None, **_):
+            if noise is None:
+                noise = model.sample_noise((state.shape[0], model.config.chunk_size, model.config.max_action_dim), state.device)
+            context = adapter.encode_inputs(images, img_masks, lang_tokens, lang_masks, state)
+            return euler_sample(lambda x, t, s: adapter.velocity(x, t, s, context), noise, mode)
+
+        self.policy.model.sample_actions = types.MethodType(sample_actions, self.policy.model)
+        self.policy.reset()
 
     def velocity(self, x_t: Tensor, t: Tensor, s: Tensor, context: dict[str, Any]) -> Tensor:
         # each pass gets its own cache containers over the shared tensors, so no pass can alter another's
@@ -109,9 +126,10 @@ def save_smolvla(adapter: SmolVLAFlowPolicy, directory: str | Path) -> Path:
     return directory
 
 
-def load_smolvla(directory: str | Path) -> SmolVLAFlowPolicy:
-    """Rebuild a saved SnapFlow SmolVLA and load every tensor strictly. (LeRobot's ``from_pretrained`` loads
-    non-strictly, so on its own it would silently drop phi_s and give back the teacher.)"""
+def load_smolvla(directory: str | Path, mode: SamplingMode = SNAPFLOW_1) -> SmolVLAFlowPolicy:
+    """Rebuild a saved SnapFlow SmolVLA, load every tensor strictly, and make LeRobot's own action API sample
+    with ``mode`` (SnapFlow 1-NFE by default). (LeRobot's ``from_pretrained`` loads non-strictly, so on its
+    own it would silently drop phi_s and give back the teacher.)"""
     from lerobot.configs.policies import PreTrainedConfig
     from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
 
@@ -120,6 +138,7 @@ def load_smolvla(directory: str | Path) -> SmolVLAFlowPolicy:
         raise CheckpointError(f"{directory} is not a SnapFlow-distilled LeRobot policy (no {SNAPFLOW_MARKER})")
     adapter = SmolVLAFlowPolicy(SmolVLAPolicy(PreTrainedConfig.from_pretrained(directory)))
     load_state_strict(adapter.policy, read_tensors(directory / "model.safetensors"), directory / "model.safetensors")
+    adapter.use_sampling_mode(mode)
     return adapter
 
 
