@@ -45,7 +45,8 @@ def _embed_suffix_with_target_time(self: nn.Module, noisy_actions: Tensor, times
     fused = fused + self.target_time_embedding(s).to(fused.dtype)[:, None, :]
     embeddings = self.action_time_mlp_out(F.silu(fused))
     pad_masks = torch.ones(batch, chunk, dtype=torch.bool, device=embeddings.device)
-    # every action token opens its own attention block: causal among actions, blind to nothing in the prefix
+    # SmolVLA's layout: each action token opens its own attention block, so actions attend causally among
+    # themselves and to the whole prefix
     att_masks = torch.ones(batch, chunk, dtype=embeddings.dtype, device=embeddings.device)
     return embeddings, pad_masks, att_masks
 
