@@ -70,7 +70,13 @@ class SmolVLAFlowPolicy(nn.Module):
     def __init__(self, policy: nn.Module) -> None:
         super().__init__()
         self.policy = policy
-        self.target_time_embedding = add_target_time_embedding(policy.model)
+        add_target_time_embedding(policy.model)
+
+    @property
+    def target_time_embedding(self) -> TargetTimeEmbedding:
+        """phi_s, stored inside the LeRobot model so that LeRobot's own checkpoints carry it (registered once:
+        safetensors refuses tensors saved under two names)."""
+        return self.policy.model.target_time_embedding
 
     def expert_parameters(self) -> list[nn.Parameter]:
         """What distillation trains, as in the paper: the action expert, its projections and phi_s; the VLM
