@@ -49,8 +49,8 @@ def measure_latency(
     velocity = lambda x, t, s: policy.velocity(x, t, s, context)  # noqa: E731
     result: dict[str, Any] = {"prefix": _summary(_time_ms(lambda: policy.encode(observation), device, warmup, repeats)), "modes": {}}
     for mode in modes:
-        denoise = _summary(_time_ms(lambda: euler_sample(velocity, noise, mode), device, warmup, repeats))
-        end_to_end = _summary(_time_ms(lambda: sample_actions(policy, observation, noise, mode), device, warmup, repeats))
+        denoise = _summary(_time_ms(lambda mode=mode: euler_sample(velocity, noise, mode), device, warmup, repeats))
+        end_to_end = _summary(_time_ms(lambda mode=mode: sample_actions(policy, observation, noise, mode), device, warmup, repeats))
         result["modes"][mode.name] = {
             "nfe": mode.num_steps, "denoising": denoise, "end_to_end": end_to_end,
             "denoising_share": denoise["median_ms"] / end_to_end["median_ms"],

@@ -46,7 +46,7 @@ class MetaWorldEvaluator:
             raise ValueError(f"n_act must be in [1, {chunk_length}] (the policy's chunk length), got {n_act}")
         policy.eval()
         generator = torch.Generator().manual_seed(seed)
-        observations = [env.reset(variation) for env, (_, variation) in zip(self.envs, self.slots)]
+        observations = [env.reset(variation) for env, (_, variation) in zip(self.envs, self.slots, strict=True)]
         queues: list[deque] = [deque() for _ in self.envs]
         results: dict[int, EpisodeResult] = {}
         bar = tqdm(total=len(self.envs), desc=f"closed loop {mode.name}", disable=not progress, leave=False)

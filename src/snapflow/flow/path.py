@@ -5,7 +5,6 @@ Convention: t = 1 is pure noise, t = 0 is data, so samplers integrate from t = 1
 
 from __future__ import annotations
 
-import torch
 from torch import Tensor
 
 

@@ -70,7 +70,7 @@ def euler_sample(velocity: VelocityFn, noise: Tensor, mode: SamplingMode) -> Ten
     batch = noise.shape[0]
     times = torch.linspace(1.0, 0.0, mode.num_steps + 1, device=noise.device, dtype=torch.float32)
     x = noise
-    for t_now, t_next in zip(times[:-1], times[1:]):
+    for t_now, t_next in zip(times[:-1], times[1:], strict=True):
         t = t_now.expand(batch)
         t_to = t_next.expand(batch)
         x = euler_step(x, velocity(x, t, t_to if mode.jump else t), t, t_to)
