@@ -87,3 +87,29 @@ def tiny_batch(batch_size: int = 4, seed: int = 0) -> dict[str, torch.Tensor]:
         "observation.language.attention_mask": mask,
         "action": torch.randn(batch_size, 4, 4, generator=generator),
     }
+
+
+def write_tiny_dataset(root: Path, repo_id: str = "local/tiny", episodes: int = 3, frames: int = 12, fps: int = 10) -> Path:
+    """A LeRobotDataset on disk (images stored in the parquet, no video) whose tasks use the tiny vocabulary."""
+    import numpy as np
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    features = {
+        "observation.state": {"dtype": "float32", "shape": (6,), "names": None},
+        "observation.images.top": {"dtype": "image", "shape": (IMAGE_SIZE, IMAGE_SIZE, 3), "names": ["height", "width", "channels"]},
+        "action": {"dtype": "float32", "shape": (4,), "names": None},
+    }
+    generator = np.random.default_rng(0)
+    dataset = LeRobotDataset.create(repo_id=repo_id, fps=fps, features=features, root=root, use_videos=False,
+                                    image_writer_threads=0, image_writer_processes=0)
+    for episode in range(episodes):
+        for _ in range(frames):
+            dataset.add_frame({
+                "observation.state": generator.standard_normal(6).astype(np.float32),
+                "observation.images.top": generator.integers(0, 256, (IMAGE_SIZE, IMAGE_SIZE, 3), dtype=np.uint8),
+                "action": (generator.standard_normal(4) + episode).astype(np.float32),
+                "task": ["push the red cube", "open the drawer", "pick the blue cube"][episode % 3],
+            })
+        dataset.save_episode()
+    dataset.finalize()  # without it the episode index is never written and loading falls back to the hub
+    return root

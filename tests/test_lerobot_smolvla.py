@@ -156,3 +156,37 @@ def test_lerobot_action_api_samples_one_step_by_default_and_the_teacher_on_reque
     teacher = reloaded.policy.predict_action_chunk(batch, noise=noise)
     assert torch.equal(teacher, sample_actions(adapter, batch, noise, SamplingMode(10, jump=False)))
     assert not torch.allclose(teacher, one_step)
+
+
+def test_cli_distills_a_saved_smolvla_on_a_local_lerobot_dataset(vlm_directory, tmp_path, capsys):
+    from snapflow.cli import main
+    from tests.lerobot_tiny import write_tiny_dataset
+
+    dataset = write_tiny_dataset(tmp_path / "dataset")
+    build_tiny_smolvla(vlm_directory).save_pretrained(tmp_path / "teacher")
+    arguments = ["distill", "--policy", str(tmp_path / "teacher"), "--dataset", str(dataset), "--repo-id", "local/tiny",
+                 "--output", str(tmp_path / "run"), "--steps", "3", "--batch-size", "4", "--learning-rate", "1e-3", "--no-progress"]
+    assert main(arguments) == 0
+    assert (tmp_path / "run" / "checkpoints" / "step_0000003" / "policy.safetensors").is_file()
+    distilled = load_smolvla(tmp_path / "run" / "lerobot_policy")
+    assert distilled.target_time_embedding.linear_out.weight.abs().sum() > 0, "phi_s must have trained"
+    teacher = build_tiny_smolvla(vlm_directory)
+    for name, parameter in teacher.model.vlm_with_expert.vlm.named_parameters():
+        assert torch.equal(parameter, distilled.policy.model.vlm_with_expert.vlm.get_parameter(name)), f"frozen {name} moved"
+    # the exported folder carries LeRobot's processors: raw observations in, 1-NFE actions out
+    from lerobot.policies.factory import make_pre_post_processors
+
+    preprocessor, postprocessor = make_pre_post_processors(
+        distilled.policy.config, pretrained_path=str(tmp_path / "run" / "lerobot_policy"),
+        preprocessor_overrides={"tokenizer_processor": {"tokenizer_name": str(vlm_directory)}, "device_processor": {"device": "cpu"}},
+    )
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    frame = LeRobotDataset("local/tiny", root=dataset)[0]
+    raw = {key: value[None] if torch.is_tensor(value) else [value] for key, value in frame.items()}
+    actions = postprocessor(distilled.policy.predict_action_chunk(preprocessor(raw)))
+    assert actions.shape == (1, 4, 4) and torch.isfinite(actions).all()
+
+    assert main(arguments + ["--resume"]) == 0  # already at its last step: resumes and stops cleanly
+    assert main(["distill", "--policy", "x", "--data", "y", "--output", str(tmp_path / "bad"), "--no-progress"]) == 2
+    assert "either --teacher and --data" in capsys.readouterr().err

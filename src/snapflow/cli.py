@@ -70,6 +70,18 @@ def _distill(args: argparse.Namespace) -> int:
     from snapflow.experiments.metaworld import PRESETS, DistillSettings, distill
 
     settings = DistillSettings(args.alpha, args.consistency_weight, args.clamp, not args.train_prefix)
+    built_in = bool(args.teacher and args.data) and not (args.policy or args.dataset)
+    lerobot = bool(args.policy and args.dataset) and not (args.teacher or args.data)
+    if not (built_in or lerobot):
+        raise ValueError("give either --teacher and --data (built-in MiniVLA) or --policy and --dataset (LeRobot)")
+    if lerobot:
+        from snapflow.experiments.lerobot import EXPORT_DIRECTORY, PAPER_TRAINING, distill_lerobot
+
+        repo_id = args.repo_id or f"local/{Path(args.dataset).name}"
+        state = distill_lerobot(args.policy, args.dataset, repo_id, args.output, _train_config(args, PAPER_TRAINING), settings,
+                                args.resume, not args.no_progress)
+        print(f"SnapFlow student trained to step {state['step']}; LeRobot policy in {Path(args.output) / EXPORT_DIRECTORY}")
+        return 0
     state = distill(args.teacher, args.data, args.output, _train_config(args, PRESETS["fast"].student), settings, resume=args.resume, progress=not args.no_progress)
     print(f"SnapFlow student trained to step {state['step']} in {state['wall_time_s']:.0f} s; checkpoints in {args.output}")
     return 0
@@ -101,8 +113,8 @@ def _demo(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_training_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--data", required=True, help="demonstrations directory written by `snapflow collect`")
+def _add_training_options(parser: argparse.ArgumentParser, data_required: bool = True) -> None:
+    parser.add_argument("--data", required=data_required, help="demonstrations directory written by `snapflow collect`")
     parser.add_argument("--output", required=True, help="run directory for checkpoints")
     parser.add_argument("--steps", type=int)
     parser.add_argument("--batch-size", type=int)
@@ -138,8 +150,11 @@ def build_parser() -> argparse.ArgumentParser:
     train.set_defaults(run=_train)
 
     distill = commands.add_parser("distill", parents=[common], help="SnapFlow-distill a teacher into a 1-NFE student")
-    _add_training_options(distill)
-    distill.add_argument("--teacher", required=True, help="teacher run or checkpoint directory")
+    _add_training_options(distill, data_required=False)
+    distill.add_argument("--teacher", help="teacher run or checkpoint directory (built-in MiniVLA)")
+    distill.add_argument("--policy", help="LeRobot SmolVLA: hub id or local pretrained directory")
+    distill.add_argument("--dataset", help="LeRobotDataset root directory on disk")
+    distill.add_argument("--repo-id", help="the dataset's repo id (default: local/<folder name>)")
     distill.add_argument("--alpha", type=float, default=0.5, help="flow-matching share of each batch")
     distill.add_argument("--consistency-weight", "--lambda", type=float, default=0.1, dest="consistency_weight")
     distill.add_argument("--clamp", type=float, help="bound on the no-grad teacher velocities")

@@ -19,7 +19,6 @@ from torch import Tensor, nn
 from tqdm.auto import tqdm
 
 from snapflow.io import write_json
-from snapflow.nn.snapflow_policy import SnapFlowPolicy
 from snapflow.objective.snapflow import SnapFlowObjective
 from snapflow.training.checkpoint import (
     LATEST,
@@ -66,7 +65,7 @@ class TrainConfig:
 class ObjectiveModule(nn.Module):
     """Policy + objective behind one ``forward``, so data-parallel wrappers see every pass."""
 
-    def __init__(self, policy: SnapFlowPolicy, objective: SnapFlowObjective) -> None:
+    def __init__(self, policy: nn.Module, objective: SnapFlowObjective) -> None:
         super().__init__()
         self.policy = policy
         self.objective = objective
@@ -88,8 +87,10 @@ def _draw(objective: SnapFlowObjective, data: ChunkData, batch_size: int, genera
     return observation, actions, noise, time
 
 
-def _to(device: torch.device, observation: dict[str, Tensor], *tensors: Tensor):
-    return {k: v.to(device) for k, v in observation.items()}, *(t.to(device) for t in tensors)
+def _to(device: torch.device, observation: dict[str, Any], *tensors: Tensor):
+    """Move the tensors of a batch (other entries, such as LeRobot's task strings, stay as they are)."""
+    moved = {k: v.to(device) if torch.is_tensor(v) else v for k, v in observation.items()}
+    return moved, *(t.to(device) for t in tensors)
 
 
 @torch.no_grad()
@@ -105,11 +106,12 @@ def validation_loss(module: ObjectiveModule, data: ChunkData, batch_size: int, d
 
 
 def train(
-    policy: SnapFlowPolicy, objective: SnapFlowObjective, train_data: ChunkData, val_data: ChunkData | None,
+    policy: nn.Module, objective: SnapFlowObjective, train_data: ChunkData, val_data: ChunkData | None,
     config: TrainConfig, run_directory: str | Path, metadata: dict[str, Any], resume: bool = False,
     trainable: list[nn.Parameter] | None = None, progress: bool = True,
 ) -> dict[str, Any]:
-    """Optimise ``objective`` on ``policy``; checkpoints under ``run_directory/checkpoints``.
+    """Optimise ``objective`` on ``policy`` (any module implementing FlowPolicy); checkpoints under
+    ``run_directory/checkpoints``. The data needs ``len()`` and ``batch(indices) -> (observation, actions)``.
 
     ``trainable`` restricts the optimised parameters (e.g. the action expert and phi_s); default: all.
     ``metadata`` is the policy description saved beside the weights (see ``policy_metadata``).
