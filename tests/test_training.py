@@ -10,7 +10,8 @@ from safetensors.torch import load_file
 
 from snapflow.cli import main
 from snapflow.data.collect import collect_demonstrations
-from snapflow.experiments.metaworld import DistillSettings, distill, train_teacher
+from snapflow.experiments.metaworld import distill, train_teacher
+from snapflow.training.distill import DistillSettings
 from snapflow.policies.minivla import MiniVLAConfig
 from snapflow.training.checkpoint import CheckpointError, load_policy
 from snapflow.training.trainer import TrainConfig

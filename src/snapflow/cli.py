@@ -67,7 +67,8 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _distill(args: argparse.Namespace) -> int:
-    from snapflow.experiments.metaworld import PRESETS, DistillSettings, distill
+    from snapflow.experiments.metaworld import PRESETS, distill
+    from snapflow.training.distill import DistillSettings
 
     settings = DistillSettings(args.alpha, args.consistency_weight, args.clamp, not args.train_prefix)
     built_in = bool(args.teacher and args.data) and not (args.policy or args.dataset)

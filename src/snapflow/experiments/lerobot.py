@@ -11,9 +11,8 @@ import torch
 
 from snapflow.adapters.lerobot.data import LeRobotChunkData
 from snapflow.adapters.lerobot.smolvla import SmolVLAFlowPolicy, save_smolvla
-from snapflow.experiments.metaworld import DistillSettings
 from snapflow.flow.time_sampling import BetaTimeSampler
-from snapflow.objective.snapflow import SnapFlowObjective
+from snapflow.training.distill import DistillSettings
 from snapflow.training.trainer import TrainConfig, train
 
 # The paper's settings: AdamW at 2.5e-5 after 500 warm-up steps, batch 4, ~30k steps, bf16 where available.
@@ -49,7 +48,7 @@ def distill_lerobot(
     dataset = LeRobotDataset(repo_id, root=dataset_root, delta_timestamps={"action": chunk})
     preprocessor, postprocessor = make_pre_post_processors(policy.config, dataset_stats=metadata.stats)
     adapter = SmolVLAFlowPolicy(policy)
-    objective = SnapFlowObjective(settings.alpha, settings.consistency_weight, BetaTimeSampler(), settings.teacher_velocity_clamp)
+    objective = settings.objective(BetaTimeSampler())  # LeRobot's policies train on Beta(1.5, 1) times
     run_metadata = {"format": "snapflow-lerobot-run", "policy": "smolvla", "source": str(policy_path),
                     "dataset": {"repo_id": repo_id, "root": str(dataset_root)}, "distill": asdict(settings), "stage": "snapflow"}
     state = train(adapter, objective, LeRobotChunkData(dataset, preprocessor, policy), None, config, output, run_metadata,

@@ -26,15 +26,8 @@ from snapflow.objective.snapflow import SnapFlowObjective
 from snapflow.policies.minivla import MiniVLA, MiniVLAConfig, MiniVLAProcessor
 from snapflow.training.checkpoint import LoadedPolicy, load_policy, policy_metadata
 from snapflow.training.data import ChunkData
+from snapflow.training.distill import DistillSettings
 from snapflow.training.trainer import TrainConfig, train
-
-
-@dataclass(frozen=True)
-class DistillSettings:
-    alpha: float = 0.5
-    consistency_weight: float = 0.1
-    teacher_velocity_clamp: float | None = None
-    freeze_prefix: bool = True
 
 
 @dataclass(frozen=True)
@@ -93,10 +86,11 @@ def train_teacher(
 
 
 def distill(
-    teacher: str | Path, data: str | Path, output: str | Path, config: TrainConfig, settings: DistillSettings = DistillSettings(),
+    teacher: str | Path, data: str | Path, output: str | Path, config: TrainConfig, settings: DistillSettings | None = None,
     val_fraction: float | None = None, resume: bool = False, progress: bool = True,
 ) -> dict[str, Any]:
     """SnapFlow: the student starts as the teacher plus a zero-initialised phi_s; prefix frozen by default."""
+    settings = settings or DistillSettings()
     loaded = load_policy(teacher, target_time=True)
     demonstrations = Demonstrations.load(data)
     if val_fraction is None:
@@ -109,8 +103,7 @@ def distill(
         trainable = [p for p in policy.parameters() if id(p) not in frozen]
     metadata = policy_metadata(policy, loaded.processor, stage="snapflow", teacher=str(loaded.path), distill=asdict(settings),
                                data={"path": str(data), "val_fraction": val_fraction})
-    objective = SnapFlowObjective(settings.alpha, settings.consistency_weight, UniformTimeSampler(), settings.teacher_velocity_clamp)
-    return train(policy, objective, train_data, val_data, config, output, metadata, resume=resume, trainable=trainable, progress=progress)
+    return train(policy, settings.objective(UniformTimeSampler()), train_data, val_data, config, output, metadata, resume=resume, trainable=trainable, progress=progress)
 
 
 def evaluate(
