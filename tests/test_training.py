@@ -142,3 +142,20 @@ def test_camera_images_flow_through_collect_train_and_closed_loop(tmp_path):
                  "--output-dir", str(tmp_path / "eval"), "--no-progress"])
     assert code == 0
     assert json.loads((tmp_path / "eval" / "report.json").read_text())["rows"]["naive-1"]["success"][TASK]["episodes"] == 1
+
+
+def test_demo_chains_every_stage_into_one_report_and_resumes(tmp_path):
+    from snapflow.experiments.metaworld import DemoPreset, run_demo
+
+    preset = DemoPreset(tasks=(TASK,), episodes_per_task=3, policy=TINY, teacher=_config(4), student=_config(2), eval_episodes=1)
+    report = run_demo(preset, tmp_path, progress=False)
+    assert set(report["rows"]) == {"teacher 10-NFE", "naive 1-NFE", "SnapFlow 1-NFE"}
+    assert report["rows"]["SnapFlow 1-NFE"]["success"]["mean"]["episodes"] == 1
+    assert set(report["timings"]) == {"collect_s", "teacher_s", "distill_s", "evaluate_s", "total_s"}
+    for name in ("report.json", "report.md", "success.png", "latency.png"):
+        assert (tmp_path / name).is_file()
+    markdown = (tmp_path / "report.md").read_text()
+    assert "| **mean** |" in markdown and "denoising speedup" in markdown
+    # an interrupted demo continues from what it saved: both runs are already complete, so nothing is redone
+    resumed = run_demo(preset, tmp_path, progress=False, resume=True)
+    assert resumed["rows"]["teacher 10-NFE"]["success"] == report["rows"]["teacher 10-NFE"]["success"]
