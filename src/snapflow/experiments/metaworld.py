@@ -94,7 +94,7 @@ def distill(
     loaded = load_policy(teacher, target_time=True)
     demonstrations = Demonstrations.load(data)
     if val_fraction is None:
-        val_fraction = loaded.metadata.get("data", {}).get("val_fraction", 0.1)
+        val_fraction = loaded.val_fraction
     train_data, val_data = _chunk_data(demonstrations, loaded.processor, val_fraction)
     policy = loaded.policy
     trainable = None
@@ -115,6 +115,7 @@ def evaluate(
     first = runs[0][1].processor.config
     evaluator = MetaWorldEvaluator(tasks, episodes_per_task, first.image_size if first.use_image else None)
     demonstrations = Demonstrations.load(data) if data is not None else None
+    held_out: dict[Path, ChunkData | None] = {}  # per checkpoint: its modes share one set of held-out chunks
     report: dict[str, Any] = {"tasks": tasks, "episodes_per_task": episodes_per_task, "n_act": n_act, "rows": {}}
     try:
         for label, loaded, mode in runs:
@@ -123,10 +124,11 @@ def evaluate(
             row: dict[str, Any] = {"policy": str(loaded.path), "mode": mode.name, "nfe": mode.num_steps,
                                    "success": success_by_task(episodes), "closed_loop_s": time.perf_counter() - started}
             if demonstrations is not None:
-                _, val_episodes = demonstrations.split(loaded.metadata.get("data", {}).get("val_fraction", 0.1))
-                if val_episodes:
-                    held_out = ChunkData(demonstrations, val_episodes, loaded.processor)
-                    row["offline"] = offline_metrics(loaded.policy, held_out, mode, offline_samples, seed)
+                if loaded.path not in held_out:
+                    _, val_episodes = demonstrations.split(loaded.val_fraction)
+                    held_out[loaded.path] = ChunkData(demonstrations, val_episodes, loaded.processor) if val_episodes else None
+                if held_out[loaded.path] is not None:
+                    row["offline"] = offline_metrics(loaded.policy, held_out[loaded.path], mode, offline_samples, seed)
             report["rows"][label] = row
     finally:
         evaluator.close()
@@ -173,4 +175,4 @@ def run_demo(preset: DemoPreset, output: str | Path, progress: bool = True, resu
     return report
 
 
-__all__ = ["DemoPreset", "DistillSettings", "PRESETS", "collect", "train_teacher", "distill", "evaluate", "latency", "run_demo"]
+__all__ = ["DemoPreset", "PRESETS", "collect", "train_teacher", "distill", "evaluate", "latency", "run_demo"]

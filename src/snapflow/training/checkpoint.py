@@ -43,6 +43,11 @@ class LoadedPolicy:
     metadata: dict[str, Any]
     path: Path
 
+    @property
+    def val_fraction(self) -> float:
+        """Share of each task's demonstration episodes the run held out (0.1 where the metadata predates it)."""
+        return self.metadata.get("data", {}).get("val_fraction", 0.1)
+
 
 def policy_metadata(policy: SnapFlowPolicy, processor: MiniVLAProcessor, **extra: Any) -> dict[str, Any]:
     return {
