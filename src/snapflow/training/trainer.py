@@ -165,10 +165,10 @@ def train(
         if config.grad_clip:
             accelerator.clip_grad_norm_(parameters, config.grad_clip)
         optimizer.step()
-        running.append([loss.item(), fm.item(), sc.item()])
+        running.append(torch.stack([loss.detach(), fm, sc]))  # read back only when logging: .item() per step syncs a GPU
         done = step + 1
         if done % config.log_every == 0 or done == config.steps:
-            mean = torch.tensor(running).mean(0).tolist()
+            mean = torch.stack(running).float().mean(0).tolist()
             state["history"].append({"step": done, "loss": mean[0], "flow_matching": mean[1], "consistency": mean[2], "lr": config.learning_rate_at(step)})
             bar.set_postfix(loss=f"{mean[0]:.4f}", refresh=False)
             running = []
