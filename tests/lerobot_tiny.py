@@ -1,8 +1,16 @@
-"""A tiny SmolVLA built fully offline: a SmolVLM config, word-level tokenizer and processor written to a
-local folder, then LeRobot's SmolVLAPolicy with load_vlm_weights=False (about 200k parameters)."""
+"""Tiny LeRobot policies built fully offline.
+
+SmolVLA: a SmolVLM config, word-level tokenizer and processor written to a local folder, then LeRobot's
+SmolVLAPolicy with load_vlm_weights=False (about 200k parameters). pi0 / pi0.5 (LeRobot >= 0.5): LeRobot's own
+PI0Policy / PI05Policy, with the module-level Gemma and PaliGemma config builders (which know only the 2B and
+300M variants) shrunk for the build; LeRobot's files are not touched.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import importlib
+from collections.abc import Iterator
 from pathlib import Path
 
 import torch
@@ -72,6 +80,66 @@ def build_tiny_smolvla(vlm_directory: Path, seed: int = 0):
         output_features={"action": PolicyFeature(type=FeatureType.ACTION, shape=(4,))},
     )
     return SmolVLAPolicy(config)
+
+
+PI_IMAGE_SIZE = 28  # two 14-pixel SigLIP patches a side
+
+
+@contextlib.contextmanager
+def tiny_pi_configs(policy_type: str) -> Iterator[None]:
+    """While active, LeRobot's pi0 / pi0.5 build at tiny size: their PaliGemma/Gemma config builders (which know
+    only the 2B and 300M variants) and PaliGemma's image projector (hard-coded to PaliGemma-3B's 2048-wide text)
+    are swapped for tiny ones. Needed both to build a tiny policy and to load one back."""
+    from lerobot.policies.factory import get_policy_class
+    from torch import nn
+    from transformers import PaliGemmaConfig
+    from transformers.models.auto import CONFIG_MAPPING
+    from transformers.models.paligemma import modeling_paligemma
+
+    module = importlib.import_module(get_policy_class(policy_type).__module__)
+    sizes = {"gemma_2b": dict(width=64, depth=2, mlp_dim=128), "gemma_300m": dict(width=32, depth=2, mlp_dim=64)}
+    vision = dict(model_type="siglip_vision_model", hidden_size=32, intermediate_size=64, num_hidden_layers=1,
+                  num_attention_heads=2, patch_size=14, image_size=PI_IMAGE_SIZE)
+    projector = modeling_paligemma.PaliGemmaMultiModalProjector
+
+    def tiny_projector(self, config) -> None:
+        nn.Module.__init__(self)
+        self.linear = nn.Linear(config.vision_config.hidden_size, config.text_config.hidden_size)
+
+    original = module.get_gemma_config, module.CONFIG_MAPPING, projector.__init__
+    # 8 heads: LeRobot's joint training forward hard-codes them
+    module.get_gemma_config = lambda variant: module.GemmaConfig(num_heads=8, num_kv_heads=1, head_dim=8, **sizes[variant])
+    module.CONFIG_MAPPING = {"paligemma": lambda: PaliGemmaConfig(vision_config=vision), "gemma": CONFIG_MAPPING["gemma"]}
+    projector.__init__ = tiny_projector
+    try:
+        yield
+    finally:
+        module.get_gemma_config, module.CONFIG_MAPPING, projector.__init__ = original
+
+
+def build_tiny_pi(policy_type: str, seed: int = 0):
+    """A random LeRobot PI0Policy ("pi0") or PI05Policy ("pi05") at tiny size (about 40M parameters, nearly all
+    in the 257k-token embedding tables)."""
+    from lerobot.configs.types import FeatureType, PolicyFeature
+    from lerobot.policies.factory import get_policy_class, make_policy_config
+
+    torch.manual_seed(seed)
+    config = make_policy_config(
+        policy_type, image_resolution=(PI_IMAGE_SIZE, PI_IMAGE_SIZE), chunk_size=4, n_action_steps=4, max_state_dim=8,
+        max_action_dim=4, tokenizer_max_length=16, device="cpu", push_to_hub=False, dtype="float32",
+        input_features={
+            "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(6,)),
+            "observation.images.top": PolicyFeature(type=FeatureType.VISUAL, shape=(3, PI_IMAGE_SIZE, PI_IMAGE_SIZE)),
+        },
+        output_features={"action": PolicyFeature(type=FeatureType.ACTION, shape=(4,))},
+    )
+    with tiny_pi_configs(policy_type):
+        policy = get_policy_class(policy_type)(config)
+    with torch.no_grad():  # pi0.5's adaRMS projections start at zero (time ignored): stand in for a trained checkpoint
+        for name, parameter in policy.model.paligemma_with_expert.gemma_expert.named_parameters():
+            if ".dense." in name:
+                parameter.normal_(0, 0.3)
+    return policy
 
 
 def tiny_batch(batch_size: int = 4, seed: int = 0) -> dict[str, torch.Tensor]:

@@ -9,8 +9,9 @@ from typing import Any
 
 import torch
 
+from snapflow.adapters.lerobot.checkpoint import save_distilled
 from snapflow.adapters.lerobot.data import LeRobotChunkData
-from snapflow.adapters.lerobot.smolvla import SmolVLAFlowPolicy, save_smolvla
+from snapflow.adapters.lerobot.registry import load_pretrained_policy, wrap_policy
 from snapflow.flow.time_sampling import BetaTimeSampler
 from snapflow.training.distill import DistillSettings
 from snapflow.training.trainer import TrainConfig, train
@@ -21,42 +22,52 @@ PAPER_TRAINING = TrainConfig(
     mixed_precision="bf16" if torch.cuda.is_available() and torch.cuda.is_bf16_supported() else "no",
 )
 EXPORT_DIRECTORY = "lerobot_policy"
+PREPROCESSOR_FILE = "policy_preprocessor.json"
+
+
+def policy_processors(policy: torch.nn.Module, policy_path: str, dataset_stats: dict[str, Any], overrides: dict[str, Any] | None = None) -> tuple[Any, Any]:
+    """The teacher's own pre/post-processors (its normalisation statistics and tokenizer) when its folder or hub
+    repo carries them; processors built from the dataset's statistics for a local folder that has none."""
+    from lerobot.policies.factory import make_pre_post_processors
+
+    device = {"device_processor": {"device": str(policy.config.device)}}
+    local = Path(policy_path)
+    if local.is_dir() and not (local / PREPROCESSOR_FILE).is_file():
+        return make_pre_post_processors(policy.config, dataset_stats=dataset_stats)
+    return make_pre_post_processors(policy.config, pretrained_path=policy_path,
+                                    preprocessor_overrides={**device, **(overrides or {})})
 
 
 def distill_lerobot(
     policy_path: str, dataset_root: str | Path, repo_id: str, output: str | Path, config: TrainConfig = PAPER_TRAINING,
     settings: DistillSettings | None = None, resume: bool = False, progress: bool = True,
+    preprocessor_overrides: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Distill a LeRobot SmolVLA (hub id or local pretrained directory) on the LeRobotDataset at ``dataset_root``."""
-    from lerobot.configs.policies import PreTrainedConfig
+    """Distill a LeRobot pi0, pi0.5 or SmolVLA (hub id or local pretrained directory) on the LeRobotDataset at
+    ``dataset_root``; ``preprocessor_overrides`` reach LeRobot's processor loader (e.g. a local tokenizer)."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
-    from lerobot.policies.factory import make_pre_post_processors
-    from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
 
     settings = settings or DistillSettings()
-    policy_type = PreTrainedConfig.from_pretrained(policy_path).type
-    if policy_type != "smolvla":
-        raise ValueError(f"{policy_path} is a {policy_type!r} policy; snapflow distills LeRobot's SmolVLA so far")
     if not settings.freeze_prefix:
         raise ValueError("LeRobot policies are distilled with their VLM frozen, as in the paper")
-    policy = SmolVLAPolicy.from_pretrained(policy_path)
+    policy = load_pretrained_policy(policy_path)
     metadata = LeRobotDatasetMetadata(repo_id, root=dataset_root)
     missing = sorted((set(policy.config.input_features) | set(policy.config.output_features)) - set(metadata.features))
     if missing:
         raise ValueError(f"the dataset at {dataset_root} lacks the policy's feature(s) {missing}")
     chunk = [step / metadata.fps for step in range(policy.config.chunk_size)]
     dataset = LeRobotDataset(repo_id, root=dataset_root, delta_timestamps={"action": chunk})
-    preprocessor, postprocessor = make_pre_post_processors(policy.config, dataset_stats=metadata.stats)
-    adapter = SmolVLAFlowPolicy(policy)
+    preprocessor, postprocessor = policy_processors(policy, policy_path, metadata.stats, preprocessor_overrides)
+    adapter = wrap_policy(policy)
     objective = settings.objective(BetaTimeSampler())  # LeRobot's policies train on Beta(1.5, 1) times
-    run_metadata = {"format": "snapflow-lerobot-run", "policy": "smolvla", "source": str(policy_path),
+    run_metadata = {"format": "snapflow-lerobot-run", "policy": adapter.policy_type, "source": str(policy_path),
                     "dataset": {"repo_id": repo_id, "root": str(dataset_root)}, "distill": asdict(settings), "stage": "snapflow"}
     state = train(adapter, objective, LeRobotChunkData(dataset, preprocessor, policy), None, config, output, run_metadata,
                   resume=resume, trainable=adapter.expert_parameters(), progress=progress)
-    export = save_smolvla(adapter, Path(output) / EXPORT_DIRECTORY)
+    export = save_distilled(adapter, Path(output) / EXPORT_DIRECTORY)
     preprocessor.save_pretrained(export)
     postprocessor.save_pretrained(export)
     return state
 
 
-__all__ = ["PAPER_TRAINING", "EXPORT_DIRECTORY", "distill_lerobot"]
+__all__ = ["PAPER_TRAINING", "EXPORT_DIRECTORY", "policy_processors", "distill_lerobot"]

@@ -1,5 +1,19 @@
-"""LeRobot policies under SnapFlow, without editing LeRobot's code. Needs ``pip install "snapflow[lerobot]"``."""
+"""LeRobot's pi0, pi0.5 and SmolVLA under SnapFlow, without editing LeRobot's code.
 
-from snapflow.adapters.lerobot.smolvla import SmolVLAFlowPolicy, load_smolvla, save_smolvla
+Needs ``pip install "snapflow[lerobot]"``: lerobot 0.4.4 (SmolVLA) on Python 3.11, lerobot >= 0.5 (all three)
+on Python >= 3.12.
+"""
 
-__all__ = ["SmolVLAFlowPolicy", "save_smolvla", "load_smolvla"]
+try:
+    import lerobot  # noqa: F401
+except ImportError as error:  # pragma: no cover - depends on the environment
+    raise ImportError('the LeRobot adapters need LeRobot: pip install "snapflow[lerobot]"') from error
+
+from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
+from snapflow.adapters.lerobot.checkpoint import load_distilled, save_distilled
+from snapflow.adapters.lerobot.pi0 import PI0FlowPolicy, PI05FlowPolicy
+from snapflow.adapters.lerobot.registry import ADAPTERS, load_pretrained_policy, wrap_policy
+from snapflow.adapters.lerobot.smolvla import SmolVLAFlowPolicy
+
+__all__ = ["ADAPTERS", "LeRobotFlowPolicy", "PI0FlowPolicy", "PI05FlowPolicy", "SmolVLAFlowPolicy", "wrap_policy",
+           "load_pretrained_policy", "save_distilled", "load_distilled"]

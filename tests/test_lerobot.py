@@ -1,20 +1,32 @@
-"""SnapFlow on LeRobot's SmolVLAPolicy (lerobot 0.4.4), built offline at tiny size."""
+"""SnapFlow on LeRobot's SmolVLAPolicy (lerobot 0.4.4 and newer), PI0Policy and PI05Policy (lerobot >= 0.5),
+each built offline at tiny size."""
 
 from __future__ import annotations
 
+import contextlib
 import os
+from importlib.metadata import version
 
 import pytest
 import torch
 
-os.environ.setdefault("HF_HUB_OFFLINE", "1")  # nothing may come from a hub: the tiny model is built locally
+os.environ.setdefault("HF_HUB_OFFLINE", "1")  # nothing may come from a hub: the tiny models are built locally
 os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
 pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test command; this environment lacks it")
 
+from packaging.version import Version  # noqa: E402
+
 from snapflow import NAIVE_1, SNAPFLOW_1, SamplingMode, SnapFlowObjective, sample_actions  # noqa: E402
-from snapflow.adapters.lerobot import SmolVLAFlowPolicy, load_smolvla, save_smolvla  # noqa: E402
+from snapflow.adapters.lerobot import LeRobotFlowPolicy, load_distilled, save_distilled, wrap_policy  # noqa: E402
 from snapflow.training.checkpoint import CheckpointError  # noqa: E402
-from tests.lerobot_tiny import build_tiny_smolvla, tiny_batch, write_tiny_smolvlm  # noqa: E402
+from tests.lerobot_tiny import build_tiny_pi, build_tiny_smolvla, tiny_batch, tiny_pi_configs, write_tiny_smolvlm  # noqa: E402
+
+LEROBOT = Version(version("lerobot"))
+PI_SKIP = pytest.mark.skipif(
+    LEROBOT < Version("0.5"),
+    reason=f"LeRobot's pi0 / pi0.5 need lerobot >= 0.5 (Python >= 3.12, stock transformers); lerobot {LEROBOT} is installed",
+)
+POLICY_TYPES = ["smolvla", pytest.param("pi0", marks=PI_SKIP), pytest.param("pi05", marks=PI_SKIP)]
 
 
 @pytest.fixture(scope="module")
@@ -22,27 +34,50 @@ def vlm_directory(tmp_path_factory):
     return write_tiny_smolvlm(tmp_path_factory.mktemp("tiny_smolvlm"))
 
 
-def _lerobot_inputs(policy, batch):
-    images, image_masks = policy.prepare_images(batch)
-    return images, image_masks, batch["observation.language.tokens"], batch["observation.language.attention_mask"], policy.prepare_state(batch)
+@pytest.fixture(params=POLICY_TYPES)
+def policy_type(request):
+    return request.param
+
+
+@pytest.fixture
+def build(policy_type, vlm_directory):
+    """A factory of fresh, identically initialised tiny LeRobot policies of one type."""
+    if policy_type == "smolvla":
+        return lambda: build_tiny_smolvla(vlm_directory)
+    return lambda: build_tiny_pi(policy_type)
+
+
+@pytest.fixture
+def tiny_sizes(policy_type):
+    """What loading a tiny policy back needs: pi0 / pi0.5 rebuild from their config at tiny size only inside it."""
+    return contextlib.nullcontext() if policy_type == "smolvla" else tiny_pi_configs(policy_type)
+
+
+def _model_inputs(policy, batch):
+    """What each LeRobot policy's ``predict_action_chunk`` hands its model, written out per policy."""
+    language = batch["observation.language.tokens"], batch["observation.language.attention_mask"]
+    if policy.config.type == "smolvla":
+        return *policy.prepare_images(batch), *language, policy.prepare_state(batch)
+    state = (policy.prepare_state(batch),) if policy.config.type == "pi0" else ()  # pi0.5's state is in its prompt
+    return *policy._preprocess_images(batch), *language, *state
 
 
 def _lerobot_sample(policy, batch, noise, steps):
     """LeRobot's own Euler sampler on the (possibly wrapped) policy: s = t throughout."""
-    policy.config.num_steps = steps
+    policy.config.num_steps = policy.config.num_inference_steps = steps  # SmolVLA's name, pi0's name
     with torch.no_grad():
-        return policy.model.sample_actions(*_lerobot_inputs(policy, batch), noise=noise)
+        return policy.model.sample_actions(*_model_inputs(policy, batch), noise=noise)
 
 
-def _randomise_target_time(adapter: SmolVLAFlowPolicy) -> None:
+def _randomise_target_time(adapter: LeRobotFlowPolicy) -> None:
     with torch.no_grad():
         for parameter in adapter.target_time_embedding.linear_out.parameters():
             parameter.normal_(0, 0.2)
 
 
-def test_wrapping_changes_no_output_bit_at_init(vlm_directory):
-    reference = build_tiny_smolvla(vlm_directory)
-    adapter = SmolVLAFlowPolicy(build_tiny_smolvla(vlm_directory))
+def test_wrapping_changes_no_output_bit_at_init(build):
+    reference = build()
+    adapter = wrap_policy(build())
     batch, noise = tiny_batch(), torch.randn(4, 4, 4)
     for steps in (1, 2):
         expected = _lerobot_sample(reference, batch, noise, steps)
@@ -51,8 +86,8 @@ def test_wrapping_changes_no_output_bit_at_init(vlm_directory):
     assert torch.equal(sample_actions(adapter, batch, noise, SNAPFLOW_1), _lerobot_sample(reference, batch, noise, 1))
 
 
-def test_target_time_changes_only_the_jump_and_leaves_lerobot_sampling_as_the_teacher(vlm_directory):
-    adapter = SmolVLAFlowPolicy(build_tiny_smolvla(vlm_directory))
+def test_target_time_changes_only_the_jump_and_leaves_lerobot_sampling_as_the_teacher(build):
+    adapter = wrap_policy(build())
     _randomise_target_time(adapter)
     batch, noise = tiny_batch(), torch.randn(4, 4, 4)
     # LeRobot's own sampler passes a (B,) time, read as s = t: it is exactly our teacher mode
@@ -60,8 +95,8 @@ def test_target_time_changes_only_the_jump_and_leaves_lerobot_sampling_as_the_te
     assert not torch.allclose(sample_actions(adapter, batch, noise, SNAPFLOW_1), sample_actions(adapter, batch, noise, NAIVE_1))
 
 
-def test_loss_equals_a_hand_computation_from_the_policys_own_outputs(vlm_directory):
-    adapter = SmolVLAFlowPolicy(build_tiny_smolvla(vlm_directory))
+def test_loss_equals_a_hand_computation_from_the_policys_own_outputs(build):
+    adapter = wrap_policy(build())
     _randomise_target_time(adapter)
     policy = adapter.policy
     batch = tiny_batch()
@@ -72,7 +107,7 @@ def test_loss_equals_a_hand_computation_from_the_policys_own_outputs(vlm_directo
     fm_rows = {key: value[:2] for key, value in batch.items()}
     sc_rows = {key: value[2:] for key, value in batch.items()}
     # FM branch: LeRobot's own joint training forward returns the elementwise squared errors
-    fm = policy.model.forward(*_lerobot_inputs(policy, fm_rows), actions[:2], noise[:2], time).mean()
+    fm = policy.model.forward(*_model_inputs(policy, fm_rows), actions[:2], noise[:2], time).mean()
     # consistency target: two LeRobot Euler steps from x_1 land on x_1 - target
     target = noise[2:] - _lerobot_sample(policy, sc_rows, noise[2:], 2)
     jump = adapter.velocity(noise[2:], torch.ones(2), torch.zeros(2), adapter.encode(sc_rows))
@@ -82,8 +117,8 @@ def test_loss_equals_a_hand_computation_from_the_policys_own_outputs(vlm_directo
     assert torch.allclose(output.loss, 0.5 * fm + 0.5 * 0.1 * sc, atol=1e-5)
 
 
-def test_gradients_reach_only_the_expert_and_the_embedding(vlm_directory):
-    adapter = SmolVLAFlowPolicy(build_tiny_smolvla(vlm_directory))
+def test_gradients_reach_only_the_expert_and_the_embedding(build):
+    adapter = wrap_policy(build())
     trainable = {id(p) for p in adapter.expert_parameters()}
     for parameter in adapter.parameters():
         parameter.requires_grad_(id(parameter) in trainable)
@@ -97,18 +132,21 @@ def test_gradients_reach_only_the_expert_and_the_embedding(vlm_directory):
     # at step 0 phi_s's last layer is zero, so only it receives a non-zero gradient; Linear1 follows a step later
     assert adapter.target_time_embedding.linear_in.weight.grad is not None
     assert adapter.target_time_embedding.linear_out.weight.grad.abs().sum() > 0
-    assert sum(p.grad.abs().sum() for p in adapter.policy.model.vlm_with_expert.lm_expert.parameters() if p.grad is not None) > 0
+    expert = adapter.expert_modules()[0]
+    assert sum(p.grad.abs().sum() for p in expert.parameters() if p.grad is not None) > 0
 
 
-def test_distillation_lowers_the_consistency_loss(vlm_directory):
-    adapter = SmolVLAFlowPolicy(build_tiny_smolvla(vlm_directory))
+def test_distillation_lowers_the_consistency_loss(build):
+    adapter = wrap_policy(build())
     parameters = adapter.expert_parameters()
     trainable = {id(p) for p in parameters}
     for parameter in adapter.parameters():
         parameter.requires_grad_(id(parameter) in trainable)
     batch = tiny_batch(batch_size=8)
     actions = adapter.policy.prepare_action(batch)
-    objective = SnapFlowObjective()
+    # a random tiny teacher has a large FM loss and a small consistency loss: weight the latter up so that a few
+    # steps show it falling before the FM updates move the teacher's own two-step target
+    objective = SnapFlowObjective(consistency_weight=1.0)
     noise, time = torch.randn(8, 4, 4, generator=torch.Generator().manual_seed(1)), torch.rand(4)
 
     def consistency() -> float:
@@ -125,29 +163,31 @@ def test_distillation_lowers_the_consistency_loss(vlm_directory):
     assert consistency() < 0.8 * before
 
 
-def test_save_reload_and_one_step_sampling(vlm_directory, tmp_path):
-    adapter = SmolVLAFlowPolicy(build_tiny_smolvla(vlm_directory))
+def test_save_reload_and_one_step_sampling(build, tiny_sizes, tmp_path):
+    adapter = wrap_policy(build())
     _randomise_target_time(adapter)
     batch, noise = tiny_batch(), torch.randn(4, 4, 4)
     expected = sample_actions(adapter, batch, noise, SNAPFLOW_1)
-    save_smolvla(adapter, tmp_path / "distilled")
-    reloaded = load_smolvla(tmp_path / "distilled")
+    save_distilled(adapter, tmp_path / "distilled")
+    with tiny_sizes:
+        reloaded = load_distilled(tmp_path / "distilled")
     assert torch.equal(sample_actions(reloaded, batch, noise, SNAPFLOW_1), expected)
     assert torch.equal(sample_actions(reloaded, batch, noise, SamplingMode(10, jump=False)),
                        sample_actions(adapter, batch, noise, SamplingMode(10, jump=False)))
     with pytest.raises(CheckpointError, match="not a SnapFlow-distilled"):
-        load_smolvla(tmp_path)
+        load_distilled(tmp_path)
     # the adapter's own state dict holds each tensor once, so generic safetensors checkpoints work too
     from safetensors.torch import save_file
 
     save_file({k: v.contiguous() for k, v in adapter.state_dict().items()}, tmp_path / "adapter.safetensors")
 
 
-def test_lerobot_action_api_samples_one_step_by_default_and_the_teacher_on_request(vlm_directory, tmp_path):
-    adapter = SmolVLAFlowPolicy(build_tiny_smolvla(vlm_directory))
+def test_lerobot_action_api_samples_one_step_by_default_and_the_teacher_on_request(build, tiny_sizes, tmp_path):
+    adapter = wrap_policy(build())
     _randomise_target_time(adapter)
-    save_smolvla(adapter, tmp_path / "distilled")
-    reloaded = load_smolvla(tmp_path / "distilled")
+    save_distilled(adapter, tmp_path / "distilled")
+    with tiny_sizes:
+        reloaded = load_distilled(tmp_path / "distilled")
     batch, noise = tiny_batch(), torch.randn(4, 4, 4)
     one_step = reloaded.policy.predict_action_chunk(batch, noise=noise)
     assert torch.equal(one_step, sample_actions(adapter, batch, noise, SNAPFLOW_1))
@@ -168,7 +208,7 @@ def test_cli_distills_a_saved_smolvla_on_a_local_lerobot_dataset(vlm_directory, 
                  "--output", str(tmp_path / "run"), "--steps", "3", "--batch-size", "4", "--learning-rate", "1e-3", "--no-progress"]
     assert main(arguments) == 0
     assert (tmp_path / "run" / "checkpoints" / "step_0000003" / "policy.safetensors").is_file()
-    distilled = load_smolvla(tmp_path / "run" / "lerobot_policy")
+    distilled = load_distilled(tmp_path / "run" / "lerobot_policy")
     assert distilled.target_time_embedding.linear_out.weight.abs().sum() > 0, "phi_s must have trained"
     teacher = build_tiny_smolvla(vlm_directory)
     for name, parameter in teacher.model.vlm_with_expert.vlm.named_parameters():

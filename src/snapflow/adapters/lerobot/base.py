@@ -1,0 +1,145 @@
+"""What every LeRobot flow-matching policy shares under SnapFlow.
+
+LeRobot's pi0, pi0.5 and SmolVLA all run ``embed_prefix`` -> one VLM pass that fills a key/value cache ->
+``denoise_step(..., x_t, timestep)`` per Euler step, and all embed the time inside ``embed_suffix``. The
+adapter replaces ``embed_suffix`` on the model *instance* (LeRobot's files stay untouched) by one that reads
+a timestep of shape (B, 2) as [t, s] and adds phi_s(s) where the policy's time embedding enters. A plain
+(B,) timestep means s = t, so LeRobot's own ``forward`` and sampler keep running the flow-matching teacher.
+s travels as an argument, never as hook state, so gradient checkpointing recomputes the same values.
+"""
+
+from __future__ import annotations
+
+import importlib
+import types
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from typing import Any, ClassVar
+
+import torch
+from torch import Tensor, nn
+
+from snapflow.flow.solver import SamplingMode, euler_sample
+from snapflow.nn.time_embedding import TargetTimeEmbedding
+
+OBS_LANGUAGE_TOKENS = "observation.language.tokens"
+OBS_LANGUAGE_ATTENTION_MASK = "observation.language.attention_mask"
+
+
+def split_timestep(timestep: Tensor) -> tuple[Tensor, Tensor]:
+    """(B,) -> (t, t), LeRobot's own calls; (B, 2) -> (t, s), the adapter's calls."""
+    return (timestep, timestep) if timestep.ndim == 1 else timestep.unbind(dim=1)
+
+
+def cache_tensors(cache: Any) -> Any:
+    """The prefix cache as plain tensors, so the objective can select batch rows from it.
+
+    LeRobot 0.4.4's SmolVLA keeps a dict of dicts of tensors; newer LeRobot returns a transformers
+    ``DynamicCache``, kept here as one (keys, values) pair per layer.
+    """
+    return cache if isinstance(cache, dict) else tuple((keys, values) for keys, values, *_ in cache)
+
+
+def cache_for_one_pass(tensors: Any) -> Any:
+    """A fresh cache object over the prefix tensors for a single ``denoise_step``.
+
+    ``denoise_step`` appends the suffix to its cache (and SmolVLA crops it back in place): a cache shared
+    between the no-grad teacher passes and the gradient pass would silently hand the latter detached state.
+    """
+    if isinstance(tensors, dict):
+        return {layer: dict(entry) for layer, entry in tensors.items()}
+    from transformers import DynamicCache
+
+    return DynamicCache(tensors)
+
+
+def modeling_module(model: nn.Module) -> types.ModuleType:
+    """The LeRobot module that defines ``model``: its own helpers (sinusoid, masks) are used, whatever the
+    LeRobot version moved them to."""
+    return importlib.import_module(type(model).__module__)
+
+
+class LeRobotFlowPolicy(nn.Module, ABC):
+    """A LeRobot policy seen through :class:`snapflow.protocol.FlowPolicy`.
+
+    Batches are what the policy's own pre-processor produces (normalised state, images in [0, 1], language
+    tokens and mask). Actions are (B, chunk_size, max_action_dim), padded as ``policy.prepare_action`` pads them.
+    Subclasses name where time enters and how the policy's prefix and denoising step are called.
+    """
+
+    policy_type: ClassVar[str]
+    #: the layer whose output phi_s(s) is added to (before the SiLU that follows it)
+    time_fusion_layer: ClassVar[str]
+    #: the policy's ``embed_suffix`` rewritten to read [t, s]; bound to the LeRobot model instance
+    embed_suffix_with_target_time: ClassVar[Callable[..., Any]]
+
+    def __init__(self, policy: nn.Module) -> None:
+        super().__init__()
+        self.policy = policy
+        model = policy.model
+        if not hasattr(model, "target_time_embedding"):
+            fusion = getattr(model, self.time_fusion_layer)
+            embedding = TargetTimeEmbedding(fusion.out_features, min_period=model.config.min_period, max_period=model.config.max_period)
+            model.target_time_embedding = embedding.to(fusion.weight.device)
+            model.embed_suffix = types.MethodType(type(self).embed_suffix_with_target_time, model)
+
+    @property
+    def target_time_embedding(self) -> TargetTimeEmbedding:
+        """phi_s, stored inside the LeRobot model so that LeRobot's own checkpoints carry it (registered once:
+        safetensors refuses tensors saved under two names)."""
+        return self.policy.model.target_time_embedding
+
+    @abstractmethod
+    def expert_modules(self) -> list[nn.Module]:
+        """The action expert and its projections: what distillation trains besides phi_s."""
+
+    def expert_parameters(self) -> list[nn.Parameter]:
+        """What distillation trains, as in the paper: the action expert, its projections and phi_s; the VLM
+        stays frozen."""
+        modules = [*self.expert_modules(), self.target_time_embedding]
+        return [parameter for module in modules for parameter in module.parameters()]
+
+    @abstractmethod
+    def model_inputs(self, batch: dict[str, Tensor]) -> tuple[Any, ...]:
+        """The positional inputs LeRobot's ``model.sample_actions`` receives before ``noise``."""
+
+    @abstractmethod
+    def encode_inputs(self, *inputs: Any) -> dict[str, Any]:
+        """Prefix pass from :meth:`model_inputs`: images, instruction (and state) through the VLM once,
+        keeping its key/value cache (as tensors) and the prefix padding mask."""
+
+    @abstractmethod
+    def denoise(self, context: dict[str, Any], x_t: Tensor, timestep: Tensor) -> Tensor:
+        """One call of the policy's own ``denoise_step`` against a fresh cache over the context's prefix."""
+
+    def encode(self, batch: dict[str, Tensor]) -> dict[str, Any]:
+        return self.encode_inputs(*self.model_inputs(batch))
+
+    def velocity(self, x_t: Tensor, t: Tensor, s: Tensor, context: dict[str, Any]) -> Tensor:
+        return self.denoise(context, x_t, torch.stack([t, s], dim=1))
+
+    def use_sampling_mode(self, mode: SamplingMode) -> None:
+        """Make LeRobot's own ``predict_action_chunk`` / ``select_action`` sample with ``mode``: SnapFlow
+        1-NFE for deployment, or ``teacher-N`` to run the same checkpoint as the N-step teacher."""
+        adapter = self
+
+        def sample_actions(model: nn.Module, *inputs: Any, noise: Tensor | None = None, **_: Any) -> Tensor:
+            context = adapter.encode_inputs(*inputs)
+            if noise is None:
+                masks = context["prefix_pad_masks"]
+                noise = model.sample_noise((masks.shape[0], model.config.chunk_size, model.config.max_action_dim), masks.device)
+            return euler_sample(lambda x, t, s: adapter.velocity(x, t, s, context), noise, mode)
+
+        self.policy.model.sample_actions = types.MethodType(sample_actions, self.policy.model)
+        self.policy.reset()
+
+
+__all__ = [
+    "OBS_LANGUAGE_ATTENTION_MASK",
+    "OBS_LANGUAGE_TOKENS",
+    "LeRobotFlowPolicy",
+    "cache_for_one_pass",
+    "cache_tensors",
+    "modeling_module",
+    "split_timestep",
+]

@@ -1,0 +1,37 @@
+"""Which SnapFlow adapter serves which LeRobot policy, and loading a policy the way LeRobot loads it."""
+
+from __future__ import annotations
+
+from torch import nn
+
+from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
+from snapflow.adapters.lerobot.pi0 import PI0FlowPolicy, PI05FlowPolicy
+from snapflow.adapters.lerobot.smolvla import SmolVLAFlowPolicy
+
+ADAPTERS: dict[str, type[LeRobotFlowPolicy]] = {
+    adapter.policy_type: adapter for adapter in (PI0FlowPolicy, PI05FlowPolicy, SmolVLAFlowPolicy)
+}
+
+
+def adapter_class(policy_type: str) -> type[LeRobotFlowPolicy]:
+    if policy_type not in ADAPTERS:
+        raise ValueError(f"snapflow distills LeRobot's {', '.join(sorted(ADAPTERS))} policies, not {policy_type!r}")
+    return ADAPTERS[policy_type]
+
+
+def wrap_policy(policy: nn.Module) -> LeRobotFlowPolicy:
+    """The SnapFlow adapter for a LeRobot PI0Policy, PI05Policy or SmolVLAPolicy (phi_s added at zero)."""
+    return adapter_class(policy.config.type)(policy)
+
+
+def load_pretrained_policy(path: str) -> nn.Module:
+    """A LeRobot policy from a hub id or a local pretrained directory, as ``lerobot-eval`` loads it."""
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.policies.factory import get_policy_class
+
+    policy_type = PreTrainedConfig.from_pretrained(path).type
+    adapter_class(policy_type)
+    return get_policy_class(policy_type).from_pretrained(path)
+
+
+__all__ = ["ADAPTERS", "adapter_class", "wrap_policy", "load_pretrained_policy"]
