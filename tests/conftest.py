@@ -1,13 +1,24 @@
-"""Shared fixtures."""
+"""Shared fixtures, and a sealed Hugging Face environment for the whole session."""
 
 from __future__ import annotations
 
-import pytest
-import torch
-from torch import Tensor
+import atexit
+import os
+import shutil
+import tempfile
 
-from snapflow.nn import SnapFlowPolicy
-from tests.helpers import ACTION_DIM, CHUNK, OBSERVATION_DIM, make_model, randomise_target_time
+# Nothing may come from a hub, and no test may read or write the user's Hugging Face cache: point it at a fresh
+# folder before anything imports huggingface_hub (which reads these variables once, at import)
+os.environ["HF_HUB_OFFLINE"] = os.environ["TRANSFORMERS_OFFLINE"] = "1"
+os.environ["HF_HUB_CACHE"] = tempfile.mkdtemp(prefix="snapflow-tests-hf-cache-")
+atexit.register(shutil.rmtree, os.environ["HF_HUB_CACHE"], ignore_errors=True)
+
+import pytest  # noqa: E402
+import torch  # noqa: E402
+from torch import Tensor  # noqa: E402
+
+from snapflow.nn import SnapFlowPolicy  # noqa: E402
+from tests.helpers import ACTION_DIM, CHUNK, OBSERVATION_DIM, make_model, randomise_target_time  # noqa: E402
 
 
 @pytest.fixture

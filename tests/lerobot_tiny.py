@@ -63,7 +63,8 @@ def write_tiny_smolvlm(directory: Path) -> Path:
     return directory
 
 
-def build_tiny_smolvla(vlm_directory: Path, seed: int = 0):
+def build_tiny_smolvla(vlm_directory: Path, seed: int = 0, state_dim: int = 6, image_key: str = "observation.images.top",
+                       image_size: int = IMAGE_SIZE):
     from lerobot.configs.types import FeatureType, PolicyFeature
     from lerobot.policies.smolvla.configuration_smolvla import SmolVLAConfig
     from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
@@ -74,8 +75,8 @@ def build_tiny_smolvla(vlm_directory: Path, seed: int = 0):
         resize_imgs_with_padding=(IMAGE_SIZE, IMAGE_SIZE), chunk_size=4, n_action_steps=4, max_state_dim=8,
         max_action_dim=4, tokenizer_max_length=16, device="cpu", push_to_hub=False,
         input_features={
-            "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(6,)),
-            "observation.images.top": PolicyFeature(type=FeatureType.VISUAL, shape=(3, IMAGE_SIZE, IMAGE_SIZE)),
+            "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(state_dim,)),
+            image_key: PolicyFeature(type=FeatureType.VISUAL, shape=(3, image_size, image_size)),
         },
         output_features={"action": PolicyFeature(type=FeatureType.ACTION, shape=(4,))},
     )
@@ -155,6 +156,20 @@ def tiny_batch(batch_size: int = 4, seed: int = 0) -> dict[str, torch.Tensor]:
         "observation.language.attention_mask": mask,
         "action": torch.randn(batch_size, 4, 4, generator=generator),
     }
+
+
+def cache_as_hub_repo(folder: Path, repo_id: str) -> None:
+    """Make ``folder`` what an offline ``from_pretrained(repo_id)`` finds in the (test session's) HF cache."""
+    import shutil
+
+    from huggingface_hub import constants
+
+    repo = Path(constants.HF_HUB_CACHE) / f"models--{repo_id.replace('/', '--')}"
+    revision = "0" * 40
+    if not (repo / "snapshots" / revision).is_dir():
+        shutil.copytree(folder, repo / "snapshots" / revision)
+        (repo / "refs").mkdir(parents=True, exist_ok=True)
+        (repo / "refs" / "main").write_text(revision)
 
 
 def write_tiny_dataset(root: Path, repo_id: str = "local/tiny", episodes: int = 3, frames: int = 12, fps: int = 10) -> Path:

@@ -4,14 +4,11 @@ each built offline at tiny size."""
 from __future__ import annotations
 
 import contextlib
-import os
 from importlib.metadata import version
 
 import pytest
 import torch
 
-os.environ.setdefault("HF_HUB_OFFLINE", "1")  # nothing may come from a hub: the tiny models are built locally
-os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
 pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test command; this environment lacks it")
 
 from packaging.version import Version  # noqa: E402
@@ -230,3 +227,78 @@ def test_cli_distills_a_saved_smolvla_on_a_local_lerobot_dataset(vlm_directory, 
     assert main(arguments + ["--resume"]) == 0  # already at its last step: resumes and stops cleanly
     assert main(["distill", "--policy", "x", "--data", "y", "--output", str(tmp_path / "bad"), "--no-progress"]) == 2
     assert "either --teacher and --data" in capsys.readouterr().err
+
+
+@PI_SKIP
+@pytest.mark.parametrize("policy_type", ["pi0", "pi05"])
+def test_cli_distills_a_saved_pi_policy_on_a_local_lerobot_dataset(policy_type, vlm_directory, tmp_path):
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    from lerobot.policies.factory import make_pre_post_processors
+
+    from snapflow.cli import main
+    from tests.lerobot_tiny import cache_as_hub_repo, write_tiny_dataset
+
+    # LeRobot's pi processors load PaliGemma's tokenizer by hub id: the tiny one stands in for it, offline
+    cache_as_hub_repo(vlm_directory, "google/paligemma-3b-pt-224")
+    dataset = write_tiny_dataset(tmp_path / "dataset")
+    build_tiny_pi(policy_type).save_pretrained(tmp_path / "teacher")
+    with tiny_pi_configs(policy_type):
+        assert main(["distill", "--policy", str(tmp_path / "teacher"), "--dataset", str(dataset), "--repo-id", "local/tiny",
+                     "--output", str(tmp_path / "run"), "--steps", "3", "--batch-size", "4", "--learning-rate", "1e-3",
+                     "--no-progress"]) == 0
+        distilled = load_distilled(tmp_path / "run" / "lerobot_policy")
+    assert distilled.target_time_embedding.linear_out.weight.abs().sum() > 0, "phi_s must have trained"
+    teacher = build_tiny_pi(policy_type)
+    for name, parameter in teacher.model.paligemma_with_expert.paligemma.named_parameters():
+        assert torch.equal(parameter, distilled.policy.model.paligemma_with_expert.paligemma.get_parameter(name)), f"frozen {name} moved"
+    assert not torch.equal(teacher.model.action_out_proj.weight, distilled.policy.model.action_out_proj.weight)
+    # the export carries LeRobot's processors: a raw dataset frame in, 1-NFE actions in the dataset's units out
+    preprocessor, postprocessor = make_pre_post_processors(distilled.policy.config, pretrained_path=str(tmp_path / "run" / "lerobot_policy"))
+    frame = LeRobotDataset("local/tiny", root=dataset)[0]
+    raw = {key: value[None] if torch.is_tensor(value) else [value] for key, value in frame.items()}
+    actions = postprocessor(distilled.policy.predict_action_chunk(preprocessor(raw)))
+    assert actions.shape == (1, 4, 4) and torch.isfinite(actions).all()
+
+
+def test_cli_evaluates_a_distilled_smolvla_in_lerobots_own_metaworld(vlm_directory, tmp_path, capsys):
+    import json
+
+    from lerobot.policies.factory import make_pre_post_processors
+
+    from snapflow.cli import main
+
+    # a distilled SmolVLA with the features LeRobot's Meta-World env produces, saved with its processors
+    policy = build_tiny_smolvla(vlm_directory, state_dim=4, image_key="observation.image", image_size=480)
+    adapter = wrap_policy(policy)
+    _randomise_target_time(adapter)
+    directory = save_distilled(adapter, tmp_path / "distilled")
+    unit = {"mean": torch.zeros(4), "std": torch.ones(4)}
+    for processor in make_pre_post_processors(policy.config, dataset_stats={"observation.state": unit, "action": unit}):
+        processor.save_pretrained(directory)
+
+    output = tmp_path / "eval"
+    arguments = ["eval", "--lerobot-env", "metaworld", "--env-task", "reach-v3", "--policy", str(directory), "--episodes", "2",
+                 "--n-envs", "2", "--n-act", "2", "--modes", "snapflow-1,teacher-2", "--max-episode-steps", "12",
+                 "--output-dir", str(output), "--no-progress"]
+    assert main(arguments) == 0
+    report = json.loads((output / "report.json").read_text())
+    assert report["policy_type"] == "smolvla" and report["n_action_steps"] == 2 and report["task"] == "reach-v3"
+    assert list(report["modes"]) == ["snapflow-1", "teacher-2"]
+    rewards = []
+    for name, nfe in (("snapflow-1", 1), ("teacher-2", 2)):
+        info = report["modes"][name]
+        assert info["nfe"] == nfe and info["overall"]["n_episodes"] == 2 and 0 <= info["overall"]["pc_success"] <= 100
+        assert json.loads((output / name / "eval_info.json").read_text())["overall"] == info["overall"]  # lerobot-eval's file
+        rewards.append(info["overall"]["avg_sum_reward"])
+    assert rewards[0] != rewards[1], "the two sampling modes must drive the robot differently"
+    assert "| snapflow-1 | 1 |" in capsys.readouterr().out
+
+    def changed(option: str, value: str) -> list[str]:
+        changed = list(arguments)
+        changed[changed.index(option) + 1] = value
+        return changed
+
+    assert main(changed("--lerobot-env", "nowhere")) == 2
+    assert "unknown LeRobot environment 'nowhere'" in capsys.readouterr().err
+    assert main(changed("--n-act", "9")) == 2  # more actions per chunk than the chunk holds
+    assert "n_action_steps must be between 1" in capsys.readouterr().err

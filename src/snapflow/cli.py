@@ -78,8 +78,9 @@ def _distill(args: argparse.Namespace) -> int:
     if lerobot:
         from snapflow.experiments.lerobot import EXPORT_DIRECTORY, PAPER_TRAINING, distill_lerobot
 
-        repo_id = args.repo_id or f"local/{Path(args.dataset).name}"
-        state = distill_lerobot(args.policy, args.dataset, repo_id, args.output, _train_config(args, PAPER_TRAINING), settings,
+        local = Path(args.dataset).is_dir()  # a dataset root on disk, or else a repo id LeRobot fetches and caches
+        repo_id = (args.repo_id or f"local/{Path(args.dataset).name}") if local else args.dataset
+        state = distill_lerobot(args.policy, args.dataset if local else None, repo_id, args.output, _train_config(args, PAPER_TRAINING), settings,
                                 args.resume, not args.no_progress)
         print(f"SnapFlow student trained to step {state['step']}; LeRobot policy in {Path(args.output) / EXPORT_DIRECTORY}")
         return 0
@@ -95,12 +96,28 @@ def _eval(args: argparse.Namespace) -> int:
     from snapflow.training.checkpoint import load_policy
 
     modes = [SamplingMode.parse(name) for name in args.modes.split(",")]
+    if args.lerobot_env:
+        return _eval_in_lerobot_env(args, modes)
     loaded = {path: load_policy(path) for path in args.policy}
     runs = [(f"{mode.name}" if len(loaded) == 1 else f"{Path(path).name} {mode.name}", policy, mode) for path, policy in loaded.items() for mode in modes]
-    report = evaluate(runs, _tasks(args.tasks), args.episodes, args.n_act, args.data, seed=args.seed, progress=not args.no_progress)
+    report = evaluate(runs, _tasks(args.tasks), args.episodes, args.n_act or 4, args.data,
+                      seed=args.seed if args.seed is not None else 0, progress=not args.no_progress)
     write_report(report, args.output_dir)
     print(markdown_report(report))
     print(f"wrote report.json, report.md and PNG plots to {args.output_dir}")
+    return 0
+
+
+def _eval_in_lerobot_env(args: argparse.Namespace, modes: list) -> int:
+    from snapflow.evaluation.lerobot_env import evaluate_in_lerobot_env, lerobot_eval_table, write_lerobot_eval
+
+    if len(args.policy) != 1:
+        raise ValueError("--lerobot-env evaluates one distilled LeRobot policy directory at a time")
+    report = evaluate_in_lerobot_env(args.policy[0], args.lerobot_env, modes, args.episodes, args.env_task, args.n_act,
+                                     args.n_envs, args.seed if args.seed is not None else 1000, args.max_episode_steps)
+    write_lerobot_eval(report, args.output_dir)
+    print(lerobot_eval_table(report))
+    print(f"wrote report.json, report.md and each mode's eval_info.json to {args.output_dir}")
     return 0
 
 
@@ -153,23 +170,30 @@ def build_parser() -> argparse.ArgumentParser:
     distill = commands.add_parser("distill", parents=[common], help="SnapFlow-distill a teacher into a 1-NFE student")
     _add_training_options(distill, data_required=False)
     distill.add_argument("--teacher", help="teacher run or checkpoint directory (built-in MiniVLA)")
-    distill.add_argument("--policy", help="LeRobot SmolVLA: hub id or local pretrained directory")
-    distill.add_argument("--dataset", help="LeRobotDataset root directory on disk")
-    distill.add_argument("--repo-id", help="the dataset's repo id (default: local/<folder name>)")
+    distill.add_argument("--policy", help="LeRobot pi0, pi0.5 or SmolVLA: hub id or local pretrained directory")
+    distill.add_argument("--dataset", help="LeRobotDataset: root directory on disk, or repo id")
+    distill.add_argument("--repo-id", help="repo id of a dataset given as a directory (default: local/<folder name>)")
     distill.add_argument("--alpha", type=float, default=0.5, help="flow-matching share of each batch")
     distill.add_argument("--consistency-weight", "--lambda", type=float, default=0.1, dest="consistency_weight")
     distill.add_argument("--clamp", type=float, help="bound on the no-grad teacher velocities")
     distill.add_argument("--train-prefix", action="store_true", help="also train the prefix encoder (frozen by default)")
     distill.set_defaults(run=_distill)
 
-    evaluate = commands.add_parser("eval", parents=[common], help="closed-loop success, offline metrics and latency on Meta-World")
-    evaluate.add_argument("--policy", required=True, nargs="+", help="run or checkpoint directories")
+    evaluate = commands.add_parser("eval", parents=[common], help="closed-loop success, offline metrics and latency on Meta-World, "
+                                   "or success of a distilled LeRobot policy in LeRobot's environments")
+    evaluate.add_argument("--policy", required=True, nargs="+", help="run or checkpoint directories (with --lerobot-env: "
+                          "one distilled LeRobot policy directory, e.g. run/lerobot_policy)")
     evaluate.add_argument("--modes", default="teacher-10,naive,snapflow-1", help="comma-separated: teacher-N, naive, snapflow-N")
-    evaluate.add_argument("--tasks", default="all")
+    evaluate.add_argument("--tasks", default="all", help="built-in Meta-World tasks")
     evaluate.add_argument("--episodes", type=int, default=10, help="episodes per task")
-    evaluate.add_argument("--n-act", type=int, default=4, help="actions executed per predicted chunk")
+    evaluate.add_argument("--n-act", "--n-action-steps", type=int, dest="n_act",
+                          help="actions executed per predicted chunk (default 4; with --lerobot-env the policy's own)")
     evaluate.add_argument("--data", help="demonstrations for offline metrics on the held-out episodes")
-    evaluate.add_argument("--seed", type=int, default=0)
+    evaluate.add_argument("--seed", type=int, help="evaluation seed (default 0; with --lerobot-env LeRobot's 1000)")
+    evaluate.add_argument("--lerobot-env", help="evaluate in LeRobot's environment of this type (pusht, aloha, libero, metaworld, ...)")
+    evaluate.add_argument("--env-task", help="with --lerobot-env: the task or suite (default: the environment's own)")
+    evaluate.add_argument("--n-envs", type=int, default=1, help="with --lerobot-env: environments stepped in parallel")
+    evaluate.add_argument("--max-episode-steps", type=int, help="with --lerobot-env: cut episodes short of the environment's limit")
     evaluate.add_argument("--output-dir", default="outputs/eval")
     evaluate.set_defaults(run=_eval)
 

@@ -39,12 +39,13 @@ def policy_processors(policy: torch.nn.Module, policy_path: str, dataset_stats: 
 
 
 def distill_lerobot(
-    policy_path: str, dataset_root: str | Path, repo_id: str, output: str | Path, config: TrainConfig = PAPER_TRAINING,
+    policy_path: str, dataset_root: str | Path | None, repo_id: str, output: str | Path, config: TrainConfig = PAPER_TRAINING,
     settings: DistillSettings | None = None, resume: bool = False, progress: bool = True,
     preprocessor_overrides: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Distill a LeRobot pi0, pi0.5 or SmolVLA (hub id or local pretrained directory) on the LeRobotDataset at
-    ``dataset_root``; ``preprocessor_overrides`` reach LeRobot's processor loader (e.g. a local tokenizer)."""
+    """Distill a LeRobot pi0, pi0.5 or SmolVLA (hub id or local pretrained directory) on the LeRobotDataset
+    ``repo_id`` at ``dataset_root`` (None: LeRobot's cache, fetched from the hub if missing);
+    ``preprocessor_overrides`` reach LeRobot's processor loader (e.g. a local tokenizer)."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
 
     settings = settings or DistillSettings()
@@ -54,14 +55,14 @@ def distill_lerobot(
     metadata = LeRobotDatasetMetadata(repo_id, root=dataset_root)
     missing = sorted((set(policy.config.input_features) | set(policy.config.output_features)) - set(metadata.features))
     if missing:
-        raise ValueError(f"the dataset at {dataset_root} lacks the policy's feature(s) {missing}")
+        raise ValueError(f"the dataset {repo_id} lacks the policy's feature(s) {missing}")
     chunk = [step / metadata.fps for step in range(policy.config.chunk_size)]
     dataset = LeRobotDataset(repo_id, root=dataset_root, delta_timestamps={"action": chunk})
     preprocessor, postprocessor = policy_processors(policy, policy_path, metadata.stats, preprocessor_overrides)
     adapter = wrap_policy(policy)
     objective = settings.objective(BetaTimeSampler())  # LeRobot's policies train on Beta(1.5, 1) times
     run_metadata = {"format": "snapflow-lerobot-run", "policy": adapter.policy_type, "source": str(policy_path),
-                    "dataset": {"repo_id": repo_id, "root": str(dataset_root)}, "distill": asdict(settings), "stage": "snapflow"}
+                    "dataset": {"repo_id": repo_id, "root": dataset_root and str(dataset_root)}, "distill": asdict(settings), "stage": "snapflow"}
     state = train(adapter, objective, LeRobotChunkData(dataset, preprocessor, policy), None, config, output, run_metadata,
                   resume=resume, trainable=adapter.expert_parameters(), progress=progress)
     export = save_distilled(adapter, Path(output) / EXPORT_DIRECTORY)

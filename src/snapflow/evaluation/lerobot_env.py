@@ -1,0 +1,107 @@
+"""Closed-loop success of a SnapFlow-distilled LeRobot policy in LeRobot's own simulated environments
+(pusht, aloha, libero, metaworld, ...), through LeRobot's env factory and ``eval_policy_all`` rollout, once per
+sampling mode. The numbers are LeRobot's: ``pc_success`` over ``n_episodes``, rewards, per task and suite."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from snapflow.adapters.lerobot.checkpoint import load_distilled
+from snapflow.flow.solver import SamplingMode
+from snapflow.io import atomic_write, write_json
+
+
+def make_lerobot_env_config(env_type: str, task: str | None = None) -> Any:
+    """LeRobot's registered ``EnvConfig`` for ``env_type``, with its default task unless one is given."""
+    from lerobot.envs.configs import EnvConfig
+
+    choices = sorted(EnvConfig.get_known_choices())
+    if env_type not in choices:
+        raise ValueError(f"unknown LeRobot environment {env_type!r}; LeRobot knows {', '.join(choices)}")
+    return EnvConfig.get_choice_class(env_type)(**({"task": task} if task else {}))
+
+
+def evaluate_in_lerobot_env(
+    policy_directory: str | Path, env_type: str, modes: list[SamplingMode], episodes: int, task: str | None = None,
+    n_action_steps: int | None = None, n_envs: int = 1, seed: int = 1000, max_episode_steps: int | None = None,
+    device: str | None = None,
+) -> dict[str, Any]:
+    """Run ``episodes`` rollouts per mode and return ``{"modes": {name: LeRobot's eval info + NFE}, ...}``.
+
+    ``n_action_steps`` actions of each predicted chunk are executed before re-planning (default: the policy's
+    own setting); ``max_episode_steps`` cuts episodes short of the environment's own limit (quick checks).
+    """
+    os.environ.setdefault("MUJOCO_GL", "egl")  # Meta-World and ALOHA render off-screen
+    from lerobot.envs.factory import make_env, make_env_pre_post_processors
+    from lerobot.envs.utils import close_envs
+    from lerobot.policies.factory import make_pre_post_processors
+    from lerobot.scripts.lerobot_eval import eval_policy_all
+
+    if episodes < 1 or n_envs < 1:
+        raise ValueError("episodes and n_envs must be at least 1")
+    adapter = load_distilled(policy_directory)
+    policy = adapter.policy
+    chunk = policy.config.chunk_size
+    n_action_steps = n_action_steps or policy.config.n_action_steps
+    if not 1 <= n_action_steps <= chunk:
+        raise ValueError(f"n_action_steps must be between 1 and the policy's chunk size {chunk}, got {n_action_steps}")
+    policy.config.n_action_steps = n_action_steps
+    device = device or ("cuda" if torch.cuda.is_available() else "cpu")
+    policy.config.device = device
+    policy.to(device).eval()
+
+    env_config = make_lerobot_env_config(env_type, task)
+    preprocessor, postprocessor = make_pre_post_processors(
+        policy.config, pretrained_path=str(policy_directory), preprocessor_overrides={"device_processor": {"device": device}}
+    )
+    env_preprocessor, env_postprocessor = make_env_pre_post_processors(env_config, policy.config)
+    environments = make_env(env_config, n_envs=n_envs)
+    if max_episode_steps:
+        for suite in environments.values():
+            for vector_env in suite.values():
+                vector_env.set_attr("_max_episode_steps", max_episode_steps)
+    results: dict[str, Any] = {}
+    try:
+        for mode in modes:
+            adapter.use_sampling_mode(mode)
+            with torch.no_grad():
+                info = eval_policy_all(environments, policy, env_preprocessor, env_postprocessor, preprocessor, postprocessor,
+                                       n_episodes=episodes, start_seed=seed)
+            results[mode.name] = {"nfe": mode.num_steps, **info}
+    finally:
+        close_envs(environments)
+    return {
+        "policy": str(policy_directory), "policy_type": adapter.policy_type, "env": env_type, "task": env_config.task,
+        "episodes_per_task": episodes, "n_action_steps": n_action_steps, "chunk_size": chunk, "n_envs": n_envs,
+        "start_seed": seed, "max_episode_steps": max_episode_steps, "device": device, "modes": results,
+    }
+
+
+def lerobot_eval_table(report: dict[str, Any]) -> str:
+    """Markdown summary: success rate with its episode count, rewards and wall time per sampling mode."""
+    lines = [f"{report['policy_type']} in LeRobot's {report['env']} ({report['task']}), {report['n_action_steps']} of "
+             f"{report['chunk_size']} actions executed per chunk", "",
+             "| mode | NFE | success | episodes | avg max reward | avg sum reward | eval s |",
+             "|---|---|---|---|---|---|---|"]
+    for name, info in report["modes"].items():
+        overall = info["overall"]
+        lines.append(f"| {name} | {info['nfe']} | {overall['pc_success']:.1f}% | {overall['n_episodes']} | "
+                     f"{overall['avg_max_reward']:.3f} | {overall['avg_sum_reward']:.3f} | {overall['eval_s']:.1f} |")
+    return "\n".join(lines)
+
+
+def write_lerobot_eval(report: dict[str, Any], output_dir: str | Path) -> Path:
+    """``report.json`` (everything), ``report.md`` (the table) and, per mode, LeRobot's ``eval_info.json``."""
+    output_dir = Path(output_dir)
+    for name, info in report["modes"].items():
+        write_json(output_dir / name / "eval_info.json", {key: value for key, value in info.items() if key != "nfe"})
+    write_json(output_dir / "report.json", report)
+    atomic_write(output_dir / "report.md", lambda path: path.write_text(lerobot_eval_table(report) + "\n"))
+    return output_dir
+
+
+__all__ = ["make_lerobot_env_config", "evaluate_in_lerobot_env", "lerobot_eval_table", "write_lerobot_eval"]
