@@ -133,6 +133,30 @@ def test_gradients_reach_only_the_expert_and_the_embedding(build):
     assert sum(p.grad.abs().sum() for p in expert.parameters() if p.grad is not None) > 0
 
 
+@PI_SKIP
+@pytest.mark.parametrize("policy_type", ["pi0", "pi05"])
+def test_gradient_checkpointing_gives_the_same_gradients(policy_type):
+    """s is an argument of the recomputed functions, not hook state, so checkpointing recomputes the same values;
+    and the frozen prefix pass keeps its cache although Hugging Face drops it when checkpointing in training."""
+    gradients = []
+    for checkpointing in (False, True):
+        adapter = wrap_policy(build_tiny_pi(policy_type))
+        _randomise_target_time(adapter)
+        if checkpointing:
+            adapter.policy.model.gradient_checkpointing_enable()
+        trainable = {id(p) for p in adapter.expert_parameters()}
+        for parameter in adapter.parameters():
+            parameter.requires_grad_(id(parameter) in trainable)
+        adapter.train()
+        batch, generator = tiny_batch(), torch.Generator().manual_seed(0)
+        noise, time = torch.randn(4, 4, 4, generator=generator), torch.rand(2, generator=generator)
+        SnapFlowObjective()(adapter, batch, adapter.policy.prepare_action(batch), noise=noise, time=time).loss.backward()
+        gradients.append({name: p.grad for name, p in adapter.named_parameters() if p.grad is not None})
+    assert gradients[0].keys() == gradients[1].keys() and len(gradients[0]) > 0
+    for name, gradient in gradients[0].items():
+        assert torch.allclose(gradient, gradients[1][name], atol=1e-6), name
+
+
 def test_distillation_lowers_the_consistency_loss(build):
     adapter = wrap_policy(build())
     parameters = adapter.expert_parameters()

@@ -10,10 +10,11 @@ s travels as an argument, never as hook state, so gradient checkpointing recompu
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import types
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any, ClassVar
 
 import torch
@@ -51,6 +52,23 @@ def cache_for_one_pass(tensors: Any) -> Any:
     from transformers import DynamicCache
 
     return DynamicCache(tensors)
+
+
+@contextlib.contextmanager
+def frozen_prefix_pass(vlm: nn.Module) -> Iterator[None]:
+    """Run the frozen VLM's prefix pass without a graph and in eval mode (each module's mode restored after).
+
+    Besides saving the graph, eval mode keeps the key/value cache when gradient checkpointing is on: Hugging Face
+    models drop ``use_cache`` when they checkpoint in training mode.
+    """
+    modes = [(module, module.training) for module in vlm.modules()]
+    vlm.eval()
+    try:
+        with torch.no_grad():
+            yield
+    finally:
+        for module, training in modes:
+            module.training = training
 
 
 def modeling_module(model: nn.Module) -> types.ModuleType:
@@ -105,8 +123,8 @@ class LeRobotFlowPolicy(nn.Module, ABC):
 
     @abstractmethod
     def encode_inputs(self, *inputs: Any) -> dict[str, Any]:
-        """Prefix pass from :meth:`model_inputs`: images, instruction (and state) through the VLM once,
-        keeping its key/value cache (as tensors) and the prefix padding mask."""
+        """Prefix pass from :meth:`model_inputs`: images, instruction (and state) through the frozen VLM once,
+        without gradients, keeping its key/value cache (as tensors) and the prefix padding mask."""
 
     @abstractmethod
     def denoise(self, context: dict[str, Any], x_t: Tensor, timestep: Tensor) -> Tensor:

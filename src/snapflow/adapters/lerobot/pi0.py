@@ -23,6 +23,7 @@ from snapflow.adapters.lerobot.base import (
     LeRobotFlowPolicy,
     cache_for_one_pass,
     cache_tensors,
+    frozen_prefix_pass,
     modeling_module,
     split_timestep,
 )
@@ -107,13 +108,14 @@ class PI0FlowPolicy(LeRobotFlowPolicy):
         """PaliGemma over images and prompt once, as LeRobot's ``sample_actions`` runs it."""
         model = self.policy.model
         helpers = modeling_module(model)
-        prefix, pad_masks, att_masks = model.embed_prefix(images, image_masks, tokens, token_masks)
-        language_model = model.paligemma_with_expert.paligemma.model.language_model
-        language_model.config._attn_implementation = "eager"  # as LeRobot's sampler sets it for the 4-D masks
-        _, cache = model.paligemma_with_expert.forward(
-            attention_mask=helpers.prepare_attention_masks_4d(helpers.make_att_2d_masks(pad_masks, att_masks)),
-            position_ids=torch.cumsum(pad_masks, dim=1) - 1, past_key_values=None, inputs_embeds=[prefix, None], use_cache=True,
-        )
+        paligemma = model.paligemma_with_expert.paligemma
+        paligemma.model.language_model.config._attn_implementation = "eager"  # as LeRobot's sampler sets it for 4-D masks
+        with frozen_prefix_pass(paligemma):
+            prefix, pad_masks, att_masks = model.embed_prefix(images, image_masks, tokens, token_masks)
+            _, cache = model.paligemma_with_expert.forward(
+                attention_mask=helpers.prepare_attention_masks_4d(helpers.make_att_2d_masks(pad_masks, att_masks)),
+                position_ids=torch.cumsum(pad_masks, dim=1) - 1, past_key_values=None, inputs_embeds=[prefix, None], use_cache=True,
+            )
         return {"cache": cache_tensors(cache), "prefix_pad_masks": pad_masks}
 
     def denoise(self, context: dict[str, Any], x_t: Tensor, timestep: Tensor) -> Tensor:

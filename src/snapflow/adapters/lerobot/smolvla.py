@@ -20,6 +20,7 @@ from snapflow.adapters.lerobot.base import (
     LeRobotFlowPolicy,
     cache_for_one_pass,
     cache_tensors,
+    frozen_prefix_pass,
     modeling_module,
     split_timestep,
 )
@@ -61,15 +62,16 @@ class SmolVLAFlowPolicy(LeRobotFlowPolicy):
 
     def encode_inputs(self, images: list[Tensor], image_masks: list[Tensor], tokens: Tensor, token_masks: Tensor, state: Tensor) -> dict[str, Any]:
         model = self.policy.model
-        prefix, pad_masks, att_masks = model.embed_prefix(images, image_masks, tokens, token_masks, state=state)
         vlm = model.vlm_with_expert
         # LeRobot 0.4.4 fills its dict cache only when asked; newer versions return a DynamicCache
         extra = {"fill_kv_cache": True} if "fill_kv_cache" in inspect.signature(vlm.forward).parameters else {}
-        _, cache = vlm.forward(
-            attention_mask=modeling_module(model).make_att_2d_masks(pad_masks, att_masks),
-            position_ids=torch.cumsum(pad_masks, dim=1) - 1, past_key_values=None, inputs_embeds=[prefix, None],
-            use_cache=True, **extra,
-        )
+        with frozen_prefix_pass(vlm.vlm):  # the state projection, also in the prefix, is frozen too
+            prefix, pad_masks, att_masks = model.embed_prefix(images, image_masks, tokens, token_masks, state=state)
+            _, cache = vlm.forward(
+                attention_mask=modeling_module(model).make_att_2d_masks(pad_masks, att_masks),
+                position_ids=torch.cumsum(pad_masks, dim=1) - 1, past_key_values=None, inputs_embeds=[prefix, None],
+                use_cache=True, **extra,
+            )
         return {"cache": cache_tensors(cache), "prefix_pad_masks": pad_masks}
 
     def denoise(self, context: dict[str, Any], x_t: Tensor, timestep: Tensor) -> Tensor:
