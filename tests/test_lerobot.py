@@ -72,6 +72,19 @@ def _randomise_target_time(adapter: LeRobotFlowPolicy) -> None:
             parameter.normal_(0, 0.2)
 
 
+def test_unsupported_policies_and_lerobot_versions_are_named():
+    from snapflow.adapters.lerobot import PI05FlowPolicy
+    from snapflow.adapters.lerobot.registry import adapter_class
+
+    with pytest.raises(ValueError, match="pi0, pi05, smolvla policies, not 'act'"):
+        adapter_class("act")
+    if LEROBOT < Version("0.5"):
+        with pytest.raises(ValueError, match=f"pi05 adapter needs lerobot >= 0.5 .* lerobot {LEROBOT} is installed"):
+            adapter_class("pi05")
+    else:
+        assert adapter_class("pi05") is PI05FlowPolicy
+
+
 def test_wrapping_changes_no_output_bit_at_init(build):
     reference = build()
     adapter = wrap_policy(build())

@@ -90,6 +90,8 @@ class LeRobotFlowPolicy(nn.Module, ABC):
     time_fusion_layer: ClassVar[str]
     #: the policy's ``embed_suffix`` rewritten to read [t, s]; bound to the LeRobot model instance
     embed_suffix_with_target_time: ClassVar[Callable[..., Any]]
+    #: the oldest LeRobot release whose internals the adapter follows
+    minimum_lerobot: ClassVar[str] = "0.4.4"
 
     def __init__(self, policy: nn.Module) -> None:
         super().__init__()

@@ -9,11 +9,9 @@ the Gemma action expert per pass.
 
 from __future__ import annotations
 
-from importlib.metadata import version
 from typing import Any
 
 import torch
-from packaging.version import Version
 from torch import Tensor, nn
 from torch.nn import functional as F
 
@@ -27,8 +25,6 @@ from snapflow.adapters.lerobot.base import (
     modeling_module,
     split_timestep,
 )
-
-MINIMUM_LEROBOT = Version("0.5")
 
 
 def _suffix_attention_masks(self: nn.Module, state_tokens: int, like: Tensor) -> Tensor:
@@ -83,13 +79,7 @@ class PI0FlowPolicy(LeRobotFlowPolicy):
     policy_type = "pi0"
     time_fusion_layer = "action_time_mlp_in"
     embed_suffix_with_target_time = staticmethod(_pi0_embed_suffix_with_target_time)
-
-    def __init__(self, policy: nn.Module) -> None:
-        installed = Version(version("lerobot"))
-        if installed < MINIMUM_LEROBOT:
-            raise RuntimeError(f"snapflow's {self.policy_type} adapter needs lerobot >= {MINIMUM_LEROBOT} (Python >= 3.12); "
-                               f"lerobot {installed} is installed")
-        super().__init__(policy)
+    minimum_lerobot = "0.5"  # 0.4.4's pi0 needs a transformers fork and has another internal layout
 
     def expert_modules(self) -> list[nn.Module]:
         model = self.policy.model

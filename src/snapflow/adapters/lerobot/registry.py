@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from importlib.metadata import version
+
+from packaging.version import Version
 from torch import nn
 
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
@@ -14,9 +17,14 @@ ADAPTERS: dict[str, type[LeRobotFlowPolicy]] = {
 
 
 def adapter_class(policy_type: str) -> type[LeRobotFlowPolicy]:
+    """The adapter for a LeRobot policy type, checked against the installed LeRobot."""
     if policy_type not in ADAPTERS:
         raise ValueError(f"snapflow distills LeRobot's {', '.join(sorted(ADAPTERS))} policies, not {policy_type!r}")
-    return ADAPTERS[policy_type]
+    adapter, installed = ADAPTERS[policy_type], version("lerobot")
+    if Version(installed) < Version(adapter.minimum_lerobot):
+        raise ValueError(f"snapflow's {policy_type} adapter needs lerobot >= {adapter.minimum_lerobot} (Python >= 3.12 for "
+                         f"lerobot >= 0.5); lerobot {installed} is installed")
+    return adapter
 
 
 def wrap_policy(policy: nn.Module) -> LeRobotFlowPolicy:
