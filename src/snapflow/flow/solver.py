@@ -67,12 +67,11 @@ SNAPFLOW_1 = SamplingMode(1, jump=True)
 
 def euler_sample(velocity: VelocityFn, noise: Tensor, mode: SamplingMode) -> Tensor:
     """Integrate from x_1 = ``noise`` at t = 1 to t = 0 with ``mode.num_steps`` Euler steps."""
-    batch = noise.shape[0]
-    times = torch.linspace(1.0, 0.0, mode.num_steps + 1, device=noise.device, dtype=torch.float32)
+    # one (steps + 1, B) grid of times; each step reads two rows of it (views, no new tensors per step)
+    grid = torch.linspace(1.0, 0.0, mode.num_steps + 1, device=noise.device, dtype=torch.float32)[:, None].expand(-1, noise.shape[0])
     x = noise
-    for t_now, t_next in zip(times[:-1], times[1:], strict=True):
-        t = t_now.expand(batch)
-        t_to = t_next.expand(batch)
+    for step in range(mode.num_steps):
+        t, t_to = grid[step], grid[step + 1]
         x = euler_step(x, velocity(x, t, t_to if mode.jump else t), t, t_to)
     return x
 
