@@ -339,3 +339,18 @@ def test_cli_evaluates_a_distilled_smolvla_in_lerobots_own_metaworld(vlm_directo
     assert "unknown LeRobot environment 'nowhere'" in capsys.readouterr().err
     assert main(changed("--n-act", "9")) == 2  # more actions per chunk than the chunk holds
     assert "n_action_steps must be between 1" in capsys.readouterr().err
+
+
+def test_bench_cli_times_a_distilled_lerobot_policy(build, tiny_sizes, policy_type, tmp_path):
+    import json
+
+    from snapflow.cli import main
+
+    directory = save_distilled(wrap_policy(build()), tmp_path / "distilled")
+    output = tmp_path / "bench"
+    with tiny_sizes:
+        assert main(["bench", "--policy", str(directory), "--warmup", "1", "--repeats", "2", "--no-profile", "--output-dir", str(output)]) == 0
+    report = json.loads((output / "bench.json").read_text())
+    assert report["details"]["policy_type"] == policy_type
+    assert 0 < report["details"]["expert_parameters"] < report["details"]["parameters"]
+    assert report["latency"]["modes"]["snapflow-1"]["nfe"] == 1 and report["latency"]["prefix"]["repeats"] == 2

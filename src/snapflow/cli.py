@@ -121,6 +121,24 @@ def _eval_in_lerobot_env(args: argparse.Namespace, modes: list) -> int:
     return 0
 
 
+def _bench(args: argparse.Namespace) -> int:
+    import torch
+
+    from snapflow.benchmark.bench import markdown_bench, run_bench, write_bench
+    from snapflow.benchmark.subjects import make_subject
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    dtype = {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch.float16}[args.dtype]
+    subject = make_subject(args.policy, args.architecture, device, dtype, args.vlm)
+    report = run_bench(subject, args.warmup, args.repeats, args.compile, profile=not args.no_profile)
+    write_bench(report, args.output_dir)
+    print(markdown_bench(report))
+    print(f"wrote bench.json, bench.md, latency.png{'' if args.no_profile else ' and profile.txt'} to {args.output_dir}")
+    return 0
+
+
 def _demo(args: argparse.Namespace) -> int:
     from snapflow.evaluation.report import markdown_report
     from snapflow.experiments.metaworld import PRESETS, run_demo
@@ -196,6 +214,22 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--max-episode-steps", type=int, help="with --lerobot-env: cut episodes short of the environment's limit")
     evaluate.add_argument("--output-dir", default="outputs/eval")
     evaluate.set_defaults(run=_eval)
+
+    bench = commands.add_parser("bench", parents=[common], help="batch-1 latency at NFE 10, 5, 2, 1: prefix, denoising, end-to-end, speedups")
+    subject = bench.add_mutually_exclusive_group(required=True)
+    subject.add_argument("--policy", help="built-in checkpoint or run directory, distilled LeRobot folder, or LeRobot hub id / folder")
+    subject.add_argument("--architecture", help="random weights at full size: minivla (the demo's), pi0, pi05 or smolvla")
+    bench.add_argument("--vlm", help="smolvla: folder (or hub id) of its VLM's config and processor (no weights are loaded)")
+    bench.add_argument("--device", help="cpu, cuda, cuda:1, ... (default: cuda when available)")
+    bench.add_argument("--dtype", choices=["float32", "bfloat16", "float16"], default="float32")
+    bench.add_argument("--compile", choices=["default", "reduce-overhead", "max-autotune"],
+                       help="torch.compile the one-pass action expert (reduce-overhead: CUDA-graph capture on a GPU)")
+    bench.add_argument("--threads", type=int, help="CPU threads (torch.set_num_threads)")
+    bench.add_argument("--warmup", type=int, default=10, help="untimed calls of each quantity first")
+    bench.add_argument("--repeats", type=int, default=50, help="timed calls of each quantity, round-robin")
+    bench.add_argument("--no-profile", action="store_true", help="skip the torch.profiler table of the 1-NFE path")
+    bench.add_argument("--output-dir", default="outputs/bench")
+    bench.set_defaults(run=_bench)
 
     demo = commands.add_parser("demo", parents=[common], help="MT10: collect -> train -> distill -> eval, one final table")
     demo.add_argument("--full", action="store_true", help="stronger, longer preset")

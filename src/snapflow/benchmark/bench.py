@@ -1,0 +1,153 @@
+"""``snapflow bench``: batch-1 latency of one policy at NFE 10, 5, 2 and 1, with the fast path and a profile.
+
+The fast path is what deployment runs: the prefix encoded once per chunk, then one pass of the action expert.
+Optionally that pass is ``torch.compile``-d (``mode="reduce-overhead"`` captures it in a CUDA graph on a GPU)
+and the policy runs in bfloat16 / float16. The profile of the one-step path shows where its time goes.
+"""
+
+from __future__ import annotations
+
+import platform
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from snapflow.benchmark.latency import measure_latency
+from snapflow.benchmark.subjects import BenchSubject
+from snapflow.evaluation.report import pyplot
+from snapflow.flow.solver import SNAPFLOW_1, SamplingMode, sample_actions
+from snapflow.io import atomic_write, write_json
+
+BENCH_MODES = (SamplingMode(10, jump=False), SamplingMode(5, jump=False), SamplingMode(2, jump=False), SNAPFLOW_1)
+# the paper's A800 figures (end-to-end ms per chunk, batch 1), for the LeRobot architectures
+PAPER_A800 = {
+    "pi05": {"teacher_10_ms": 274.0, "snapflow_1_ms": 83.0, "denoising_share_10": 241.0 / 274.0, "per_step_ms": 23.0},
+    "smolvla": {"teacher_10_ms": 178.0, "snapflow_1_ms": 50.0},
+}
+COMPILE_MODES = ("default", "reduce-overhead", "max-autotune")
+
+
+def machine() -> dict[str, Any]:
+    """The machine the figures come from, named."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        cpu = next(line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return {"cpu": cpu, "threads": torch.get_num_threads(), "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
+            "torch": torch.__version__, "python": platform.python_version()}
+
+
+def compile_velocity(policy: torch.nn.Module, mode: str) -> None:
+    """Compile the one-pass action-expert call in place (the prefix pass runs once per chunk and is left eager)."""
+    if mode not in COMPILE_MODES:
+        raise ValueError(f"unknown compile mode {mode!r}; choose one of {', '.join(COMPILE_MODES)}")
+    policy.velocity = torch.compile(policy.velocity, mode=mode, dynamic=False)
+
+
+@torch.inference_mode()
+def profile_one_step(subject: BenchSubject, calls: int = 20) -> tuple[str, dict[str, float]]:
+    """torch.profiler table of ``calls`` one-step generations, and how the wall time splits: the operators'
+    own time against everything else (Python, dispatch, framework)."""
+    from torch.profiler import ProfilerActivity, profile
+
+    device = subject.noise.device
+    activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if device.type == "cuda" else [])
+    with profile(activities=activities, acc_events=True) as profiler:
+        began = time.perf_counter()
+        for _ in range(calls):
+            sample_actions(subject.policy, subject.observation, subject.noise, SNAPFLOW_1)
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+        wall_ms = (time.perf_counter() - began) * 1e3 / calls
+    averages = profiler.key_averages()
+    table = averages.table(sort_by="self_cuda_time_total" if device.type == "cuda" else "self_cpu_time_total", row_limit=25)
+    # leaf operators (aten::*) do the arithmetic; their self time against the wall time bounds the overhead
+    operator_ms = sum(event.self_cpu_time_total for event in averages if event.key.startswith("aten::")) / 1e3 / calls
+    return table, {"calls": calls, "wall_ms_per_call": wall_ms, "aten_self_cpu_ms_per_call": operator_ms,
+                   "outside_aten_share": max(0.0, 1 - operator_ms / wall_ms)}
+
+
+def run_bench(subject: BenchSubject, warmup: int = 10, repeats: int = 50, compile_mode: str | None = None,
+              profile: bool = True, modes: tuple[SamplingMode, ...] = BENCH_MODES) -> dict[str, Any]:
+    """Time ``subject`` at every mode (the first is the reference of the speedups) and, optionally, profile 1-NFE."""
+    if compile_mode:
+        compile_velocity(subject.policy, compile_mode)
+    report: dict[str, Any] = {
+        "subject": subject.name, "details": subject.details, "machine": machine(), "dtype": str(subject.noise.dtype).removeprefix("torch."),
+        "compile": compile_mode, "latency": measure_latency(subject.policy, subject.observation, subject.noise, list(modes), warmup, repeats),
+    }
+    paper = PAPER_A800.get(subject.details.get("policy_type", ""))
+    if paper:
+        report["paper_a800"] = {**paper, "end_to_end_speedup": paper["teacher_10_ms"] / paper["snapflow_1_ms"]}
+    if profile:
+        table, summary = profile_one_step(subject)
+        report["profile_one_step"] = summary
+        report["profile_table"] = table
+    return report
+
+
+def markdown_bench(report: dict[str, Any]) -> str:
+    latency, host = report["latency"], report["machine"]
+    device = host["gpu"] or f"{host['cpu']} ({host['threads']} threads)"
+    lines = [f"# Latency: {report['subject']}", "",
+             f"Batch 1 on {device}, {report['dtype']}, torch {host['torch']}, compile: {report['compile'] or 'off'}; medians (P90) of "
+             f"{latency['repeats']} round-robin repeats after {latency['warmup']} warm-up calls of each.", "",
+             f"Prefix (VLM) encoding: {latency['prefix']['median_ms']:.2f} ms (P90 {latency['prefix']['p90_ms']:.2f}).", "",
+             "| mode | NFE | denoising ms | per pass ms | end-to-end ms | denoising share | denoising speedup | end-to-end speedup |",
+             "|---|---|---|---|---|---|---|---|"]
+    for name, entry in latency["modes"].items():
+        denoise, end_to_end = entry["denoising"], entry["end_to_end"]
+        lines.append(f"| {name} | {entry['nfe']} | {denoise['median_ms']:.2f} ({denoise['p90_ms']:.2f}) | {entry['per_pass_ms']:.2f} | "
+                     f"{end_to_end['median_ms']:.2f} ({end_to_end['p90_ms']:.2f}) | {entry['denoising_share']:.0%} | "
+                     f"{entry['denoising_speedup']:.2f}x | {entry['end_to_end_speedup']:.2f}x |")
+    if "paper_a800" in report:
+        paper = report["paper_a800"]
+        lines += ["", f"The paper on an A800: {paper['teacher_10_ms']:.0f} ms (10-step teacher) -> {paper['snapflow_1_ms']:.0f} ms "
+                      f"(SnapFlow 1-step) end-to-end, {paper['end_to_end_speedup']:.1f}x."]
+    if "profile_one_step" in report:
+        summary = report["profile_one_step"]
+        lines += ["", f"Profile of the 1-NFE path ({summary['calls']} calls, `profile.txt`): {summary['wall_ms_per_call']:.2f} ms a call "
+                      f"under the profiler, of which operators' own time {summary['aten_self_cpu_ms_per_call']:.2f} ms; "
+                      f"{summary['outside_aten_share']:.0%} outside them (Python, dispatch, profiler)."]
+    return "\n".join(lines)
+
+
+def plot_bench(report: dict[str, Any], path: Path) -> None:
+    plt = pyplot()
+    latency = report["latency"]
+    labels = list(latency["modes"])
+    prefix = [latency["prefix"]["median_ms"]] * len(labels)
+    denoise = [latency["modes"][label]["denoising"]["median_ms"] for label in labels]
+    other = [max(0.0, latency["modes"][label]["end_to_end"]["median_ms"] - p - d) for label, p, d in zip(labels, prefix, denoise, strict=True)]
+    figure, axis = plt.subplots(figsize=(6.5, 3.8))
+    axis.bar(labels, prefix, label="prefix (VLM)")
+    axis.bar(labels, denoise, bottom=prefix, label="denoising")
+    axis.bar(labels, other, bottom=[p + d for p, d in zip(prefix, denoise, strict=True)], label="other", color="lightgray")
+    for index, label in enumerate(labels):
+        axis.annotate(f"{latency['modes'][label]['end_to_end_speedup']:.1f}x", (index, prefix[index] + denoise[index] + other[index]),
+                      ha="center", va="bottom", fontsize=8)
+    axis.set_ylabel("ms per chunk (median, batch 1)")
+    axis.legend(fontsize=8)
+    host = report["machine"]
+    axis.set_title(f"{report['subject']} on {host['gpu'] or host['cpu']}", fontsize=8)
+    figure.tight_layout()
+    atomic_write(path, lambda temporary: figure.savefig(temporary, dpi=110, format="png"))
+    plt.close(figure)
+
+
+def write_bench(report: dict[str, Any], directory: str | Path) -> Path:
+    """``bench.json``, ``bench.md``, ``latency.png`` and (when profiled) ``profile.txt``."""
+    directory = Path(directory)
+    write_json(directory / "bench.json", {key: value for key, value in report.items() if key != "profile_table"})
+    atomic_write(directory / "bench.md", lambda path: path.write_text(markdown_bench(report) + "\n"))
+    plot_bench(report, directory / "latency.png")
+    if "profile_table" in report:
+        atomic_write(directory / "profile.txt", lambda path: path.write_text(report["profile_table"] + "\n"))
+    return directory
+
+
+__all__ = ["BENCH_MODES", "PAPER_A800", "COMPILE_MODES", "machine", "compile_velocity", "profile_one_step", "run_bench",
+           "markdown_bench", "plot_bench", "write_bench"]
