@@ -129,6 +129,7 @@ def plot_bench(report: dict[str, Any], path: Path) -> None:
     for index, label in enumerate(labels):
         axis.annotate(f"{latency['modes'][label]['end_to_end_speedup']:.1f}x", (index, prefix[index] + denoise[index] + other[index]),
                       ha="center", va="bottom", fontsize=8)
+    axis.set_ylim(top=1.12 * max(p + d + o for p, d, o in zip(prefix, denoise, other, strict=True)))  # room for the labels
     axis.set_ylabel("ms per chunk (median, batch 1)")
     axis.legend(fontsize=8)
     host = report["machine"]
