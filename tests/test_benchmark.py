@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import pytest
 import torch
 
 from snapflow.benchmark.latency import measure_latency, time_round_robin
@@ -59,3 +60,16 @@ def test_bench_cli_times_the_built_in_architecture_and_writes_every_result_file(
 
     assert main(["bench", "--architecture", "gpt", "--output-dir", str(output)]) == 2
     assert "unknown architecture 'gpt'" in capsys.readouterr().err
+
+
+def test_compiled_one_pass_expert_computes_what_the_eager_one_does(student, batch):
+    from snapflow.benchmark.bench import compile_velocity
+    from snapflow.flow.solver import sample_actions
+
+    observation, actions = batch
+    noise = torch.randn_like(actions)
+    eager = sample_actions(student, observation, noise, SNAPFLOW_1)
+    compile_velocity(student, "default")
+    assert torch.allclose(sample_actions(student, observation, noise, SNAPFLOW_1), eager, atol=1e-5)
+    with pytest.raises(ValueError, match="unknown compile mode 'fastest'"):
+        compile_velocity(student, "fastest")
