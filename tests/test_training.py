@@ -50,6 +50,57 @@ def test_resume_continues_exactly_where_training_stopped(demonstrations, tmp_pat
     assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
 
 
+KILLED_MID_CHECKPOINT = """
+import os, signal, sys
+from pathlib import Path
+
+from safetensors.torch import save_file
+
+from snapflow.experiments.metaworld import train_teacher
+from snapflow.training import checkpoint
+from tests.test_training import TINY, _config
+
+writes = []
+
+
+def save_file_then_die_on_the_third(tensors, path, *args, **kwargs):
+    writes.append(path)
+    save_file(tensors, path, *args, **kwargs)
+    if len(writes) == 3:  # the step-6 checkpoint's weights: leave the file half written, then SIGKILL
+        data = Path(path).read_bytes()
+        Path(path).write_bytes(data[: len(data) // 2])
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+checkpoint.save_file = save_file_then_die_on_the_third
+train_teacher(Path(sys.argv[1]), Path(sys.argv[2]), TINY, _config(6), progress=False)
+"""
+
+
+def test_a_kill_in_the_middle_of_a_checkpoint_write_loses_nothing_and_resume_matches(demonstrations, tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    straight = train_teacher(demonstrations, tmp_path / "straight", TINY, _config(6), progress=False)
+    run = tmp_path / "killed"
+    process = subprocess.run([sys.executable, "-c", KILLED_MID_CHECKPOINT, str(demonstrations), str(run)], cwd=root,
+                             capture_output=True, text=True, timeout=600)
+    assert process.returncode == -9, process.stderr  # really killed, inside the checkpoint write
+    partial = list((run / "checkpoints").glob(".step_0000006.partial-*"))
+    assert len(partial) == 1 and not (run / "checkpoints" / "step_0000006").exists()
+    # the last good checkpoint is untouched and still the one a resume starts from
+    assert json.loads((run / "latest.json").read_text()) == {"checkpoint": "checkpoints/step_0000003"}
+    load_policy(run)
+    resumed = train_teacher(demonstrations, run, TINY, _config(6), resume=True, progress=False)
+    assert [h["loss"] for h in resumed["history"]] == [h["loss"] for h in straight["history"]]
+    a = load_file(tmp_path / "straight" / "checkpoints" / "step_0000006" / "policy.safetensors")
+    b = load_file(run / "checkpoints" / "step_0000006" / "policy.safetensors")
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    assert not list((run / "checkpoints").glob(".*.partial-*")), "the killed writer's leftovers are cleared"
+
+
 def test_resume_refuses_changed_settings_and_fresh_runs_refuse_to_overwrite(demonstrations, tmp_path):
     train_teacher(demonstrations, tmp_path / "run", TINY, _config(3), progress=False)
     with pytest.raises(CheckpointError, match="learning_rate"):

@@ -12,8 +12,9 @@ length), ``instructions`` (task -> text) and ``stats`` (mean / std of states and
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -153,8 +154,31 @@ class Demonstrations:
         missing = [key for key in ("states", "actions", "episode_index") if key not in loaded]
         if missing:
             raise DemonstrationError(f"{arrays_path} lacks arrays {missing}")
-        episodes = [Episode(**episode) for episode in meta["episodes"]]
-        return cls(loaded["states"], loaded["actions"], loaded["episode_index"], episodes, meta["instructions"], loaded.get("images"))
+        return cls(loaded["states"], loaded["actions"], loaded["episode_index"], _episodes(meta["episodes"], meta_path),
+                   _instructions(meta["instructions"], meta_path), loaded.get("images"))
+
+
+def _episodes(entries: Any, source: Path) -> list[Episode]:
+    """Episode records from ``meta.json``, each checked field by field."""
+    types = {field.name: field.type for field in fields(Episode)}
+    if not isinstance(entries, list):
+        raise DemonstrationError(f"{source}: 'episodes' must be a list, got {type(entries).__name__}")
+    episodes = []
+    for number, entry in enumerate(entries):
+        if not isinstance(entry, dict) or set(entry) != set(types):
+            raise DemonstrationError(f"{source}: episode {number} must have exactly the fields {sorted(types)}, got {entry!r}")
+        for name, kind in types.items():
+            expected = {"str": str, "int": int}[kind]
+            if not isinstance(entry[name], expected) or isinstance(entry[name], bool):
+                raise DemonstrationError(f"{source}: episode {number} field {name!r} must be {kind}, got {entry[name]!r}")
+        episodes.append(Episode(**entry))
+    return episodes
+
+
+def _instructions(instructions: Any, source: Path) -> dict[str, str]:
+    if not isinstance(instructions, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in instructions.items()):
+        raise DemonstrationError(f"{source}: 'instructions' must map task names to instruction strings")
+    return instructions
 
 
 __all__ = ["Demonstrations", "DemonstrationError", "Episode", "NormalizationStats", "FORMAT", "VERSION"]

@@ -56,6 +56,8 @@ class SamplingMode:
             if steps not in (None, "1"):
                 raise ValueError(f"naive sampling is one step by definition, got {name!r}")
             return cls(1, jump=False)
+        if steps is not None and int(steps) < 1:
+            raise ValueError(f"sampling mode {name!r} takes no step; a mode needs at least one")
         default_steps = 10 if kind == "teacher" else 1
         return cls(int(steps) if steps else default_steps, jump=kind == "snapflow")
 

@@ -169,7 +169,8 @@ def save_checkpoint(
     """Write a checkpoint directory atomically (temporary sibling, then rename)."""
     directory = Path(directory)
     temporary = directory.parent / f".{directory.name}.partial-{os.getpid()}"
-    shutil.rmtree(temporary, ignore_errors=True)
+    for stale in directory.parent.glob(f".{directory.name}.partial-*"):  # left by a writer that was killed
+        shutil.rmtree(stale, ignore_errors=True)
     temporary.mkdir(parents=True)
     state = {key: value.detach().cpu().contiguous() for key, value in policy.state_dict().items()}
     save_file(state, temporary / POLICY_WEIGHTS)

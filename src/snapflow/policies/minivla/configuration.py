@@ -31,7 +31,11 @@ class MiniVLAConfig:
     def __post_init__(self) -> None:
         for field in fields(self):
             value = getattr(self, field.name)
-            if field.type == "int" and value < 1:
+            expected = {"int": int, "bool": bool}[field.type]
+            # bool is an int subclass: a flag given for a size (or a size for a flag) is as wrong as a string
+            if not isinstance(value, expected) or (expected is int and isinstance(value, bool)):
+                raise ValueError(f"MiniVLAConfig.{field.name} must be {field.type}, got {value!r}")
+            if expected is int and value < 1:
                 raise ValueError(f"MiniVLAConfig.{field.name} must be at least 1, got {value}")
         if self.use_image and self.image_size % self.patch_size:
             raise ValueError(f"MiniVLAConfig.image_size ({self.image_size}) must be a multiple of patch_size ({self.patch_size})")
