@@ -192,3 +192,29 @@ def test_cli_rejects_bad_arguments_with_a_message_and_exit_code_2(capsys, tmp_pa
     _count(f"CLI {command}", code != 0)
     if code != 0:
         assert code == 2 and "error" in error and "Traceback" not in error
+
+
+class _Payload:
+    """Unpickling this creates a file: proof that a checkpoint's pickle was executed."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (Path.touch, (self.marker,))
+
+
+def test_a_pickle_in_place_of_the_weights_is_refused_and_never_run(checkpoint, tmp_path):
+    copy = tmp_path / "checkpoint"
+    copy.mkdir()
+    for file in checkpoint.iterdir():
+        (copy / file.name).write_bytes(file.read_bytes())
+    marker = tmp_path / "pickle-was-executed"
+    torch.save({"weights": _Payload(marker)}, copy / "policy.safetensors")  # what a hostile upload would hold
+    with pytest.raises(CheckpointError, match="not a safetensors file"):
+        load_policy(copy)
+    assert main(["eval", "--policy", str(copy), "--tasks", "reach-v3", "--episodes", "1", "--no-progress"]) == 2
+    assert not marker.exists()
+    torch.load(copy / "policy.safetensors", weights_only=False)  # the payload is live: a pickle loader would have run it
+    assert marker.exists()
+    _count("hostile pickles", True)

@@ -264,6 +264,13 @@ def test_cli_distills_a_saved_smolvla_on_a_local_lerobot_dataset(vlm_directory, 
     assert main(arguments + ["--resume"]) == 0  # already at its last step: resumes and stops cleanly
     assert main(["distill", "--policy", "x", "--data", "y", "--output", str(tmp_path / "bad"), "--no-progress"]) == 2
     assert "either --teacher and --data" in capsys.readouterr().err
+    # a policy whose state is shorter than the dataset's is named before any step (LeRobot would pad silently)
+    build_tiny_smolvla(vlm_directory, state_dim=5).save_pretrained(tmp_path / "narrow")
+    narrow = [str(tmp_path / "narrow") if a == str(tmp_path / "teacher") else str(tmp_path / "narrow_run") if a == str(tmp_path / "run") else a
+              for a in arguments]
+    assert main(narrow) == 2
+    assert "observation.state: the dataset has shape (6,), the policy expects (5,)" in capsys.readouterr().err
+    assert not (tmp_path / "narrow_run" / "checkpoints").exists()
 
 
 @PI_SKIP

@@ -38,6 +38,24 @@ def policy_processors(policy: torch.nn.Module, policy_path: str, dataset_stats: 
                                     preprocessor_overrides={**device, **(overrides or {})})
 
 
+def check_dataset_features(config: Any, features: dict[str, Any], repo_id: str) -> None:
+    """Name every feature the policy needs that the dataset lacks or shapes differently, before any training step
+    (LeRobot would pad a longer state or action silently). Images are resized by the policy: only their
+    channel count must agree."""
+    expected = {**config.input_features, **config.output_features}
+    missing = sorted(set(expected) - set(features))
+    if missing:
+        raise ValueError(f"the dataset {repo_id} lacks the policy's feature(s) {missing}")
+    for key, feature in expected.items():
+        shape = tuple(features[key]["shape"])
+        if feature.type.name == "VISUAL":
+            channels = shape[-1] if features[key].get("names", [None])[-1:] == ["channels"] else shape[0]
+            if channels != feature.shape[0]:
+                raise ValueError(f"{key}: the dataset's images have {channels} channels, the policy expects {feature.shape[0]}")
+        elif shape != tuple(feature.shape):
+            raise ValueError(f"{key}: the dataset has shape {shape}, the policy expects {tuple(feature.shape)}")
+
+
 def distill_lerobot(
     policy_path: str, dataset_root: str | Path | None, repo_id: str, output: str | Path, config: TrainConfig = PAPER_TRAINING,
     settings: DistillSettings | None = None, resume: bool = False, progress: bool = True,
@@ -53,9 +71,7 @@ def distill_lerobot(
         raise ValueError("LeRobot policies are distilled with their VLM frozen, as in the paper")
     policy = load_pretrained_policy(policy_path)
     metadata = LeRobotDatasetMetadata(repo_id, root=dataset_root)
-    missing = sorted((set(policy.config.input_features) | set(policy.config.output_features)) - set(metadata.features))
-    if missing:
-        raise ValueError(f"the dataset {repo_id} lacks the policy's feature(s) {missing}")
+    check_dataset_features(policy.config, metadata.features, repo_id)
     chunk = [step / metadata.fps for step in range(policy.config.chunk_size)]
     dataset = LeRobotDataset(repo_id, root=dataset_root, delta_timestamps={"action": chunk})
     preprocessor, postprocessor = policy_processors(policy, policy_path, metadata.stats, preprocessor_overrides)
@@ -71,4 +87,4 @@ def distill_lerobot(
     return state
 
 
-__all__ = ["PAPER_TRAINING", "EXPORT_DIRECTORY", "policy_processors", "distill_lerobot"]
+__all__ = ["PAPER_TRAINING", "EXPORT_DIRECTORY", "check_dataset_features", "policy_processors", "distill_lerobot"]
