@@ -172,8 +172,10 @@ def cache_as_hub_repo(folder: Path, repo_id: str) -> None:
         (repo / "refs" / "main").write_text(revision)
 
 
-def write_tiny_dataset(root: Path, repo_id: str = "local/tiny", episodes: int = 3, frames: int = 12, fps: int = 10) -> Path:
-    """A LeRobotDataset on disk (images stored in the parquet, no video) whose tasks use the tiny vocabulary."""
+def write_tiny_dataset(root: Path, repo_id: str = "local/tiny", episodes: int = 3, frames: int = 12, fps: int = 10,
+                       nan_at: int | None = None) -> Path:
+    """A LeRobotDataset on disk (images stored in the parquet, no video) whose tasks use the tiny vocabulary;
+    ``nan_at`` puts a NaN into that frame's action."""
     import numpy as np
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
@@ -186,11 +188,14 @@ def write_tiny_dataset(root: Path, repo_id: str = "local/tiny", episodes: int = 
     dataset = LeRobotDataset.create(repo_id=repo_id, fps=fps, features=features, root=root, use_videos=False,
                                     image_writer_threads=0, image_writer_processes=0)
     for episode in range(episodes):
-        for _ in range(frames):
+        for frame in range(frames):
+            action = (generator.standard_normal(4) + episode).astype(np.float32)
+            if episode * frames + frame == nan_at:
+                action[1] = np.nan
             dataset.add_frame({
                 "observation.state": generator.standard_normal(6).astype(np.float32),
                 "observation.images.top": generator.integers(0, 256, (IMAGE_SIZE, IMAGE_SIZE, 3), dtype=np.uint8),
-                "action": (generator.standard_normal(4) + episode).astype(np.float32),
+                "action": action,
                 "task": ["push the red cube", "open the drawer", "pick the blue cube"][episode % 3],
             })
         dataset.save_episode()

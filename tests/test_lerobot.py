@@ -271,6 +271,13 @@ def test_cli_distills_a_saved_smolvla_on_a_local_lerobot_dataset(vlm_directory, 
     assert main(narrow) == 2
     assert "observation.state: the dataset has shape (6,), the policy expects (5,)" in capsys.readouterr().err
     assert not (tmp_path / "narrow_run" / "checkpoints").exists()
+    # NaN in a dataset, which LeRobot records without complaint, is refused before any step
+    nan_dataset = write_tiny_dataset(tmp_path / "nan_dataset", repo_id="local/nan", nan_at=17)
+    poisoned = [str(nan_dataset) if a == str(dataset) else "local/nan" if a == "local/tiny" else
+                str(tmp_path / "nan_run") if a == str(tmp_path / "run") else a for a in arguments]
+    assert main(poisoned) == 2
+    assert "action holds NaN or inf (first at frame 17, dimension 1)" in capsys.readouterr().err
+    assert not (tmp_path / "nan_run" / "checkpoints").exists()
 
 
 @PI_SKIP

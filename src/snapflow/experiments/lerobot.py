@@ -56,6 +56,19 @@ def check_dataset_features(config: Any, features: dict[str, Any], repo_id: str) 
             raise ValueError(f"{key}: the dataset has shape {shape}, the policy expects {tuple(feature.shape)}")
 
 
+def check_finite(dataset: Any, keys: list[str]) -> None:
+    """Refuse NaN or inf in the dataset's numeric features (LeRobot records them without complaint), naming the
+    feature and the first bad frame, before any training step."""
+    import numpy as np
+
+    table = dataset.hf_dataset.with_format("numpy")
+    for key in keys:
+        values = np.asarray(table[key], dtype=np.float64)
+        bad = np.argwhere(~np.isfinite(values.reshape(len(values), -1)))
+        if len(bad):
+            raise ValueError(f"{key} holds NaN or inf (first at frame {int(bad[0][0])}, dimension {int(bad[0][1])})")
+
+
 def distill_lerobot(
     policy_path: str, dataset_root: str | Path | None, repo_id: str, output: str | Path, config: TrainConfig = PAPER_TRAINING,
     settings: DistillSettings | None = None, resume: bool = False, progress: bool = True,
@@ -74,6 +87,8 @@ def distill_lerobot(
     check_dataset_features(policy.config, metadata.features, repo_id)
     chunk = [step / metadata.fps for step in range(policy.config.chunk_size)]
     dataset = LeRobotDataset(repo_id, root=dataset_root, delta_timestamps={"action": chunk})
+    features = {**policy.config.input_features, **policy.config.output_features}
+    check_finite(dataset, [key for key, feature in features.items() if feature.type.name != "VISUAL"])
     preprocessor, postprocessor = policy_processors(policy, policy_path, metadata.stats, preprocessor_overrides)
     adapter = wrap_policy(policy)
     objective = settings.objective(BetaTimeSampler())  # LeRobot's policies train on Beta(1.5, 1) times
@@ -87,4 +102,4 @@ def distill_lerobot(
     return state
 
 
-__all__ = ["PAPER_TRAINING", "EXPORT_DIRECTORY", "check_dataset_features", "policy_processors", "distill_lerobot"]
+__all__ = ["PAPER_TRAINING", "EXPORT_DIRECTORY", "check_dataset_features", "check_finite", "policy_processors", "distill_lerobot"]
