@@ -7,14 +7,13 @@ and the policy runs in bfloat16 / float16. The profile of the one-step path show
 
 from __future__ import annotations
 
-import platform
 import time
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from snapflow.benchmark.latency import measure_latency
+from snapflow.benchmark.latency import machine, measure_latency
 from snapflow.benchmark.subjects import BenchSubject
 from snapflow.evaluation.report import pyplot
 from snapflow.flow.solver import SNAPFLOW_1, SamplingMode, sample_actions
@@ -27,17 +26,6 @@ PAPER_A800 = {
     "smolvla": {"teacher_10_ms": 178.0, "snapflow_1_ms": 50.0},
 }
 COMPILE_MODES = ("default", "reduce-overhead", "max-autotune")
-
-
-def machine() -> dict[str, Any]:
-    """The machine the figures come from, named."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        cpu = next(line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return {"cpu": cpu, "threads": torch.get_num_threads(), "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
-            "torch": torch.__version__, "python": platform.python_version()}
 
 
 def compile_velocity(policy: torch.nn.Module, mode: str) -> None:
@@ -150,5 +138,5 @@ def write_bench(report: dict[str, Any], directory: str | Path) -> Path:
     return directory
 
 
-__all__ = ["BENCH_MODES", "PAPER_A800", "COMPILE_MODES", "machine", "compile_velocity", "profile_one_step", "run_bench",
+__all__ = ["BENCH_MODES", "PAPER_A800", "COMPILE_MODES", "compile_velocity", "profile_one_step", "run_bench",
            "markdown_bench", "plot_bench", "write_bench"]

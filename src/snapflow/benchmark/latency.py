@@ -8,15 +8,28 @@ Medians and P90; CUDA events on a GPU, a monotonic clock elsewhere.
 
 from __future__ import annotations
 
+import platform
 import statistics
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import torch
 
 from snapflow.flow.solver import SamplingMode, euler_sample, sample_actions
 from snapflow.protocol import FlowPolicy
+
+
+def machine() -> dict[str, Any]:
+    """The machine the figures come from, named."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        cpu = next(line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return {"cpu": cpu, "threads": torch.get_num_threads(), "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
+            "torch": torch.__version__, "python": platform.python_version()}
 
 
 def _time_once_ms(function: Callable[[], Any], device: torch.device) -> float:
@@ -91,4 +104,4 @@ def add_speedups(entries: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]
     return entries
 
 
-__all__ = ["measure_latency", "add_speedups", "time_round_robin"]
+__all__ = ["machine", "measure_latency", "add_speedups", "time_round_robin"]

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import platform
 from pathlib import Path
 from typing import Any
 
-import torch
 
+from snapflow.benchmark.latency import machine
 from snapflow.io import atomic_write, write_json
 
 
@@ -22,9 +21,9 @@ def pyplot():
 
 
 def machine_description() -> str:
-    if torch.cuda.is_available():
-        return torch.cuda.get_device_name(0)
-    return f"CPU {platform.processor() or platform.machine()}, {torch.get_num_threads()} threads"
+    """The machine of :func:`snapflow.benchmark.latency.machine` in a few words, for titles and tables."""
+    host = machine()
+    return host["gpu"] or f"CPU {host['cpu']}, {host['threads']} threads"
 
 
 def markdown_report(report: dict[str, Any]) -> str:
