@@ -368,3 +368,17 @@ def test_bench_cli_times_a_distilled_lerobot_policy(build, tiny_sizes, policy_ty
     assert report["details"]["policy_type"] == policy_type
     assert 0 < report["details"]["expert_parameters"] < report["details"]["parameters"]
     assert report["latency"]["modes"]["snapflow-1"]["nfe"] == 1 and report["latency"]["prefix"]["repeats"] == 2
+
+
+def test_dataset_image_channels_are_read_from_either_layout_even_without_names():
+    from types import SimpleNamespace
+
+    from lerobot.configs.types import FeatureType, PolicyFeature
+
+    from snapflow.experiments.lerobot import check_dataset_features
+
+    config = SimpleNamespace(input_features={"image": PolicyFeature(type=FeatureType.VISUAL, shape=(3, 64, 64))}, output_features={})
+    check_dataset_features(config, {"image": {"shape": (3, 32, 32), "names": None}}, "local/x")  # channels first, unnamed
+    check_dataset_features(config, {"image": {"shape": (32, 32, 3), "names": ["height", "width", "channels"]}}, "local/x")
+    with pytest.raises(ValueError, match="image: the dataset's images have 4 channels, the policy expects 3"):
+        check_dataset_features(config, {"image": {"shape": (32, 32, 4), "names": ["height", "width", "channels"]}}, "local/x")

@@ -49,7 +49,7 @@ def check_dataset_features(config: Any, features: dict[str, Any], repo_id: str) 
     for key, feature in expected.items():
         shape = tuple(features[key]["shape"])
         if feature.type.name == "VISUAL":
-            channels = shape[-1] if features[key].get("names", [None])[-1:] == ["channels"] else shape[0]
+            channels = shape[-1] if (features[key].get("names") or [None])[-1] == "channels" else shape[0]
             if channels != feature.shape[0]:
                 raise ValueError(f"{key}: the dataset's images have {channels} channels, the policy expects {feature.shape[0]}")
         elif shape != tuple(feature.shape):
