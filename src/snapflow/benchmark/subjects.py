@@ -128,8 +128,10 @@ def make_subject(policy: str | None, architecture: str | None, device: torch.dev
         if architecture == "minivla":
             return builtin_subject(None, device, dtype)
         return lerobot_subject(lerobot_architecture(architecture, device, vlm), f"{architecture} (full size, random weights)", device, dtype)
+    from snapflow.training.checkpoint import LATEST, POLICY_CONFIG
+
     local = Path(policy)
-    if (local / "policy.json").is_file() or (local / "latest.json").is_file():
+    if (local / POLICY_CONFIG).is_file() or (local / LATEST).is_file():  # what resolve_checkpoint accepts
         return builtin_subject(policy, device, dtype)
     from snapflow.adapters.lerobot import load_distilled, load_pretrained_policy
     from snapflow.adapters.lerobot.checkpoint import SNAPFLOW_MARKER
