@@ -13,7 +13,7 @@ from snapflow.flow import (
     sample_actions,
 )
 from snapflow.nn import SnapFlowPolicy, TargetTimeEmbedding
-from snapflow.objective import SnapFlowLossOutput, SnapFlowObjective
+from snapflow.objective import LossOutput, SnapFlowObjective
 from snapflow.protocol import FlowPolicy, TimeEmbeddingModel
 
 __version__ = "0.1.0"
@@ -24,7 +24,7 @@ __all__ = [
     "SnapFlowPolicy",
     "TargetTimeEmbedding",
     "SnapFlowObjective",
-    "SnapFlowLossOutput",
+    "LossOutput",
     "SamplingMode",
     "TEACHER_10",
     "NAIVE_1",

@@ -9,6 +9,8 @@ from dataclasses import replace
 from pathlib import Path
 
 from snapflow.experiments.toy import ToyConfig
+from snapflow.objective.snapflow import TEACHER_VELOCITIES
+from snapflow.training.distill import METHODS
 from snapflow.io import write_json
 
 
@@ -46,7 +48,7 @@ def _toy(args: argparse.Namespace) -> int:
 def _collect(args: argparse.Namespace) -> int:
     from snapflow.experiments.metaworld import collect
 
-    demonstrations = collect(_tasks(args.tasks), args.episodes, args.output, args.image_size, not args.no_progress)
+    demonstrations = collect(_tasks(args.tasks), args.episodes, args.output, args.image_size, not args.no_progress, args.via_points)
     print(f"wrote {len(demonstrations.episodes)} successful expert episodes ({len(demonstrations.states)} steps) to {args.output}")
     return 0
 
@@ -60,7 +62,8 @@ def _train(args: argparse.Namespace) -> int:
     from snapflow.experiments.metaworld import PRESETS, train_teacher
 
     preset = PRESETS["fast"]
-    policy = replace(preset.policy, chunk_length=args.chunk_length or preset.policy.chunk_length)
+    overrides = {name: getattr(args, name) for name in ("chunk_length", "state_dim", "image_size") if getattr(args, name) is not None}
+    policy = replace(preset.policy, use_image=args.use_image, **overrides)
     state = train_teacher(args.data, args.output, policy, _train_config(args, preset.teacher), args.val_fraction, args.resume, not args.no_progress)
     print(f"teacher trained to step {state['step']} in {state['wall_time_s']:.0f} s; checkpoints in {args.output}")
     return 0
@@ -70,7 +73,8 @@ def _distill(args: argparse.Namespace) -> int:
     from snapflow.experiments.metaworld import PRESETS, distill
     from snapflow.training.distill import DistillSettings
 
-    settings = DistillSettings(args.alpha, args.consistency_weight, args.clamp, not args.train_prefix)
+    settings = DistillSettings(args.alpha, args.consistency_weight, args.clamp, not args.train_prefix, args.method,
+                               args.teacher_velocity, not args.no_target_time)
     built_in = bool(args.teacher and args.data) and not (args.policy or args.dataset)
     lerobot = bool(args.policy and args.dataset) and not (args.teacher or args.data)
     if not (built_in or lerobot):
@@ -101,7 +105,7 @@ def _eval(args: argparse.Namespace) -> int:
     loaded = {path: load_policy(path) for path in args.policy}
     runs = [(f"{mode.name}" if len(loaded) == 1 else f"{Path(path).name} {mode.name}", policy, mode) for path, policy in loaded.items() for mode in modes]
     report = evaluate(runs, _tasks(args.tasks), args.episodes, args.n_act or 4, args.data,
-                      seed=args.seed if args.seed is not None else 0, progress=not args.no_progress)
+                      seed=args.seed if args.seed is not None else 0, progress=not args.no_progress, via_points=args.via_points)
     write_report(report, args.output_dir)
     print(markdown_report(report))
     print(f"wrote report.json, report.md and PNG plots to {args.output_dir}")
@@ -176,12 +180,16 @@ def build_parser() -> argparse.ArgumentParser:
     collect.add_argument("--tasks", default="all", help="'all' (MT10) or comma-separated task names")
     collect.add_argument("--episodes", type=int, default=30, help="successful episodes per task")
     collect.add_argument("--image-size", type=int, help="also store camera images of this size (rendered off-screen with MUJOCO_GL=egl or osmesa)")
+    collect.add_argument("--via-points", action="store_true", help="multimodal variant: route each episode through one of two via-points")
     collect.add_argument("--output", required=True)
     collect.set_defaults(run=_collect)
 
     train = commands.add_parser("train", parents=[common], help="train a MiniVLA flow-matching teacher on demonstrations")
     _add_training_options(train)
-    train.add_argument("--chunk-length", type=int)
+    train.add_argument("--chunk-length", type=int, help="actions per predicted chunk (default 8)")
+    train.add_argument("--use-image", action="store_true", help="read the demonstrations' camera images")
+    train.add_argument("--image-size", type=int, help="with --use-image: the images' size (default 64)")
+    train.add_argument("--state-dim", type=int, help="read only the leading entries of the state (4: hand and gripper; default all 39)")
     train.add_argument("--val-fraction", type=float, default=0.1, help="share of each task's episodes held out")
     train.set_defaults(run=_train)
 
@@ -195,6 +203,10 @@ def build_parser() -> argparse.ArgumentParser:
     distill.add_argument("--consistency-weight", "--lambda", type=float, default=0.1, dest="consistency_weight")
     distill.add_argument("--clamp", type=float, help="bound on the no-grad teacher velocities")
     distill.add_argument("--train-prefix", action="store_true", help="also train the prefix encoder (frozen by default)")
+    distill.add_argument("--method", choices=METHODS, default="snapflow", help="one-step objective (the others are baselines)")
+    distill.add_argument("--teacher-velocity", choices=TEACHER_VELOCITIES, default="marginal",
+                         help="snapflow's consistency target from the model's marginal velocity (default) or eps - a (ablation)")
+    distill.add_argument("--no-target-time", action="store_true", help="ablation: no target-time embedding phi_s")
     distill.set_defaults(run=_distill)
 
     evaluate = commands.add_parser("eval", parents=[common], help="closed-loop success, offline metrics and latency on Meta-World, "
@@ -207,6 +219,7 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--n-act", "--n-action-steps", type=int, dest="n_act",
                           help="actions executed per predicted chunk (default 4; with --lerobot-env the policy's own)")
     evaluate.add_argument("--data", help="demonstrations for offline metrics on the held-out episodes")
+    evaluate.add_argument("--via-points", action="store_true", help="multimodal variant: success needs a via-point visited first")
     evaluate.add_argument("--seed", type=int, help="evaluation seed (default 0; with --lerobot-env LeRobot's 1000)")
     evaluate.add_argument("--lerobot-env", help="evaluate in LeRobot's environment of this type (pusht, aloha, libero, metaworld, ...)")
     evaluate.add_argument("--env-task", help="with --lerobot-env: the task or suite (default: the environment's own)")

@@ -98,9 +98,10 @@ class Demonstrations:
         if self.images is not None and (self.images.shape[0] != position or self.images.dtype != np.uint8):
             raise DemonstrationError(f"images must be uint8 (N, H, W, 3) with N = {position}, got {self.images.dtype} {self.images.shape}")
 
-    def stats(self, episodes: list[int] | None = None) -> NormalizationStats:
+    def stats(self, episodes: list[int] | None = None, state_dim: int | None = None) -> NormalizationStats:
+        """Normalisation of the given episodes (default all); ``state_dim``: of the leading state entries only."""
         rows = self.rows(episodes) if episodes is not None else slice(None)
-        return NormalizationStats.from_arrays(self.states[rows], self.actions[rows])
+        return NormalizationStats.from_arrays(self.states[rows, :state_dim], self.actions[rows])
 
     def rows(self, episodes: list[int]) -> np.ndarray:
         return np.concatenate([np.arange(self.episodes[e].start, self.episodes[e].start + self.episodes[e].length) for e in episodes])

@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from snapflow.envs.via_points import ViaPointTracker
+
 # MuJoCo picks its off-screen GL backend when first imported; EGL (Mesa) renders on a CPU-only machine.
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -87,9 +89,13 @@ class Observation:
 
 
 class MetaWorldEnv:
-    """One MT10 task; ``reset(variation)`` picks a variation of the split from Meta-World's own sampler."""
+    """One MT10 task; ``reset(variation)`` picks a variation of the split from Meta-World's own sampler.
 
-    def __init__(self, task: str, split: str = "train", image_size: int | None = None) -> None:
+    ``via_points=True`` is the multimodal variant: an episode still ends at the task's success, but counts
+    as a success only if the hand passed a via-point before (see :mod:`snapflow.envs.via_points`).
+    """
+
+    def __init__(self, task: str, split: str = "train", image_size: int | None = None, via_points: bool = False) -> None:
         check_tasks([task])
         if split not in SPLIT_SEEDS:
             raise ValueError(f"split must be one of {list(SPLIT_SEEDS)}, got {split!r}")
@@ -111,6 +117,8 @@ class MetaWorldEnv:
             else:
                 self._env = benchmark.train_classes[task]()
         self.steps = 0
+        # the multimodal variant (see snapflow.envs.via_points): success also needs a via-point visited first
+        self._via_points = ViaPointTracker() if via_points else None
 
     def _observe(self, state: np.ndarray, render: bool) -> Observation:
         image = None
@@ -124,14 +132,18 @@ class MetaWorldEnv:
         self._env.set_task(self._variations[variation])
         state, _ = self._env.reset()
         self.steps = 0
+        if self._via_points is not None:
+            self._via_points.reset(state)
         return self._observe(state, render)
 
     def step(self, action: np.ndarray, render: bool = False) -> tuple[Observation, bool, bool]:
         """Apply one action; returns (observation, success, done). Render only when asked (re-planning steps)."""
         state, _, _, _, info = self._env.step(np.clip(np.asarray(action, dtype=np.float32), -1.0, 1.0))
         self.steps += 1
-        success = bool(info["success"])
-        return self._observe(state, render), success, success or self.steps >= MAX_EPISODE_STEPS
+        task_success = bool(info["success"])
+        visited = self._via_points is None or self._via_points.update(state)
+        success = task_success and visited
+        return self._observe(state, render), success, task_success or self.steps >= MAX_EPISODE_STEPS
 
     def close(self) -> None:
         self._env.close()

@@ -25,15 +25,16 @@ class EpisodeResult:
 
 
 class MetaWorldEvaluator:
-    """Holds one environment per (task, episode) on the evaluation split, reused across policies and modes."""
+    """Holds one environment per (task, episode) on the evaluation split, reused across policies and modes;
+    ``via_points``: the multimodal variant (see :mod:`snapflow.envs.via_points`)."""
 
-    def __init__(self, tasks: list[str], episodes_per_task: int, image_size: int | None = None) -> None:
+    def __init__(self, tasks: list[str], episodes_per_task: int, image_size: int | None = None, via_points: bool = False) -> None:
         check_tasks(tasks)
         available = num_variations("eval")
         if not 1 <= episodes_per_task <= available:
             raise ValueError(f"episodes per task must be in [1, {available}] (Meta-World's evaluation variations), got {episodes_per_task}")
         self.slots = [(task, variation) for task in tasks for variation in range(episodes_per_task)]
-        self.envs = [MetaWorldEnv(task, "eval", image_size) for task, _ in self.slots]
+        self.envs = [MetaWorldEnv(task, "eval", image_size, via_points) for task, _ in self.slots]
 
     @torch.no_grad()
     def run(

@@ -82,6 +82,9 @@ def distill_lerobot(
     settings = settings or DistillSettings()
     if not settings.freeze_prefix:
         raise ValueError("LeRobot policies are distilled with their VLM frozen, as in the paper")
+    if settings.method != "snapflow" or not settings.target_time:
+        raise ValueError("LeRobot policies are distilled with SnapFlow and its target-time embedding; "
+                         "the baselines and the no-phi_s ablation run on the built-in MiniVLA")
     policy = load_pretrained_policy(policy_path)
     metadata = LeRobotDatasetMetadata(repo_id, root=dataset_root)
     check_dataset_features(policy.config, metadata.features, repo_id)

@@ -58,8 +58,11 @@ PRESETS: dict[str, DemoPreset] = {
 }
 
 
-def collect(tasks: list[str], episodes_per_task: int, output: str | Path, image_size: int | None = None, progress: bool = True) -> Demonstrations:
-    demonstrations = collect_demonstrations(tasks, episodes_per_task, image_size, progress)
+def collect(
+    tasks: list[str], episodes_per_task: int, output: str | Path, image_size: int | None = None, progress: bool = True,
+    via_points: bool = False,
+) -> Demonstrations:
+    demonstrations = collect_demonstrations(tasks, episodes_per_task, image_size, progress, via_points)
     demonstrations.save(output)
     return demonstrations
 
@@ -76,7 +79,7 @@ def train_teacher(
     """Plain flow matching (alpha = 1) on the demonstrations; normalisation from the training episodes."""
     demonstrations = Demonstrations.load(data)
     train_episodes, _ = demonstrations.split(val_fraction)
-    processor = MiniVLAProcessor(policy_config, demonstrations.stats(train_episodes))
+    processor = MiniVLAProcessor(policy_config, demonstrations.stats(train_episodes, policy_config.state_dim))
     torch.manual_seed(config.seed)
     policy = SnapFlowPolicy(MiniVLA(policy_config), target_time=False)
     train_data, val_data = _chunk_data(demonstrations, processor, val_fraction)
@@ -89,9 +92,10 @@ def distill(
     teacher: str | Path, data: str | Path, output: str | Path, config: TrainConfig, settings: DistillSettings | None = None,
     val_fraction: float | None = None, resume: bool = False, progress: bool = True,
 ) -> dict[str, Any]:
-    """SnapFlow: the student starts as the teacher plus a zero-initialised phi_s; prefix frozen by default."""
+    """SnapFlow (or a baseline, see ``DistillSettings``): the student starts as the teacher plus a zero-initialised
+    phi_s; prefix frozen by default."""
     settings = settings or DistillSettings()
-    loaded = load_policy(teacher, target_time=True)
+    loaded = load_policy(teacher, target_time=settings.target_time)
     demonstrations = Demonstrations.load(data)
     if val_fraction is None:
         val_fraction = loaded.val_fraction
@@ -108,15 +112,16 @@ def distill(
 
 def evaluate(
     runs: list[tuple[str, LoadedPolicy, SamplingMode]], tasks: list[str], episodes_per_task: int, n_act: int,
-    data: str | Path | None = None, offline_samples: int = 500, seed: int = 0, progress: bool = True,
+    data: str | Path | None = None, offline_samples: int = 500, seed: int = 0, progress: bool = True, via_points: bool = False,
 ) -> dict[str, Any]:
     """Closed-loop success, offline metrics (when ``data`` is given) and batch-1 latency for each
-    (label, policy, mode); latency speedups are relative to the first entry."""
+    (label, policy, mode); latency speedups are relative to the first entry. ``via_points``: the multimodal
+    variant's success criterion (see :mod:`snapflow.envs.via_points`)."""
     first = runs[0][1].processor.config
-    evaluator = MetaWorldEvaluator(tasks, episodes_per_task, first.image_size if first.use_image else None)
+    evaluator = MetaWorldEvaluator(tasks, episodes_per_task, first.image_size if first.use_image else None, via_points)
     demonstrations = Demonstrations.load(data) if data is not None else None
     held_out: dict[Path, ChunkData | None] = {}  # per checkpoint: its modes share one set of held-out chunks
-    report: dict[str, Any] = {"tasks": tasks, "episodes_per_task": episodes_per_task, "n_act": n_act, "rows": {}}
+    report: dict[str, Any] = {"tasks": tasks, "episodes_per_task": episodes_per_task, "n_act": n_act, "via_points": via_points, "rows": {}}
     try:
         for label, loaded, mode in runs:
             started = time.perf_counter()

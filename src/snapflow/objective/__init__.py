@@ -1,5 +1,16 @@
-"""Training objectives; they see a policy only through :class:`snapflow.protocol.FlowPolicy`."""
+"""Distillation objectives: SnapFlow, and the one-step baselines it is compared with, on one base."""
 
-from snapflow.objective.snapflow import SnapFlowLossOutput, SnapFlowObjective, two_step_shortcut_target
+from snapflow.objective.base import LossOutput, OneStepRows, TwoBranchObjective
+from snapflow.objective.consistency_distillation import ConsistencyDistillationObjective
+from snapflow.objective.meanflow import MeanFlowObjective
+from snapflow.objective.snapflow import SnapFlowObjective, two_step_shortcut_target
 
-__all__ = ["SnapFlowObjective", "SnapFlowLossOutput", "two_step_shortcut_target"]
+__all__ = [
+    "ConsistencyDistillationObjective",
+    "LossOutput",
+    "MeanFlowObjective",
+    "OneStepRows",
+    "SnapFlowObjective",
+    "TwoBranchObjective",
+    "two_step_shortcut_target",
+]

@@ -7,33 +7,25 @@ Each batch is split into a fixed number of flow-matching (FM) samples and consis
                L_SC = || F(x_1, s=0, t=1) - (v_1 + v_.5) / 2 ||^2 with x_1 = eps.
 
 L = alpha * L_FM + (1 - alpha) * lambda * L_SC. The teacher velocities are the model's own marginal
-(FM-mode) predictions, not the conditional eps - a, whose variance would bias the jump.
+(FM-mode) predictions, not the conditional eps - a, whose variance would bias the jump
+(``teacher_velocity="conditional"`` is that ablation, the paper's Table 5).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import torch
 from torch import Tensor
 
-from snapflow.flow.path import conditional_velocity, euler_step, interpolate
+from snapflow.flow.path import conditional_velocity, euler_step
 from snapflow.flow.solver import VelocityFn
 from snapflow.flow.time_sampling import BetaTimeSampler, TimeSampler
-from snapflow.protocol import FlowPolicy, index_batch
+from snapflow.objective.base import OneStepRows, TwoBranchObjective
+from snapflow.protocol import Context, FlowPolicy
 
-
-@dataclass(frozen=True)
-class SnapFlowLossOutput:
-    """The total loss (with graph) and its parts (detached, for logging)."""
-
-    loss: Tensor
-    flow_matching_loss: Tensor
-    consistency_loss: Tensor
-    num_flow_matching: int
-    num_consistency: int
+TEACHER_VELOCITIES = ("marginal", "conditional")
 
 
 def two_step_shortcut_target(velocity: VelocityFn, x_1: Tensor, clamp: float | None = None) -> Tensor:
@@ -56,7 +48,7 @@ def two_step_shortcut_target(velocity: VelocityFn, x_1: Tensor, clamp: float | N
 
 
 @dataclass(frozen=True)
-class SnapFlowObjective:
+class SnapFlowObjective(TwoBranchObjective):
     """SnapFlow progressive self-distillation loss; ``alpha=1`` is plain flow matching (teacher training).
 
     Args:
@@ -64,83 +56,35 @@ class SnapFlowObjective:
         consistency_weight: lambda, the consistency branch's weight relative to (1 - alpha).
         time_sampler: the policy's own FM training-time distribution.
         teacher_velocity_clamp: optional bound on the no-grad teacher velocities.
+        teacher_velocity: ``"marginal"`` (the model's own FM velocities, the paper's method) or
+            ``"conditional"`` (eps - a on the straight path, the ablation the paper's theory says drifts:
+            its two-step average is eps - a again, so the jump regresses the conditional mean of the actions).
     """
 
     alpha: float = 0.5
     consistency_weight: float = 0.1
     time_sampler: TimeSampler = field(default_factory=BetaTimeSampler)
     teacher_velocity_clamp: float | None = None
+    teacher_velocity: Literal["marginal", "conditional"] = "marginal"
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.alpha <= 1.0:
-            raise ValueError(f"alpha must be in [0, 1], got {self.alpha}")
-        if self.consistency_weight < 0:
-            raise ValueError(f"consistency_weight (lambda) must be non-negative, got {self.consistency_weight}")
+        self._check_weights()
         if self.teacher_velocity_clamp is not None and self.teacher_velocity_clamp <= 0:
             raise ValueError(f"teacher_velocity_clamp must be positive, got {self.teacher_velocity_clamp}")
+        if self.teacher_velocity not in TEACHER_VELOCITIES:
+            raise ValueError(f"teacher_velocity must be one of {TEACHER_VELOCITIES}, got {self.teacher_velocity!r}")
 
-    def num_flow_matching(self, batch_size: int) -> int:
-        """Fixed FM share of a batch: round(alpha * B), keeping both branches present when 0 < alpha < 1."""
-        if self.alpha in (0.0, 1.0):
-            return int(self.alpha) * batch_size
-        if batch_size < 2:
-            raise ValueError(f"0 < alpha < 1 needs batches of at least 2 samples to fill both branches, got {batch_size}")
-        return min(max(math.floor(self.alpha * batch_size + 0.5), 1), batch_size - 1)
-
-    def __call__(
-        self,
-        policy: FlowPolicy,
-        observation: Any,
-        actions: Tensor,
-        *,
-        noise: Tensor | None = None,
-        time: Tensor | None = None,
-        generator: torch.Generator | None = None,
-    ) -> SnapFlowLossOutput:
-        """Loss for one batch of ground-truth ``actions`` (B, ...).
-
-        The first ``num_flow_matching(B)`` samples take the FM branch, the rest the consistency branch.
-        ``noise`` (B, ...) and ``time`` (FM samples only) may be given; otherwise they are drawn.
-        """
-        batch = actions.shape[0]
-        n_fm = self.num_flow_matching(batch)
-        n_sc = batch - n_fm
-        if noise is None:
-            noise = torch.randn(actions.shape, device=actions.device, dtype=actions.dtype, generator=generator)
-        elif noise.shape != actions.shape:
-            raise ValueError(f"noise {tuple(noise.shape)} must match actions {tuple(actions.shape)}")
-        if time is None:
-            time = self.time_sampler(n_fm, device=actions.device, generator=generator)
-        elif time.shape != (n_fm,):
-            raise ValueError(f"time must have shape ({n_fm},) for the FM samples, got {tuple(time.shape)}")
-        fm_rows, sc_rows = slice(0, n_fm), slice(n_fm, batch)
-
-        context = policy.encode(observation)
-        x_1 = noise[sc_rows]
-        target = None
-        if n_sc:
-            sc_context = index_batch(context, sc_rows)
-            target = two_step_shortcut_target(
-                lambda x, t, s: policy.velocity(x, t, s, sc_context), x_1, self.teacher_velocity_clamp
-            )
-
-        # One gradient pass over the whole batch: FM rows at (x_t, s=t, t), consistency rows at (x_1, s=0, t=1).
-        ones = torch.ones(n_sc, device=actions.device)
-        x_in = torch.cat([interpolate(actions[fm_rows], noise[fm_rows], time), x_1])
-        t_in = torch.cat([time.to(ones.dtype), ones])
-        s_in = torch.cat([time.to(ones.dtype), torch.zeros_like(ones)])
-        prediction = policy.velocity(x_in, t_in, s_in, context)
-
-        zero = prediction.new_zeros(())
-        fm_loss = zero
-        if n_fm:
-            fm_target = conditional_velocity(actions[fm_rows], noise[fm_rows])
-            fm_loss = (prediction[fm_rows] - fm_target).pow(2).mean()
-        sc_loss = zero
-        if n_sc:
-            sc_loss = (prediction[sc_rows] - target).pow(2).mean()
-        loss = self.alpha * fm_loss + (1 - self.alpha) * self.consistency_weight * sc_loss
-        return SnapFlowLossOutput(loss, fm_loss.detach(), sc_loss.detach(), n_fm, n_sc)
+    def one_step_rows(
+        self, policy: FlowPolicy, observation: Any, context: Context, actions: Tensor, noise: Tensor,
+        generator: torch.Generator | None,
+    ) -> OneStepRows:
+        """The jump t = 1 -> s = 0 from x_1 = eps onto the two-step shortcut of the teacher velocities."""
+        if self.teacher_velocity == "conditional":
+            target = conditional_velocity(actions, noise)
+        else:
+            target = two_step_shortcut_target(lambda x, t, s: policy.velocity(x, t, s, context), noise, self.teacher_velocity_clamp)
+        ones = torch.ones(noise.shape[0], device=noise.device)
+        return OneStepRows(noise, ones, torch.zeros_like(ones), target)
 
 
-__all__ = ["SnapFlowObjective", "SnapFlowLossOutput", "two_step_shortcut_target"]
+__all__ = ["SnapFlowObjective", "TEACHER_VELOCITIES", "two_step_shortcut_target"]

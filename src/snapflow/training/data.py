@@ -18,13 +18,16 @@ class ChunkData:
         if not episodes:
             raise ValueError("no episodes selected")
         config = processor.config
-        if demonstrations.states.shape[1] != config.state_dim or demonstrations.actions.shape[1] != config.action_dim:
+        if demonstrations.states.shape[1] < config.state_dim or demonstrations.actions.shape[1] != config.action_dim:
             raise ValueError(
                 f"demonstrations have state/action dims {demonstrations.states.shape[1]}/{demonstrations.actions.shape[1]}, "
-                f"the policy expects {config.state_dim}/{config.action_dim}"
+                f"the policy reads {config.state_dim} state entries and writes {config.action_dim} action dims"
             )
         if config.use_image and demonstrations.images is None:
             raise ValueError("the policy uses images but the demonstrations hold none; collect with --image-size")
+        if config.use_image and demonstrations.images.shape[1:3] != (config.image_size, config.image_size):
+            raise ValueError(f"the demonstrations' images are {demonstrations.images.shape[1]}x{demonstrations.images.shape[2]}, "
+                             f"the policy expects {config.image_size}x{config.image_size}")
         rows = demonstrations.rows(episodes)
         ends = np.concatenate([np.full(demonstrations.episodes[e].length, demonstrations.episodes[e].start + demonstrations.episodes[e].length) for e in episodes])
         chunk_rows = np.minimum(rows[:, None] + np.arange(config.chunk_length)[None, :], ends[:, None] - 1)

@@ -1,6 +1,6 @@
 """Training loop for teachers (flow matching) and students (SnapFlow), on Hugging Face Accelerate.
 
-Everything random in step k (batch indices, noise, FM times) comes from a generator seeded by
+Everything random in step k (batch indices, noise, FM times, the one-step rows' times) comes from a generator seeded by
 (seed, process, k), and the learning rate is a function of k, so ``resume`` continues the same loss curve.
 Under ``accelerate launch`` each process draws its own batches and Accelerate averages the gradients.
 """
@@ -19,7 +19,7 @@ from torch import Tensor, nn
 from tqdm.auto import tqdm
 
 from snapflow.io import write_json
-from snapflow.objective.snapflow import SnapFlowObjective
+from snapflow.objective.base import TwoBranchObjective
 from snapflow.training.checkpoint import (
     LATEST,
     CheckpointError,
@@ -65,13 +65,15 @@ class TrainConfig:
 class ObjectiveModule(nn.Module):
     """Policy + objective behind one ``forward``, so data-parallel wrappers see every pass."""
 
-    def __init__(self, policy: nn.Module, objective: SnapFlowObjective) -> None:
+    def __init__(self, policy: nn.Module, objective: TwoBranchObjective) -> None:
         super().__init__()
         self.policy = policy
         self.objective = objective
 
-    def forward(self, observation: dict[str, Tensor], actions: Tensor, noise: Tensor, time: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        output = self.objective(self.policy, observation, actions, noise=noise, time=time)
+    def forward(
+        self, observation: dict[str, Tensor], actions: Tensor, noise: Tensor, time: Tensor, generator: torch.Generator | None = None,
+    ) -> tuple[Tensor, Tensor, Tensor]:
+        output = self.objective(self.policy, observation, actions, noise=noise, time=time, generator=generator)
         return output.loss, output.flow_matching_loss, output.consistency_loss
 
 
@@ -79,7 +81,7 @@ def _step_generator(seed: int, process: int, step: int) -> torch.Generator:
     return torch.Generator().manual_seed(seed * 1_000_003 + process * 7_919 + step)
 
 
-def _draw(objective: SnapFlowObjective, data: ChunkData, batch_size: int, generator: torch.Generator):
+def _draw(objective: TwoBranchObjective, data: ChunkData, batch_size: int, generator: torch.Generator):
     indices = torch.randint(len(data), (batch_size,), generator=generator)
     observation, actions = data.batch(indices)
     noise = torch.randn(actions.shape, generator=generator)
@@ -100,13 +102,13 @@ def validation_loss(module: ObjectiveModule, data: ChunkData, batch_size: int, d
     totals = torch.zeros(3)
     for _ in range(batches):
         observation, actions, noise, time = _to(device, *_draw(module.objective, data, batch_size, generator))
-        totals += torch.stack([value.float().cpu() for value in module(observation, actions, noise, time)])
+        totals += torch.stack([value.float().cpu() for value in module(observation, actions, noise, time, generator)])
     loss, fm, sc = (totals / batches).tolist()
     return {"loss": loss, "flow_matching": fm, "consistency": sc}
 
 
 def train(
-    policy: nn.Module, objective: SnapFlowObjective, train_data: ChunkData, val_data: ChunkData | None,
+    policy: nn.Module, objective: TwoBranchObjective, train_data: ChunkData, val_data: ChunkData | None,
     config: TrainConfig, run_directory: str | Path, metadata: dict[str, Any], resume: bool = False,
     trainable: list[nn.Parameter] | None = None, progress: bool = True,
 ) -> dict[str, Any]:
@@ -159,7 +161,7 @@ def train(
         generator = _step_generator(config.seed, accelerator.process_index, step)
         observation, actions, noise, time_ = _to(device, *_draw(objective, train_data, config.batch_size, generator))
         module.train()
-        loss, fm, sc = module(observation, actions, noise, time_)
+        loss, fm, sc = module(observation, actions, noise, time_, generator)
         optimizer.zero_grad(set_to_none=True)
         accelerator.backward(loss)
         if config.grad_clip:

@@ -11,6 +11,10 @@ class MiniVLAConfig:
 
     Both share ``num_heads`` x ``head_dim`` attention so that each expert layer can attend to the
     keys and values its prefix layer cached, as pi0's action expert attends to the VLM's.
+
+    The policy reads the leading ``state_dim`` entries of the environment's state vector: 39 is all of
+    Meta-World's (hand, gripper, object and goal poses); 4 is proprioception only (hand position and gripper
+    opening), which with ``use_image`` leaves the scene to the camera.
     """
 
     state_dim: int = 39

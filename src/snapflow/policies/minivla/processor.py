@@ -35,8 +35,12 @@ class MiniVLAProcessor:
         return tokens, tokens != 0
 
     def observation(self, states: np.ndarray | Tensor, instructions: list[str], images: np.ndarray | Tensor | None = None) -> dict[str, Tensor]:
-        """Batch of raw states (B, state_dim), instructions and optional uint8 images (B, S, S, 3)."""
+        """Batch of raw states (B, >= state_dim; the leading state_dim entries are read), instructions and
+        optional uint8 images (B, S, S, 3)."""
         states = torch.as_tensor(np.asarray(states, dtype=np.float32))
+        if states.ndim != 2 or states.shape[1] < self.config.state_dim:
+            raise ValueError(f"states must have shape (batch, >= {self.config.state_dim}), got {tuple(states.shape)}")
+        states = states[:, : self.config.state_dim]
         tokens, token_mask = self.tokenize(instructions)
         batch = {"state": (states - self.state_mean) / self.state_std, "tokens": tokens, "token_mask": token_mask}
         if self.config.use_image:

@@ -1,0 +1,141 @@
+"""What every distillation objective here shares: a batch split into flow-matching and one-step rows.
+
+The first ``round(alpha * B)`` rows keep training the policy's own flow-matching (FM) velocity
+F(x_t, s=t, t) on eps - a, which is also what the one-step targets are built from. The other rows are
+"one-step" rows: each method chooses their inputs (x, t, s) and a regression target computed without
+gradient, and one gradient pass covers both kinds of rows:
+
+    L = alpha * L_FM + (1 - alpha) * lambda * mean_rows(w * || F(x, t, s) - target ||^2).
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from snapflow.flow.path import conditional_velocity, interpolate
+from snapflow.flow.time_sampling import TimeSampler
+from snapflow.protocol import Context, FlowPolicy, index_batch
+
+
+def draw_device(generator: torch.Generator | None, device: torch.device) -> torch.device:
+    """Where a random draw must happen: on the generator's device when one is given (the trainer's is a CPU
+    generator, so that a resumed run draws the same numbers on any accelerator)."""
+    return generator.device if generator is not None else device
+
+
+def uniform(count: int, generator: torch.Generator | None, device: torch.device) -> Tensor:
+    """``count`` draws from U(0, 1) on ``device``, reproducible from ``generator``."""
+    return torch.rand(count, generator=generator, device=draw_device(generator, device)).to(device)
+
+
+@dataclass(frozen=True)
+class LossOutput:
+    """The total loss (with graph) and its parts (detached, for logging)."""
+
+    loss: Tensor
+    flow_matching_loss: Tensor
+    consistency_loss: Tensor
+    num_flow_matching: int
+    num_consistency: int
+
+
+@dataclass(frozen=True)
+class OneStepRows:
+    """Inputs and no-grad regression target of a method's one-step rows; ``weight`` (rows,) is optional."""
+
+    x: Tensor
+    t: Tensor
+    s: Tensor
+    target: Tensor
+    weight: Tensor | None = None
+
+
+class TwoBranchObjective(ABC):
+    """Base of SnapFlow and the one-step baselines; ``alpha = 1`` is plain flow matching.
+
+    Subclasses are dataclasses with the fields ``alpha``, ``consistency_weight`` (lambda) and
+    ``time_sampler`` (the policy's own FM training-time distribution), and implement ``one_step_rows``.
+    """
+
+    alpha: float
+    consistency_weight: float
+    time_sampler: TimeSampler
+
+    def _check_weights(self) -> None:
+        if not 0.0 <= self.alpha <= 1.0:
+            raise ValueError(f"alpha must be in [0, 1], got {self.alpha}")
+        if self.consistency_weight < 0:
+            raise ValueError(f"consistency_weight (lambda) must be non-negative, got {self.consistency_weight}")
+
+    def num_flow_matching(self, batch_size: int) -> int:
+        """Fixed FM share of a batch: round(alpha * B), keeping both branches present when 0 < alpha < 1."""
+        if self.alpha in (0.0, 1.0):
+            return int(self.alpha) * batch_size
+        if batch_size < 2:
+            raise ValueError(f"0 < alpha < 1 needs batches of at least 2 samples to fill both branches, got {batch_size}")
+        return min(max(math.floor(self.alpha * batch_size + 0.5), 1), batch_size - 1)
+
+    @abstractmethod
+    def one_step_rows(
+        self, policy: FlowPolicy, observation: Any, context: Context, actions: Tensor, noise: Tensor,
+        generator: torch.Generator | None,
+    ) -> OneStepRows:
+        """Inputs and target of the one-step rows, given their observation, context, actions and noise."""
+
+    def __call__(
+        self,
+        policy: FlowPolicy,
+        observation: Any,
+        actions: Tensor,
+        *,
+        noise: Tensor | None = None,
+        time: Tensor | None = None,
+        generator: torch.Generator | None = None,
+    ) -> LossOutput:
+        """Loss for one batch of ground-truth ``actions`` (B, ...).
+
+        The first ``num_flow_matching(B)`` samples take the FM branch, the rest the one-step branch.
+        ``noise`` (B, ...) and ``time`` (FM samples only) may be given; otherwise they are drawn, as is any
+        randomness of the one-step rows, from ``generator``.
+        """
+        batch = actions.shape[0]
+        n_fm = self.num_flow_matching(batch)
+        n_sc = batch - n_fm
+        if noise is None:
+            noise = torch.randn(actions.shape, generator=generator, device=draw_device(generator, actions.device), dtype=actions.dtype).to(actions.device)
+        elif noise.shape != actions.shape:
+            raise ValueError(f"noise {tuple(noise.shape)} must match actions {tuple(actions.shape)}")
+        if time is None:
+            time = self.time_sampler(n_fm, device=draw_device(generator, actions.device), generator=generator).to(actions.device)
+        elif time.shape != (n_fm,):
+            raise ValueError(f"time must have shape ({n_fm},) for the FM samples, got {tuple(time.shape)}")
+        fm_rows, sc_rows = slice(0, n_fm), slice(n_fm, batch)
+
+        context = policy.encode(observation)
+        x_in, t_in, s_in = interpolate(actions[fm_rows], noise[fm_rows], time), time.to(actions.dtype), time.to(actions.dtype)
+        rows = None
+        if n_sc:
+            rows = self.one_step_rows(policy, index_batch(observation, sc_rows), index_batch(context, sc_rows),
+                                      actions[sc_rows], noise[sc_rows], generator)
+            x_in, t_in, s_in = torch.cat([x_in, rows.x]), torch.cat([t_in, rows.t.to(t_in.dtype)]), torch.cat([s_in, rows.s.to(s_in.dtype)])
+        prediction = policy.velocity(x_in, t_in, s_in, context)  # one gradient pass over both kinds of rows
+
+        zero = prediction.new_zeros(())
+        fm_loss = zero
+        if n_fm:
+            fm_loss = (prediction[fm_rows] - conditional_velocity(actions[fm_rows], noise[fm_rows])).pow(2).mean()
+        sc_loss = zero
+        if rows is not None:
+            error = (prediction[sc_rows] - rows.target).pow(2).flatten(1).mean(1)
+            sc_loss = (error if rows.weight is None else rows.weight * error).mean()
+        loss = self.alpha * fm_loss + (1 - self.alpha) * self.consistency_weight * sc_loss
+        return LossOutput(loss, fm_loss.detach(), sc_loss.detach(), n_fm, n_sc)
+
+
+__all__ = ["LossOutput", "OneStepRows", "TwoBranchObjective", "draw_device", "uniform"]

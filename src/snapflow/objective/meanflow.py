@@ -1,0 +1,57 @@
+"""MeanFlow (Geng et al., 2025) in the SnapFlow harness: a one-step baseline.
+
+F(x_t, t, s) is read as the average velocity u of the jump t -> s, which obeys the MeanFlow identity
+(with this library's convention, t = 1 noise, s < t):
+
+    u(x_t, t, s) = v(x_t, t) - (t - s) * d/dt u(x_t, t, s),   d/dt = v . d/dx + d/dt   (s held fixed).
+
+The one-step rows draw s < t uniformly, put x_t on the straight path and regress F(x_t, t, s) on the
+right-hand side without gradient; the total derivative is one forward-mode JVP. As in SnapFlow, v is the
+model's own FM velocity F(x_t, t, t) (the original trains from scratch on eps - a); the FM rows keep it
+trained.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+from torch import Tensor
+from torch.nn.attention import SDPBackend, sdpa_kernel
+
+from snapflow.flow.path import interpolate
+from snapflow.flow.time_sampling import BetaTimeSampler, TimeSampler
+from snapflow.objective.base import OneStepRows, TwoBranchObjective, uniform
+from snapflow.protocol import Context, FlowPolicy
+
+
+@dataclass(frozen=True)
+class MeanFlowObjective(TwoBranchObjective):
+    """MeanFlow-style average-velocity distillation; arguments as for :class:`snapflow.objective.SnapFlowObjective`."""
+
+    alpha: float = 0.5
+    consistency_weight: float = 0.1
+    time_sampler: TimeSampler = field(default_factory=BetaTimeSampler)
+
+    def __post_init__(self) -> None:
+        self._check_weights()
+
+    def one_step_rows(
+        self, policy: FlowPolicy, observation: Any, context: Context, actions: Tensor, noise: Tensor,
+        generator: torch.Generator | None,
+    ) -> OneStepRows:
+        rows = noise.shape[0]
+        first, second = uniform(rows, generator, noise.device), uniform(rows, generator, noise.device)
+        t, s = torch.maximum(first, second), torch.minimum(first, second)
+        x_t = interpolate(actions, noise, t)
+        with torch.no_grad():
+            velocity = policy.velocity(x_t, t, t, context)
+        # Fused attention kernels have no forward-mode derivative; the reference (math) kernel does.
+        with torch.no_grad(), sdpa_kernel(SDPBackend.MATH):
+            _, total_derivative = torch.func.jvp(lambda x, time: policy.velocity(x, time, s, context), (x_t, t), (velocity, torch.ones_like(t)))
+            target = velocity - (t - s).view(-1, *[1] * (x_t.ndim - 1)) * total_derivative
+        return OneStepRows(x_t, t, s, target)
+
+
+__all__ = ["MeanFlowObjective"]
