@@ -143,6 +143,20 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sweep(args: argparse.Namespace) -> int:
+    from snapflow.experiments.sweep import load_sweep, run_sweeps, write_results
+
+    configs = [load_sweep(path) for path in args.configs]
+    if not args.report_only:
+        run_sweeps(configs, args.workers, not args.no_progress)
+    for config in configs:
+        write_results(config, args.document)
+        print(f"{config.name}: wrote results.json, tables.md and PNG plots to {config.results_dir}")
+    if args.document:
+        print(f"updated the sweep tables in {args.document}")
+    return 0
+
+
 def _demo(args: argparse.Namespace) -> int:
     from snapflow.evaluation.report import markdown_report
     from snapflow.experiments.metaworld import PRESETS, run_demo
@@ -243,6 +257,13 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--no-profile", action="store_true", help="skip the torch.profiler table of the 1-NFE path")
     bench.add_argument("--output-dir", default="outputs/bench")
     bench.set_defaults(run=_bench)
+
+    sweep = commands.add_parser("sweep", parents=[common], help="run sweep configs (seeds, ablations, baselines) and write their results")
+    sweep.add_argument("configs", nargs="+", help="sweep TOML files, e.g. configs/sweeps/mt10-state.toml")
+    sweep.add_argument("--workers", type=int, default=1, help="jobs run side by side, each on cores / workers threads")
+    sweep.add_argument("--document", help="also write the tables between their markers in this Markdown file (e.g. docs/RESULTS.md)")
+    sweep.add_argument("--report-only", action="store_true", help="only rebuild the results from finished runs")
+    sweep.set_defaults(run=_sweep)
 
     demo = commands.add_parser("demo", parents=[common], help="MT10: collect -> train -> distill -> eval, one final table")
     demo.add_argument("--full", action="store_true", help="stronger, longer preset")

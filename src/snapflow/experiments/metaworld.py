@@ -113,10 +113,11 @@ def distill(
 def evaluate(
     runs: list[tuple[str, LoadedPolicy, SamplingMode]], tasks: list[str], episodes_per_task: int, n_act: int,
     data: str | Path | None = None, offline_samples: int = 500, seed: int = 0, progress: bool = True, via_points: bool = False,
+    timing: bool = True,
 ) -> dict[str, Any]:
-    """Closed-loop success, offline metrics (when ``data`` is given) and batch-1 latency for each
-    (label, policy, mode); latency speedups are relative to the first entry. ``via_points``: the multimodal
-    variant's success criterion (see :mod:`snapflow.envs.via_points`)."""
+    """Closed-loop success, offline metrics (when ``data`` is given) and, with ``timing``, batch-1 latency for
+    each (label, policy, mode); latency speedups are relative to the first entry. ``via_points``: the
+    multimodal variant's success criterion (see :mod:`snapflow.envs.via_points`)."""
     first = runs[0][1].processor.config
     evaluator = MetaWorldEvaluator(tasks, episodes_per_task, first.image_size if first.use_image else None, via_points)
     demonstrations = Demonstrations.load(data) if data is not None else None
@@ -137,7 +138,8 @@ def evaluate(
             report["rows"][label] = row
     finally:
         evaluator.close()
-    report["latency"] = latency(runs)
+    if timing:
+        report["latency"] = latency(runs)
     return report
 
 
