@@ -29,9 +29,9 @@ def draw_device(generator: torch.Generator | None, device: torch.device) -> torc
     return generator.device if generator is not None else device
 
 
-def uniform(count: int, generator: torch.Generator | None, device: torch.device) -> Tensor:
-    """``count`` draws from U(0, 1) on ``device``, reproducible from ``generator``."""
-    return torch.rand(count, generator=generator, device=draw_device(generator, device)).to(device)
+def uniform(count: int, generator: torch.Generator | None, like: Tensor) -> Tensor:
+    """``count`` draws from U(0, 1) with the device and dtype of ``like``, reproducible from ``generator``."""
+    return torch.rand(count, generator=generator, device=draw_device(generator, like.device)).to(like)
 
 
 @dataclass(frozen=True)
@@ -47,13 +47,21 @@ class LossOutput:
 
 @dataclass(frozen=True)
 class OneStepRows:
-    """Inputs and no-grad regression target of a method's one-step rows; ``weight`` (rows,) is optional."""
+    """Inputs and no-grad regression target of a method's one-step rows.
+
+    ``weight`` (rows,) scales each row's squared error e; ``adaptive_power`` p > 0 further divides it by
+    sg(e + ADAPTIVE_EPSILON) ** p, MeanFlow's adaptive loss weighting (p = 1 makes each row's loss ~ 1 - c / e).
+    """
 
     x: Tensor
     t: Tensor
     s: Tensor
     target: Tensor
     weight: Tensor | None = None
+    adaptive_power: float = 0.0
+
+
+ADAPTIVE_EPSILON = 1e-3
 
 
 class TwoBranchObjective(ABC):
@@ -133,7 +141,10 @@ class TwoBranchObjective(ABC):
         sc_loss = zero
         if rows is not None:
             error = (prediction[sc_rows] - rows.target).pow(2).flatten(1).mean(1)
-            sc_loss = (error if rows.weight is None else rows.weight * error).mean()
+            weighted = error if rows.weight is None else rows.weight * error
+            if rows.adaptive_power:
+                weighted = weighted / (error.detach() + ADAPTIVE_EPSILON) ** rows.adaptive_power
+            sc_loss = weighted.mean()
         loss = self.alpha * fm_loss + (1 - self.alpha) * self.consistency_weight * sc_loss
         return LossOutput(loss, fm_loss.detach(), sc_loss.detach(), n_fm, n_sc)
 

@@ -70,7 +70,7 @@ class ConsistencyDistillationObjective(TwoBranchObjective):
     ) -> OneStepRows:
         target_network = self._target_network(policy)
         rows = noise.shape[0]
-        interval = (uniform(rows, generator, noise.device) * self.num_intervals).floor().clamp(max=self.num_intervals - 1)
+        interval = (uniform(rows, generator, noise) * self.num_intervals).floor().clamp(max=self.num_intervals - 1)
         t_hi, t_lo = (interval + 1) / self.num_intervals, interval / self.num_intervals
         x_hi = interpolate(actions, noise, t_hi)
         with torch.no_grad():
