@@ -60,9 +60,10 @@ def test_consistency_distillation_loss_and_ema_target_by_hand(student, batch):
         assert torch.allclose(value, 0.9 * before[name] + 0.1 * online[name], atol=1e-6)
 
 
-def test_meanflow_target_is_the_mean_flow_identity(student, batch):
+@pytest.mark.parametrize("power", [0.0, 1.0])
+def test_meanflow_target_is_the_mean_flow_identity(student, batch, power):
     observation, actions = batch
-    objective = MeanFlowObjective(alpha=0.5, consistency_weight=1.0, time_sampler=UniformTimeSampler())
+    objective = MeanFlowObjective(alpha=0.5, consistency_weight=1.0, time_sampler=UniformTimeSampler(), adaptive_power=power)
     noise, time = torch.randn(6, 3, 2), torch.rand(3)
     output = objective(student, observation, actions, noise=noise, time=time, generator=torch.Generator().manual_seed(5))
 
@@ -76,7 +77,8 @@ def test_meanflow_target_is_the_mean_flow_identity(student, batch):
     # objective uses forward mode); finite differences are too coarse for the high-frequency time features
     _, du_dt = torch.autograd.functional.jvp(lambda x, time: student.velocity(x, time, s, context), (x_t, t), (v, torch.ones_like(t)))
     target = v - (t - s)[:, None, None] * du_dt
-    expected = ((student.velocity(x_t, t, s, context) - target) ** 2).mean()
+    error = ((student.velocity(x_t, t, s, context) - target) ** 2).flatten(1).mean(1)
+    expected = (error / (error + 1e-3) ** power).mean()  # MeanFlow's adaptive weighting, sg(e + c) ** -p
     assert torch.allclose(output.consistency_loss, expected, rtol=1e-5)
 
 

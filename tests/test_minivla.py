@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import copy
 
+import numpy as np
+import pytest
 import torch
 
 from snapflow import SnapFlowObjective, SnapFlowPolicy, UniformTimeSampler
@@ -91,3 +93,14 @@ def test_shape_errors_name_the_expected_shape():
         model.encode(dict(observation, state=torch.zeros(4, 7)))
     with pytest.raises(ValueError, match=r"noisy actions must have shape \(B, 4, 3\)"):
         model.velocity_from_time_embedding(torch.zeros(4, 5, 3), model.embed_time(torch.rand(4)), model.encode(observation))
+
+
+def test_a_proprioceptive_policy_reads_the_leading_state_entries_only():
+    config = MiniVLAConfig(state_dim=4, use_image=True, image_size=32)
+    processor = MiniVLAProcessor(config, NormalizationStats([0.0] * 4, [1.0] * 4, [0.0] * 4, [1.0] * 4))
+    states = np.arange(2 * 39, dtype=np.float32).reshape(2, 39)
+    images = np.zeros((2, 32, 32, 3), dtype=np.uint8)
+    batch = processor.observation(states, ["reach", "push"], images)
+    assert torch.equal(batch["state"], torch.from_numpy(states[:, :4]))
+    with pytest.raises(ValueError, match=r"states must have shape \(batch, >= 4\)"):
+        processor.observation(states[:, :3], ["reach", "push"], images)
