@@ -113,11 +113,14 @@ def test_a_sweep_runs_caches_and_writes_its_tables_into_the_document(tmp_path, c
     ('[data]\ntasks = ["fly-v3"]\n', "unknown Meta-World task(s) ['fly-v3']"),
     ('seeds = "all"\n', "seeds must be a non-empty list of integers"),
     ('[runs.teacher\n', "not valid TOML"),
+    ('runs = 3\n', "[runs]: expected a table"),
+    ('[runs.teacher]\n[[tables]]\nname = "t"\nrows = 3\n', "rows must be a list"),
+    ('[runs.teacher]\n[[tables]]\nname = "t"\nrows = [3]\n', "row: expected a table"),
 ])
 def test_a_bad_sweep_config_is_refused_with_its_section_named(tmp_path, capsys, mistake, message):
     path = tmp_path / "bad.toml"
     body = 'name = "bad"\n' + mistake
-    if "[runs." not in mistake:
+    if "[runs." not in mistake and "runs =" not in mistake:
         body += "[runs.teacher]\n"
     if "[[tables]]" not in mistake:
         body += '[[tables]]\nname = "t"\nrows = []\n'

@@ -105,7 +105,9 @@ class SweepConfig:
         return self.output_dir / "data"
 
 
-def _checked(section: str, table: dict[str, Any], allowed: set[str], required: set[str] = frozenset()) -> dict[str, Any]:
+def _checked(section: str, table: Any, allowed: set[str], required: set[str] = frozenset()) -> dict[str, Any]:
+    if not isinstance(table, dict):
+        raise ValueError(f"{section}: expected a table of keys, got {table!r}")
     unknown = sorted(set(table) - allowed)
     if unknown:
         raise ValueError(f"{section}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
@@ -134,6 +136,8 @@ def load_sweep(path: str | Path) -> SweepConfig:
     from snapflow.experiments.metaworld import PRESETS
 
     path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no sweep config at {path}")
     try:
         raw = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as error:
@@ -151,7 +155,7 @@ def load_sweep(path: str | Path) -> SweepConfig:
     data = _dataclass_from("[data]", DataSpec, DataSpec(), data_raw)
 
     runs: dict[str, RunSpec] = {}
-    for run_name, entry in raw["runs"].items():
+    for run_name, entry in _checked("[runs]", raw["runs"], set(raw["runs"]) if isinstance(raw["runs"], dict) else set()).items():
         section = f"[runs.{run_name}]"
         _checked(section, entry, {"teacher", "policy", "train", "distill", "seeds"})
         run_seeds = _seeds(section, entry.get("seeds", list(seeds)))
@@ -176,11 +180,15 @@ def load_sweep(path: str | Path) -> SweepConfig:
                 raise ValueError(f"[runs.{run.name}]: seeds {missing} have no {run.teacher!r} teacher")
 
     tables = []
+    if not isinstance(raw["tables"], list):
+        raise ValueError(f"{path}: tables must be a list of [[tables]] entries")
     for index, entry in enumerate(raw["tables"]):
         section = f"[[tables]] #{index + 1}"
         _checked(section, entry, {"name", "title", "rows", "seeds", "episodes_per_task", "n_act", "per_task", "x_label"}, {"name", "rows"})
         table_seeds = _seeds(section, entry.get("seeds", list(seeds)))
         rows = []
+        if not isinstance(entry["rows"], list):
+            raise ValueError(f"{section}: rows must be a list of {{ label, run, mode }} entries")
         for row in entry["rows"]:
             _checked(f"{section} row", row, {"label", "run", "mode", "n_act", "series", "x"}, {"label", "run", "mode"})
             if row["run"] not in runs:
