@@ -145,8 +145,13 @@ def run_toy_experiment(config: ToyConfig = ToyConfig(), progress: bool = True) -
 def plot_toy_result(result: ToyResult, path: Path, num_contexts: int = 3) -> None:
     """PNG grid: one row per evaluation context, the exact data then each sampling mode."""
     plt = pyplot()
+    method = result.config.method
+
+    def label(name: str) -> str:  # the student's one-step jump, named after the objective that trained it
+        return f"{method} 1-NFE" if name == "snapflow-1" and method != "snapflow" else name
+
     columns = [("data (exact)", result.data_samples)] + [
-        (f"{name}  ED={result.distances[name]:.3f}", samples) for name, samples in result.model_samples.items()
+        (f"{label(name)}  ED={result.distances[name]:.3f}", samples) for name, samples in result.model_samples.items()
     ]
     rows = min(num_contexts, len(result.eval_contexts))
     figure, axes = plt.subplots(rows, len(columns), figsize=(3.2 * len(columns), 3.2 * rows), squeeze=False)
