@@ -155,7 +155,9 @@ def load_sweep(path: str | Path) -> SweepConfig:
     data = _dataclass_from("[data]", DataSpec, DataSpec(), data_raw)
 
     runs: dict[str, RunSpec] = {}
-    for run_name, entry in _checked("[runs]", raw["runs"], set(raw["runs"]) if isinstance(raw["runs"], dict) else set()).items():
+    if not isinstance(raw["runs"], dict):
+        raise ValueError(f"[runs]: expected a table of keys, got {raw['runs']!r}")
+    for run_name, entry in raw["runs"].items():
         section = f"[runs.{run_name}]"
         _checked(section, entry, {"teacher", "policy", "train", "distill", "seeds"})
         run_seeds = _seeds(section, entry.get("seeds", list(seeds)))
