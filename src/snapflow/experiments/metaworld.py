@@ -13,7 +13,7 @@ from typing import Any
 import torch
 
 from snapflow.data.collect import collect_demonstrations
-from snapflow.data.demonstrations import Demonstrations
+from snapflow.data.demonstrations import META_FILE, Demonstrations
 from snapflow.envs.metaworld import MT10_TASKS
 from snapflow.evaluation.closed_loop import MetaWorldEvaluator, success_by_task
 from snapflow.evaluation.offline import offline_metrics
@@ -164,7 +164,7 @@ def run_demo(preset: DemoPreset, output: str | Path, progress: bool = True, resu
     timings: dict[str, float] = {}
     started = time.perf_counter()
     data, teacher_dir, student_dir = output / "data", output / "teacher", output / "snapflow"
-    if not (resume and (data / "meta.json").is_file()):
+    if not (resume and (data / META_FILE).is_file()):
         collect(list(preset.tasks), preset.episodes_per_task, data, progress=progress)
     timings["collect_s"] = time.perf_counter() - started
     train_teacher(data, teacher_dir, preset.policy, preset.teacher, preset.val_fraction, resume=resume, progress=progress)

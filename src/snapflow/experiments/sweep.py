@@ -35,14 +35,13 @@ from typing import Any
 
 import numpy as np
 
+from snapflow.data.demonstrations import META_FILE
 from snapflow.envs.metaworld import MT10_TASKS, check_tasks
 from snapflow.flow.solver import SamplingMode
 from snapflow.io import atomic_write, write_json
 from snapflow.policies.minivla import MiniVLAConfig
 from snapflow.training.distill import DistillSettings
-from snapflow.training.trainer import TrainConfig
-
-HISTORY = "history.json"  # written by the trainer when a run reaches its last step
+from snapflow.training.trainer import HISTORY, TrainConfig
 
 
 @dataclass(frozen=True)
@@ -291,7 +290,7 @@ def plan(config: SweepConfig) -> list[tuple[tuple, list[tuple]]]:
     """Jobs still to do, each with the jobs it waits for: collect, train (teachers before their students), eval."""
     jobs: list[tuple[tuple, list[tuple]]] = []
     collect = ("collect",)
-    if not (config.data_dir / "meta.json").is_file():
+    if not (config.data_dir / META_FILE).is_file():
         jobs.append((collect, []))
     pending = {job for job, _ in jobs}
     needed = {(row.run, seed) for table in config.tables for row in table.rows for seed in table.seeds}
@@ -330,7 +329,7 @@ def run_sweeps(configs: list[SweepConfig], workers: int = 1, progress: bool = Tr
     configs_by_source = {str(config.source): config for config in configs}
     names = {source: config.name for source, config in configs_by_source.items()}
     waiting = [((str(config.source), job), [(str(config.source), dep) for dep in deps]) for config in configs for job, deps in plan(config)]
-    # longest stages first across all sweeps (collect, teachers, students, evaluations): the shortest makespan
+    # earlier pipeline stages first across all sweeps: their jobs are the longest and unblock the others
     waiting.sort(key=lambda entry: _stage(configs_by_source[entry[0][0]], entry[0][1]))
     threads = max(1, (os.cpu_count() or 1) // workers)
     done: set[tuple] = set()
@@ -384,7 +383,7 @@ def table_results(config: SweepConfig, table: TableSpec) -> dict[str, Any]:
             "training_s": [_training_seconds(config, row.run, seed) for seed in table.seeds],
         }
         if all("offline" in e for e in evals):
-            entry["offline"] = {key: _mean_std([e["offline"][key] for e in evals])[0] for key in ("mse", "mse_p90", "mse_p95", "cosine")}
+            entry["offline"] = {key: float(np.mean([e["offline"][key] for e in evals])) for key in ("mse", "mse_p90", "mse_p95", "cosine")}
             entry["offline"]["samples"] = evals[0]["offline"]["samples"]
         rows.append(entry)
     return {"name": table.name, "title": table.title, "episodes_per_task": table.episodes_per_task, "seeds": list(table.seeds),

@@ -8,7 +8,7 @@ from __future__ import annotations
 from torch import Tensor
 
 
-def _broadcast_time(t: Tensor, like: Tensor) -> Tensor:
+def broadcast_time(t: Tensor, like: Tensor) -> Tensor:
     """Reshape a per-sample time of shape (B,) so it broadcasts over a (B, ...) tensor."""
     if t.ndim != 1 or t.shape[0] != like.shape[0]:
         raise ValueError(f"time must have shape ({like.shape[0]},), got {tuple(t.shape)}")
@@ -19,7 +19,7 @@ def interpolate(actions: Tensor, noise: Tensor, t: Tensor) -> Tensor:
     """Point x_t = (1 - t) * a + t * eps on the straight path from data a (t = 0) to noise eps (t = 1)."""
     if actions.shape != noise.shape:
         raise ValueError(f"actions {tuple(actions.shape)} and noise {tuple(noise.shape)} differ in shape")
-    t = _broadcast_time(t, actions)
+    t = broadcast_time(t, actions)
     return (1 - t) * actions + t * noise
 
 
@@ -32,7 +32,7 @@ def conditional_velocity(actions: Tensor, noise: Tensor) -> Tensor:
 
 def euler_step(x: Tensor, velocity: Tensor, t: Tensor, t_next: Tensor) -> Tensor:
     """Move x from time t to time t_next along ``velocity``: x + (t_next - t) * v (t_next < t when denoising)."""
-    return x + _broadcast_time(t_next - t, x) * velocity
+    return x + broadcast_time(t_next - t, x) * velocity
 
 
-__all__ = ["interpolate", "conditional_velocity", "euler_step"]
+__all__ = ["broadcast_time", "interpolate", "conditional_velocity", "euler_step"]

@@ -21,7 +21,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from snapflow.flow.path import euler_step, interpolate
+from snapflow.flow.path import broadcast_time, euler_step, interpolate
 from snapflow.flow.time_sampling import BetaTimeSampler, TimeSampler
 from snapflow.objective.base import OneStepRows, TwoBranchObjective, uniform
 from snapflow.protocol import Context, FlowPolicy
@@ -76,8 +76,8 @@ class ConsistencyDistillationObjective(TwoBranchObjective):
         with torch.no_grad():
             x_lo = euler_step(x_hi, policy.velocity(x_hi, t_hi, t_hi, context), t_hi, t_lo)
             target_context = target_network.encode(observation)
-            consistent = x_lo - t_lo.view(-1, *[1] * (x_lo.ndim - 1)) * target_network.velocity(x_lo, t_lo, torch.zeros_like(t_lo), target_context)
-            target = (x_hi - consistent) / t_hi.view(-1, *[1] * (x_hi.ndim - 1))
+            consistent = x_lo - broadcast_time(t_lo, x_lo) * target_network.velocity(x_lo, t_lo, torch.zeros_like(t_lo), target_context)
+            target = (x_hi - consistent) / broadcast_time(t_hi, x_hi)
         return OneStepRows(x_hi, t_hi, torch.zeros_like(t_hi), target, weight=t_hi.pow(2))
 
 

@@ -20,7 +20,7 @@ import torch
 from torch import Tensor
 from torch.nn.attention import SDPBackend, sdpa_kernel
 
-from snapflow.flow.path import interpolate
+from snapflow.flow.path import broadcast_time, interpolate
 from snapflow.flow.time_sampling import BetaTimeSampler, TimeSampler
 from snapflow.objective.base import OneStepRows, TwoBranchObjective, uniform
 from snapflow.protocol import Context, FlowPolicy
@@ -60,7 +60,7 @@ class MeanFlowObjective(TwoBranchObjective):
         # Fused attention kernels have no forward-mode derivative; the reference (math) kernel does.
         with torch.no_grad(), sdpa_kernel(SDPBackend.MATH):
             _, total_derivative = torch.func.jvp(lambda x, time: policy.velocity(x, time, s, context), (x_t, t), (velocity, torch.ones_like(t)))
-            target = velocity - (t - s).view(-1, *[1] * (x_t.ndim - 1)) * total_derivative
+            target = velocity - broadcast_time(t - s, x_t) * total_derivative
         return OneStepRows(x_t, t, s, target, adaptive_power=self.adaptive_power)
 
 

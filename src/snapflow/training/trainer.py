@@ -29,6 +29,8 @@ from snapflow.training.checkpoint import (
 )
 from snapflow.training.data import ChunkData
 
+HISTORY = "history.json"  # the run's losses and validation, written when training reaches its last step
+
 
 @dataclass(frozen=True)
 class TrainConfig:
@@ -182,5 +184,5 @@ def train(
             checkpoint_now(done)
     bar.close()
     if accelerator.is_main_process:
-        write_json(run_directory / "history.json", state)
+        write_json(run_directory / HISTORY, state)
     return state
