@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from snapflow import SnapFlowObjective, UniformTimeSampler
-from snapflow.objective import two_step_shortcut_target
+from snapflow.objective import euler_shortcut_target
 from tests.helpers import RecordingPolicy
 
 
@@ -57,7 +57,7 @@ def test_consistency_target_is_the_two_step_euler_shortcut(student, batch):
     one, half = torch.ones(6), torch.full((6,), 0.5)
     v_1 = student.velocity(x_1, one, one, context)
     v_half = student.velocity(x_1 - 0.5 * v_1, half, half, context)
-    target = two_step_shortcut_target(lambda x, t, s: student.velocity(x, t, s, context), x_1)
+    target = euler_shortcut_target(lambda x, t, s: student.velocity(x, t, s, context), x_1, steps=2)
     assert torch.allclose(target, (v_1 + v_half) / 2)
     assert not target.requires_grad
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from snapflow.experiments.toy import ToyConfig
 from snapflow.objective.snapflow import TEACHER_VELOCITIES
-from snapflow.training.distill import METHODS
+from snapflow.training.distill import METHODS, TARGETS
 from snapflow.io import write_json
 
 
@@ -23,7 +23,8 @@ def _tasks(value: str) -> list[str]:
 def _toy(args: argparse.Namespace) -> int:
     from snapflow.experiments.toy import plot_toy_result, run_toy_experiment
 
-    config = ToyConfig(seed=args.seed, teacher_steps=args.teacher_steps, distill_steps=args.distill_steps, method=args.method)
+    config = ToyConfig(seed=args.seed, teacher_steps=args.teacher_steps, distill_steps=args.distill_steps, method=args.method,
+                       consistency_weight=args.consistency_weight, target=args.target, target_steps=args.target_steps)
     started = time.perf_counter()
     result = run_toy_experiment(config, progress=not args.no_progress)
     elapsed = time.perf_counter() - started
@@ -38,7 +39,7 @@ def _toy(args: argparse.Namespace) -> int:
     print(f"|{'-' * (width + 2)}|-----|-----------------|---------------|")
     for label, key, nfe in rows:
         print(f"| {label:<{width}} | {nfe:>3} | {result.distances[key]:>15.4f} | {result.distances[key] / naive:>13.3f} |")
-    print(f"\ntrained and evaluated in {elapsed:.1f} s")
+    print(f"\ntrained and evaluated in {elapsed:.1f} s ({1000 * result.distill_step_s:.1f} ms per distillation step)")
 
     output = Path(args.output_dir)
     plot_toy_result(result, output / "toy_samples.png")
@@ -76,7 +77,7 @@ def _distill(args: argparse.Namespace) -> int:
     from snapflow.training.distill import DistillSettings
 
     settings = DistillSettings(args.alpha, args.consistency_weight, args.clamp, not args.train_prefix, args.method,
-                               args.teacher_velocity, not args.no_target_time)
+                               args.teacher_velocity, not args.no_target_time, args.target, args.target_steps)
     built_in = bool(args.teacher and args.data) and not (args.policy or args.dataset)
     lerobot = bool(args.policy and args.dataset) and not (args.teacher or args.data)
     if not (built_in or lerobot):
@@ -179,6 +180,22 @@ def _add_training_options(parser: argparse.ArgumentParser, data_required: bool =
     parser.add_argument("--resume", action="store_true", help="continue from the run's latest checkpoint")
 
 
+def _target_steps(value: str) -> int | tuple[int, ...]:
+    """``8`` or a schedule ``2,4,8``."""
+    try:
+        steps = tuple(int(k) for k in value.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer or a comma-separated schedule such as 2,4,8, got {value!r}") from None
+    return steps[0] if len(steps) == 1 else steps
+
+
+def _add_target_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--target", choices=TARGETS, default="euler",
+                        help="SnapFlow's one-step target: the average of Euler velocities, or bootstrapped from the model's own half-jumps")
+    parser.add_argument("--target-steps", type=_target_steps, default=2,
+                        help="Euler steps the target spans (2: the paper); a schedule such as 2,4,8 splits training into equal stages")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="snapflow", description="One-step action generation for flow-matching policies.")
     common = argparse.ArgumentParser(add_help=False)
@@ -190,6 +207,8 @@ def build_parser() -> argparse.ArgumentParser:
     toy.add_argument("--teacher-steps", type=int, default=ToyConfig.teacher_steps, help="flow-matching training steps")
     toy.add_argument("--distill-steps", type=int, default=ToyConfig.distill_steps, help="SnapFlow distillation steps")
     toy.add_argument("--method", choices=METHODS, default="snapflow", help="distillation objective (the others are baselines)")
+    toy.add_argument("--consistency-weight", "--lambda", type=float, default=ToyConfig.consistency_weight, dest="consistency_weight")
+    _add_target_options(toy)
     toy.add_argument("--output-dir", default="outputs/toy", help="where the PNG and JSON go")
     toy.set_defaults(run=_toy)
 
@@ -224,6 +243,7 @@ def build_parser() -> argparse.ArgumentParser:
     distill.add_argument("--teacher-velocity", choices=TEACHER_VELOCITIES, default="marginal",
                          help="snapflow's consistency target from the model's marginal velocity (default) or eps - a (ablation)")
     distill.add_argument("--no-target-time", action="store_true", help="ablation: no target-time embedding phi_s")
+    _add_target_options(distill)
     distill.set_defaults(run=_distill)
 
     evaluate = commands.add_parser("eval", parents=[common], help="closed-loop success, offline metrics and latency on Meta-World, "

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 import math
+import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -70,6 +71,8 @@ class ToyConfig:
     alpha: float = 0.5
     consistency_weight: float = 0.1
     method: str = "snapflow"  # or a one-step baseline, see snapflow.training.distill.METHODS
+    target: str = "euler"  # SnapFlow's target and its steps (a list: a schedule), see DistillSettings
+    target_steps: int | tuple[int, ...] = 2
     hidden_dim: int = 256
     eval_contexts: int = 12
     samples_per_context: int = 400
@@ -77,36 +80,40 @@ class ToyConfig:
 
 @dataclass
 class ToyResult:
-    """Mean energy distance to exact samples per sampling mode, plus what is needed to plot them."""
+    """Mean energy distance to exact samples per sampling mode, the distillation's seconds per step, and
+    what is needed to plot them."""
 
     config: ToyConfig
     distances: dict[str, float]
+    distill_step_s: float
     eval_contexts: Tensor
     data_samples: Tensor = field(repr=False)
     model_samples: dict[str, Tensor] = field(repr=False)
 
     def to_dict(self) -> dict:
-        return {"config": asdict(self.config), "energy_distance": self.distances}
+        return {"config": asdict(self.config), "energy_distance": self.distances, "distill_step_s": self.distill_step_s}
 
 
 MODES: tuple[SamplingMode, ...] = (TEACHER_10, NAIVE_1, SNAPFLOW_1)
 
 
-def _fit(policy, objective, mixture, steps, lr, batch_size, generator, description, progress) -> None:
-    """Adam with a cosine-decayed learning rate on fresh exact samples at every step."""
+def _fit(policy, objective, mixture, steps, lr, batch_size, generator, description, progress) -> float:
+    """Adam with a cosine-decayed learning rate on fresh exact samples at every step; returns seconds per step."""
     optimizer = torch.optim.AdamW(policy.parameters(), lr=lr, weight_decay=0.0)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, steps)
     bar = tqdm(range(steps), desc=description, disable=not progress, leave=False)
+    started = time.perf_counter()
     for step in bar:
         context = mixture.sample_contexts(batch_size, generator)
         actions = mixture.sample(context, generator)[:, None, :]
-        output = objective(policy, context, actions, generator=generator)
+        output = objective(policy, context, actions, generator=generator, progress=step / steps)
         optimizer.zero_grad(set_to_none=True)
         output.loss.backward()
         optimizer.step()
         schedule.step()
         if step % 50 == 0:
             bar.set_postfix(fm=f"{output.flow_matching_loss.item():.3f}", sc=f"{output.consistency_loss.item():.4f}", refresh=False)
+    return (time.perf_counter() - started) / steps
 
 
 def run_toy_experiment(config: ToyConfig = ToyConfig(), progress: bool = True) -> ToyResult:
@@ -122,9 +129,9 @@ def run_toy_experiment(config: ToyConfig = ToyConfig(), progress: bool = True) -
          config.teacher_lr, config.batch_size, generator, "teacher (flow matching)", progress)
 
     student = SnapFlowPolicy(copy.deepcopy(model), target_time=True)
-    distill = DistillSettings(config.alpha, config.consistency_weight, method=config.method).objective(time_sampler)
-    _fit(student, distill, mixture, config.distill_steps, config.distill_lr, config.batch_size, generator,
-         f"{config.method} distillation", progress)
+    settings = DistillSettings(config.alpha, config.consistency_weight, method=config.method, target=config.target, target_steps=config.target_steps)
+    step_s = _fit(student, settings.objective(time_sampler), mixture, config.distill_steps, config.distill_lr, config.batch_size, generator,
+                  f"{config.method} distillation", progress)
 
     eval_generator = torch.Generator().manual_seed(config.seed + 1)
     contexts = mixture.sample_contexts(config.eval_contexts, eval_generator)
@@ -139,7 +146,7 @@ def run_toy_experiment(config: ToyConfig = ToyConfig(), progress: bool = True) -
         distances[mode.name] = torch.stack(
             [energy_distance(samples[mode.name][i], data[i]) for i in range(config.eval_contexts)]
         ).mean().item()
-    return ToyResult(config, distances, contexts, data, samples)
+    return ToyResult(config, distances, step_s, contexts, data, samples)
 
 
 def plot_toy_result(result: ToyResult, path: Path, num_contexts: int = 3) -> None:

@@ -92,9 +92,14 @@ class TwoBranchObjective(ABC):
     @abstractmethod
     def one_step_rows(
         self, policy: FlowPolicy, observation: Any, context: Context, actions: Tensor, noise: Tensor,
-        generator: torch.Generator | None,
+        generator: torch.Generator | None, progress: float,
     ) -> OneStepRows:
-        """Inputs and target of the one-step rows, given their observation, context, actions and noise."""
+        """Inputs and target of the one-step rows, given their observation, context, actions and noise, at
+        ``progress`` (the fraction of training done, for objectives with a schedule)."""
+
+    def schedule(self, progress: float) -> dict[str, int]:
+        """The scheduled settings in force at ``progress``, which the trainer logs; none by default."""
+        return {}
 
     def __call__(
         self,
@@ -105,12 +110,14 @@ class TwoBranchObjective(ABC):
         noise: Tensor | None = None,
         time: Tensor | None = None,
         generator: torch.Generator | None = None,
+        progress: float = 1.0,
     ) -> LossOutput:
         """Loss for one batch of ground-truth ``actions`` (B, ...).
 
         The first ``num_flow_matching(B)`` samples take the FM branch, the rest the one-step branch.
         ``noise`` (B, ...) and ``time`` (FM samples only) may be given; otherwise they are drawn, as is any
-        randomness of the one-step rows, from ``generator``.
+        randomness of the one-step rows, from ``generator``. ``progress`` is the fraction of training done
+        (a schedule's last stage when not given).
         """
         batch = actions.shape[0]
         n_fm = self.num_flow_matching(batch)
@@ -130,7 +137,7 @@ class TwoBranchObjective(ABC):
         rows = None
         if n_sc:
             rows = self.one_step_rows(policy, index_batch(observation, sc_rows), index_batch(context, sc_rows),
-                                      actions[sc_rows], noise[sc_rows], generator)
+                                      actions[sc_rows], noise[sc_rows], generator, progress)
             x_in, t_in, s_in = torch.cat([x_in, rows.x]), torch.cat([t_in, rows.t.to(t_in.dtype)]), torch.cat([s_in, rows.s.to(s_in.dtype)])
         prediction = policy.velocity(x_in, t_in, s_in, context)  # one gradient pass over both kinds of rows
 

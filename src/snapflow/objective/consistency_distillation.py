@@ -66,7 +66,7 @@ class ConsistencyDistillationObjective(TwoBranchObjective):
 
     def one_step_rows(
         self, policy: FlowPolicy, observation: Any, context: Context, actions: Tensor, noise: Tensor,
-        generator: torch.Generator | None,
+        generator: torch.Generator | None, progress: float,
     ) -> OneStepRows:
         target_network = self._target_network(policy)
         rows = noise.shape[0]

@@ -49,7 +49,7 @@ class MeanFlowObjective(TwoBranchObjective):
 
     def one_step_rows(
         self, policy: FlowPolicy, observation: Any, context: Context, actions: Tensor, noise: Tensor,
-        generator: torch.Generator | None,
+        generator: torch.Generator | None, progress: float,
     ) -> OneStepRows:
         rows = noise.shape[0]
         first, second = uniform(rows, generator, noise), uniform(rows, generator, noise)

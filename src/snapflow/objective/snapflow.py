@@ -9,10 +9,15 @@ Each batch is split into a fixed number of flow-matching (FM) samples and consis
 L = alpha * L_FM + (1 - alpha) * lambda * L_SC. The teacher velocities are the model's own marginal
 (FM-mode) predictions, not the conditional eps - a, whose variance would bias the jump
 (``teacher_velocity="conditional"`` is that ablation, the paper's Table 5).
+
+Beyond the paper, the shortcut target may average K > 2 Euler velocities (``target_steps``), fixed or raised
+in stages over training: two Euler steps of a multimodal field blur its modes, and the one-step student
+inherits the blur; more steps cost one more no-grad pass each.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -28,23 +33,31 @@ from snapflow.protocol import Context, FlowPolicy
 TEACHER_VELOCITIES = ("marginal", "conditional")
 
 
-def two_step_shortcut_target(velocity: VelocityFn, x_1: Tensor, clamp: float | None = None) -> Tensor:
-    """Average of the two Euler velocities from t = 1 to 0 along the model's own marginal field.
+def euler_shortcut_target(velocity: VelocityFn, x_1: Tensor, steps: int = 2, clamp: float | None = None) -> Tensor:
+    """Average of the ``steps`` Euler velocities from t = 1 to 0 along the model's own marginal field,
+    i.e. (x_1 - x_0) for the K-step Euler solution x_0; ``steps = 2`` is the paper's target.
 
     Computed without gradient: it is a regression target. ``clamp`` bounds each velocity to +-clamp.
     """
-    batch = x_1.shape[0]
-    one = torch.ones(batch, device=x_1.device)
-    half = torch.full((batch,), 0.5, device=x_1.device)
+    if steps < 1:
+        raise ValueError(f"an Euler shortcut takes at least one step, got {steps}")
+    grid = torch.linspace(1.0, 0.0, steps + 1, device=x_1.device)[:, None].expand(-1, x_1.shape[0])
+    total = torch.zeros_like(x_1)
+    x = x_1
     with torch.no_grad():
-        v_1 = velocity(x_1, one, one)
-        if clamp is not None:
-            v_1 = v_1.clamp(-clamp, clamp)
-        x_half = euler_step(x_1, v_1, one, half)
-        v_half = velocity(x_half, half, half)
-        if clamp is not None:
-            v_half = v_half.clamp(-clamp, clamp)
-    return (v_1 + v_half) / 2
+        for step in range(steps):
+            t, t_next = grid[step], grid[step + 1]
+            v = velocity(x, t, t)
+            if clamp is not None:
+                v = v.clamp(-clamp, clamp)
+            total = total + v
+            x = euler_step(x, v, t, t_next)
+    return total / steps
+
+
+def stage_at(stages: Sequence[int], progress: float) -> int:
+    """The stage in force at ``progress`` (fraction of training done) when ``stages`` split training equally."""
+    return stages[min(max(int(progress * len(stages)), 0), len(stages) - 1)]
 
 
 @dataclass(frozen=True)
@@ -58,7 +71,9 @@ class SnapFlowObjective(TwoBranchObjective):
         teacher_velocity_clamp: optional bound on the no-grad teacher velocities.
         teacher_velocity: ``"marginal"`` (the model's own FM velocities, the paper's method) or
             ``"conditional"`` (eps - a on the straight path, the ablation the paper's theory says drifts:
-            its two-step average is eps - a again, so the jump regresses the conditional mean of the actions).
+            its K-step average is eps - a again, so the jump regresses the conditional mean of the actions).
+        target_steps: K, the Euler steps the target averages (2: the paper), or a schedule of K that
+            splits training into equal stages, e.g. ``(2, 4, 8)``; each step costs one no-grad pass.
     """
 
     alpha: float = 0.5
@@ -66,6 +81,7 @@ class SnapFlowObjective(TwoBranchObjective):
     time_sampler: TimeSampler = field(default_factory=BetaTimeSampler)
     teacher_velocity_clamp: float | None = None
     teacher_velocity: Literal["marginal", "conditional"] = "marginal"
+    target_steps: int | tuple[int, ...] = 2
 
     def __post_init__(self) -> None:
         self._check_weights()
@@ -73,18 +89,28 @@ class SnapFlowObjective(TwoBranchObjective):
             raise ValueError(f"teacher_velocity_clamp must be positive, got {self.teacher_velocity_clamp}")
         if self.teacher_velocity not in TEACHER_VELOCITIES:
             raise ValueError(f"teacher_velocity must be one of {TEACHER_VELOCITIES}, got {self.teacher_velocity!r}")
+        stages = (self.target_steps,) if isinstance(self.target_steps, int) else tuple(self.target_steps)
+        if not stages or not all(isinstance(k, int) and k >= 1 for k in stages):
+            raise ValueError(f"target_steps must be a positive integer or a non-empty list of them, got {self.target_steps!r}")
+        object.__setattr__(self, "target_steps", stages[0] if len(stages) == 1 else stages)
+
+    def schedule(self, progress: float) -> dict[str, int]:
+        """K in force at ``progress``, logged by the trainer."""
+        stages = (self.target_steps,) if isinstance(self.target_steps, int) else self.target_steps
+        return {"target_steps": stage_at(stages, progress)}
 
     def one_step_rows(
         self, policy: FlowPolicy, observation: Any, context: Context, actions: Tensor, noise: Tensor,
-        generator: torch.Generator | None,
+        generator: torch.Generator | None, progress: float,
     ) -> OneStepRows:
-        """The jump t = 1 -> s = 0 from x_1 = eps onto the two-step shortcut of the teacher velocities."""
+        """The jump t = 1 -> s = 0 from x_1 = eps onto the K-step Euler shortcut of the teacher velocities."""
         if self.teacher_velocity == "conditional":
             target = conditional_velocity(actions, noise)
         else:
-            target = two_step_shortcut_target(lambda x, t, s: policy.velocity(x, t, s, context), noise, self.teacher_velocity_clamp)
+            steps = self.schedule(progress)["target_steps"]
+            target = euler_shortcut_target(lambda x, t, s: policy.velocity(x, t, s, context), noise, steps, self.teacher_velocity_clamp)
         ones = torch.ones(noise.shape[0], device=noise.device)
         return OneStepRows(noise, ones, torch.zeros_like(ones), target)
 
 
-__all__ = ["SnapFlowObjective", "TEACHER_VELOCITIES", "two_step_shortcut_target"]
+__all__ = ["SnapFlowObjective", "TEACHER_VELOCITIES", "euler_shortcut_target", "stage_at"]

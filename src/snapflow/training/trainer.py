@@ -74,8 +74,9 @@ class ObjectiveModule(nn.Module):
 
     def forward(
         self, observation: dict[str, Tensor], actions: Tensor, noise: Tensor, time: Tensor, generator: torch.Generator | None = None,
+        progress: float = 1.0,
     ) -> tuple[Tensor, Tensor, Tensor]:
-        output = self.objective(self.policy, observation, actions, noise=noise, time=time, generator=generator)
+        output = self.objective(self.policy, observation, actions, noise=noise, time=time, generator=generator, progress=progress)
         return output.loss, output.flow_matching_loss, output.consistency_loss
 
 
@@ -98,13 +99,16 @@ def _to(device: torch.device, observation: dict[str, Any], *tensors: Tensor):
 
 
 @torch.no_grad()
-def validation_loss(module: ObjectiveModule, data: ChunkData, batch_size: int, device: torch.device, batches: int = 8) -> dict[str, float]:
-    """Objective on held-out chunks with fixed draws, so values are comparable across steps and runs."""
+def validation_loss(
+    module: ObjectiveModule, data: ChunkData, batch_size: int, device: torch.device, batches: int = 8, progress: float = 1.0,
+) -> dict[str, float]:
+    """Objective on held-out chunks with fixed draws, so values are comparable across steps and runs (with a
+    scheduled objective, across runs at the same ``progress``)."""
     generator = torch.Generator().manual_seed(12345)
     totals = torch.zeros(3)
     for _ in range(batches):
         observation, actions, noise, time = _to(device, *_draw(module.objective, data, batch_size, generator))
-        totals += torch.stack([value.float().cpu() for value in module(observation, actions, noise, time, generator)])
+        totals += torch.stack([value.float().cpu() for value in module(observation, actions, noise, time, generator, progress)])
     loss, fm, sc = (totals / batches).tolist()
     return {"loss": loss, "flow_matching": fm, "consistency": sc}
 
@@ -163,7 +167,8 @@ def train(
         generator = _step_generator(config.seed, accelerator.process_index, step)
         observation, actions, noise, time_ = _to(device, *_draw(objective, train_data, config.batch_size, generator))
         module.train()
-        loss, fm, sc = module(observation, actions, noise, time_, generator)
+        fraction_done = step / config.steps  # what scheduled objectives read
+        loss, fm, sc = module(observation, actions, noise, time_, generator, fraction_done)
         optimizer.zero_grad(set_to_none=True)
         accelerator.backward(loss)
         if config.grad_clip:
@@ -173,12 +178,13 @@ def train(
         done = step + 1
         if done % config.log_every == 0 or done == config.steps:
             mean = torch.stack(running).float().mean(0).tolist()
-            state["history"].append({"step": done, "loss": mean[0], "flow_matching": mean[1], "consistency": mean[2], "lr": config.learning_rate_at(step)})
+            state["history"].append({"step": done, "loss": mean[0], "flow_matching": mean[1], "consistency": mean[2], "lr": config.learning_rate_at(step),
+                                     **objective.schedule(fraction_done)})
             bar.set_postfix(loss=f"{mean[0]:.4f}", refresh=False)
             running = []
         if val_data is not None and (done % config.validate_every == 0 or done == config.steps):
             module.eval()
-            state["validation"].append({"step": done, **validation_loss(accelerator.unwrap_model(module), val_data, config.batch_size, device)})
+            state["validation"].append({"step": done, **validation_loss(accelerator.unwrap_model(module), val_data, config.batch_size, device, progress=fraction_done)})
             bar.set_postfix(loss=f"{state['history'][-1]['loss']:.4f}" if state["history"] else "", val=f"{state['validation'][-1]['loss']:.4f}", refresh=False)
         if done % config.checkpoint_every == 0 or done == config.steps:
             checkpoint_now(done)
