@@ -48,6 +48,18 @@ def _toy(args: argparse.Namespace) -> int:
     return 0
 
 
+def _toy_compare(args: argparse.Namespace) -> int:
+    from snapflow.experiments.toy_compare import TargetOption, compare_targets, markdown_comparison
+
+    options = [TargetOption.parse(text) for text in args.targets]
+    base = ToyConfig(teacher_steps=args.teacher_steps, distill_steps=args.distill_steps, consistency_weight=args.consistency_weight)
+    started = time.perf_counter()
+    summary = compare_targets(options, args.seeds, base, args.output_dir, args.workers, not args.no_progress)
+    print(markdown_comparison(summary))
+    print(f"\ndone in {(time.perf_counter() - started) / 60:.1f} min; wrote comparison.json, comparison.md and comparison.png to {args.output_dir}")
+    return 0
+
+
 def _collect(args: argparse.Namespace) -> int:
     from snapflow.experiments.metaworld import collect
 
@@ -211,6 +223,17 @@ def build_parser() -> argparse.ArgumentParser:
     _add_target_options(toy)
     toy.add_argument("--output-dir", default="outputs/toy", help="where the PNG and JSON go")
     toy.set_defaults(run=_toy)
+
+    compare = commands.add_parser("toy-compare", parents=[common], help="SnapFlow's one-step targets on the toy mixture, over seeds")
+    compare.add_argument("--targets", nargs="+", default=["euler:2", "euler:4", "euler:8"],
+                         help="TARGET:STEPS options, the first the reference: euler:8, euler:2,4,8 (a schedule), bootstrap:8")
+    compare.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    compare.add_argument("--teacher-steps", type=int, default=ToyConfig.teacher_steps, help="flow-matching training steps")
+    compare.add_argument("--distill-steps", type=int, default=ToyConfig.distill_steps, help="distillation steps")
+    compare.add_argument("--consistency-weight", "--lambda", type=float, default=ToyConfig.consistency_weight, dest="consistency_weight")
+    compare.add_argument("--workers", type=int, default=1, help="runs in parallel, one thread each")
+    compare.add_argument("--output-dir", default="outputs/toy-compare", help="where runs, JSON, table and PNG go (finished runs are reused)")
+    compare.set_defaults(run=_toy_compare)
 
     collect = commands.add_parser("collect", parents=[common], help="Meta-World expert demonstrations (successful episodes only)")
     collect.add_argument("--tasks", default="all", help="'all' (MT10) or comma-separated task names")
