@@ -32,6 +32,7 @@ policy = {TINY_POLICY}
 train = {TINY_TRAIN}
 [runs.snapflow]
 teacher = "teacher"
+distill = {{ target_steps = [2, 4] }}
 train = {TINY_TRAIN}
 [runs.meanflow]
 teacher = "teacher"
@@ -107,6 +108,7 @@ def test_a_sweep_runs_caches_and_writes_its_tables_into_the_document(tmp_path, c
     ('[runs.teacher]\nseeds = [0]\n[runs.student]\nteacher = "teacher"\nseeds = [1]\n', "seeds [1] have no 'teacher' teacher"),
     ('[runs.teacher]\ntrain = { steps = 0 }\n', "TrainConfig.steps must be at least 1"),
     ('[runs.teacher]\n[runs.student]\nteacher = "teacher"\ndistill = { method = "dance" }\n', "unknown distillation method 'dance'"),
+    ('[runs.teacher]\n[runs.student]\nteacher = "teacher"\ndistill = { target = "bootstrap", target_steps = 6 }\n', "power of two"),
     ('[runs.teacher]\n[[tables]]\nname = "t"\nrows = [{ label = "x", run = "ghost", mode = "naive" }]\n', "unknown run 'ghost'"),
     ('[runs.teacher]\n[[tables]]\nname = "t"\nrows = [{ label = "x", run = "teacher", mode = "fast" }]\n', "unknown sampling mode 'fast'"),
     ('[runs.teacher]\n[[tables]]\nname = "t"\nseeds = [5]\nrows = [{ label = "x", run = "teacher", mode = "naive" }]\n', "needs seeds [5]"),

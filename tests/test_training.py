@@ -163,6 +163,15 @@ def test_collect_train_distill_eval_on_one_task(demonstrations, tmp_path, capsys
     assert "snapflow-1" in capsys.readouterr().out
 
 
+def test_a_scheduled_target_is_raised_in_equal_stages_and_logged(demonstrations, tmp_path):
+    teacher = tmp_path / "teacher"
+    train_teacher(demonstrations, teacher, TINY, _config(3), progress=False)
+    state = distill(teacher, demonstrations, tmp_path / "student", _config(4), DistillSettings(target_steps=(2, 4)), progress=False)
+    assert [entry["target_steps"] for entry in state["history"]] == [2, 2, 4, 4]
+    saved = json.loads((tmp_path / "student" / "checkpoints" / "step_0000004" / "policy.json").read_text())
+    assert saved["distill"]["target_steps"] == [2, 4]
+
+
 def test_unknown_task_is_a_clear_cli_error(capsys):
     assert main(["collect", "--tasks", "reach-v3,teleport-v3", "--episodes", "1", "--output", "unused", "--no-progress"]) == 2
     assert "unknown Meta-World task(s) ['teleport-v3']" in capsys.readouterr().err

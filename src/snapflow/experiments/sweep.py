@@ -381,6 +381,7 @@ def table_results(config: SweepConfig, table: TableSpec) -> dict[str, Any]:
             "per_task": {task: float(np.mean([100 * e["success"][task]["success_rate"] for e in evals])) for task in config.data.tasks},
             "evaluation_s": sum(e["closed_loop_s"] for e in evals),
             "training_s": [_training_seconds(config, row.run, seed) for seed in table.seeds],
+            "step_s": [_step_seconds(config, row.run, seed) for seed in table.seeds],
         }
         if all("offline" in e for e in evals):
             entry["offline"] = {key: float(np.mean([e["offline"][key] for e in evals])) for key in ("mse", "mse_p90", "mse_p95", "cosine")}
@@ -397,6 +398,12 @@ def _training_seconds(config: SweepConfig, run: str, seed: int) -> float:
     return seconds + (_training_seconds(config, teacher, seed) if teacher else 0.0)
 
 
+def _step_seconds(config: SweepConfig, run: str, seed: int) -> float:
+    """Seconds per training step of the run itself (a student's cost, without its teacher's)."""
+    history = json.loads((config.run_dir(run, seed) / HISTORY).read_text())
+    return history["wall_time_s"] / history["step"]
+
+
 def markdown_table(config: SweepConfig, result: dict[str, Any], command: str) -> str:
     rows = result["rows"]
     episodes = rows[0]["episodes"] // len(result["seeds"])
@@ -407,18 +414,20 @@ def markdown_table(config: SweepConfig, result: dict[str, Any], command: str) ->
         f"wall time: evaluation {sum(row['evaluation_s'] for row in rows) / 60:.1f} min for the table, training "
         f"{min(train_minutes):.1f}-{max(train_minutes):.1f} min per policy (teacher included).",
         "",
-        "| row | NFE | n_act | success % (mean ± std) | per seed | successes / episodes | offline MSE | P95 | cosine |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| row | NFE | n_act | success % (mean ± std) | per seed | successes / episodes | offline MSE | P95 | cosine | s / training step |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
         offline = row.get("offline")
         metrics = f"{offline['mse']:.4f} | {offline['mse_p95']:.4f} | {offline['cosine']:.3f}" if offline else "- | - | -"
         per_seed = " / ".join(f"{rate:.1f}" for rate in row["success_per_seed"])
         lines.append(f"| {row['label']} | {row['nfe']} | {row['n_act']} | {row['success_mean']:.1f} ± {row['success_std']:.1f} | "
-                     f"{per_seed} | {row['successes']} / {row['episodes']} | {metrics} |")
+                     f"{per_seed} | {row['successes']} / {row['episodes']} | {metrics} | {np.median(row['step_s']):.3f} |")
     if any(row.get("offline") for row in rows):
         lines += ["", f"Offline metrics: mean over seeds of {rows[0]['offline']['samples']} held-out demonstration chunks per seed "
                       "(normalised actions), the same chunks and noise for every row."]
+    lines += ["", "s / training step: median over seeds of the run's own training wall time per step (the teacher's for "
+                  "teacher rows), each job on cores / workers threads."]
     return "\n".join(lines)
 
 
