@@ -176,7 +176,7 @@ def test_corrupt_checkpoint_files_raise_checkpoint_errors(checkpoint, tmp_path_f
 
 @SETTINGS
 @given(st.lists(st.text(string.ascii_letters + string.digits + "-_./", max_size=12), max_size=4),
-       st.sampled_from(["eval", "distill", "train", "bench", "sweep", "toy-compare"]))
+       st.sampled_from(["eval", "distill", "train", "bench", "sweep", "toy-compare", "bench-targets"]))
 def test_cli_rejects_bad_arguments_with_a_message_and_exit_code_2(capsys, tmp_path_factory, values, command):
     output = str(tmp_path_factory.mktemp("out"))
     values = values or ["x"]
@@ -185,6 +185,7 @@ def test_cli_rejects_bad_arguments_with_a_message_and_exit_code_2(capsys, tmp_pa
                "train": ["--data", values[0], "--output", output, "--steps", "1"],
                "bench": ["--architecture", values[0], "--repeats", "1", "--warmup", "0", "--no-profile", "--output-dir", output],
                "sweep": [*values, "--report-only"],
+               "bench-targets": ["--teacher", values[0], "--data", "nowhere", "--repeats", "1", "--output-dir", output],
                "toy-compare": ["--targets", *values, "--seeds", "0", "--teacher-steps", "1", "--distill-steps", "1", "--output-dir", output]}
     try:
         code = main([command, *options[command], "--no-progress"])

@@ -172,6 +172,23 @@ def test_a_scheduled_target_is_raised_in_equal_stages_and_logged(demonstrations,
     assert saved["distill"]["target_steps"] == [2, 4]
 
 
+def test_bench_targets_times_every_target_on_the_same_batch_and_writes_its_files(demonstrations, tmp_path, capsys):
+    teacher = tmp_path / "teacher"
+    train_teacher(demonstrations, teacher, TINY, _config(3), progress=False)
+    output = tmp_path / "cost"
+    assert main(["bench-targets", "--teacher", str(teacher), "--data", str(demonstrations), "--targets", "euler:2", "euler:2,8", "bootstrap:4",
+                 "--batch-size", "8", "--warmup", "1", "--repeats", "4", "--output-dir", str(output), "--no-progress"]) == 0
+    result = json.loads((output / "training_cost.json").read_text())
+    assert [row["option"] for row in result["rows"]] == ["euler-2", "euler-2-8", "bootstrap-4"]
+    assert [row["teacher_passes_per_row"] for row in result["rows"]] == [2.0, 5.0, 2.0]
+    assert result["rows"][0]["relative_to_first"] == 1.0 and result["repeats"] == 4 and result["batch_size"] == 8
+    assert all(0 < row["step_ms_median"] <= row["step_ms_p90"] for row in result["rows"])
+    assert "| bootstrapped (K -> 4) | 2 + 1 |" in (output / "training_cost.md").read_text() and "K = 2 -> 8" in capsys.readouterr().out
+    assert main(["bench-targets", "--teacher", str(teacher), "--data", str(demonstrations), "--targets", "euler:two",
+                 "--output-dir", str(output), "--no-progress"]) == 2
+    assert "target steps must be integers" in capsys.readouterr().err
+
+
 def test_unknown_task_is_a_clear_cli_error(capsys):
     assert main(["collect", "--tasks", "reach-v3,teleport-v3", "--episodes", "1", "--output", "unused", "--no-progress"]) == 2
     assert "unknown Meta-World task(s) ['teleport-v3']" in capsys.readouterr().err

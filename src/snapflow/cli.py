@@ -11,7 +11,7 @@ from pathlib import Path
 from snapflow.experiments.toy import ToyConfig
 from snapflow.objective.snapflow import TEACHER_VELOCITIES
 from snapflow.training.distill import METHODS, TARGETS
-from snapflow.io import write_json
+from snapflow.io import atomic_write, write_json
 
 
 def _tasks(value: str) -> list[str]:
@@ -49,7 +49,8 @@ def _toy(args: argparse.Namespace) -> int:
 
 
 def _toy_compare(args: argparse.Namespace) -> int:
-    from snapflow.experiments.toy_compare import TargetOption, compare_targets, markdown_comparison
+    from snapflow.experiments.toy_compare import compare_targets, markdown_comparison
+    from snapflow.training.distill import TargetOption
 
     options = [TargetOption.parse(text) for text in args.targets]
     base = ToyConfig(teacher_steps=args.teacher_steps, distill_steps=args.distill_steps, consistency_weight=args.consistency_weight)
@@ -155,6 +156,26 @@ def _bench(args: argparse.Namespace) -> int:
     write_bench(report, args.output_dir)
     print(markdown_bench(report))
     print(f"wrote bench.json, bench.md, latency.png{'' if args.no_profile else ' and profile.txt'} to {args.output_dir}")
+    return 0
+
+
+def _bench_targets(args: argparse.Namespace) -> int:
+    import torch
+
+    from snapflow.benchmark.training_cost import markdown_training_cost
+    from snapflow.experiments.metaworld import training_cost
+    from snapflow.training.distill import TargetOption
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    options = [TargetOption.parse(text) for text in args.targets]
+    result = training_cost(args.teacher, args.data, options, args.batch_size, args.warmup, args.repeats)
+    table = markdown_training_cost(result)
+    output = Path(args.output_dir)
+    write_json(output / "training_cost.json", {**result, "teacher": str(args.teacher), "data": str(args.data)})
+    atomic_write(output / "training_cost.md", lambda temporary: temporary.write_text(table + "\n"))
+    print(table)
+    print(f"wrote training_cost.json and training_cost.md to {output}")
     return 0
 
 
@@ -303,6 +324,18 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--no-profile", action="store_true", help="skip the torch.profiler table of the 1-NFE path")
     bench.add_argument("--output-dir", default="outputs/bench")
     bench.set_defaults(run=_bench)
+
+    targets = commands.add_parser("bench-targets", parents=[common], help="seconds per distillation step of each SnapFlow target (MiniVLA)")
+    targets.add_argument("--teacher", required=True, help="teacher run or checkpoint directory (built-in MiniVLA)")
+    targets.add_argument("--data", required=True, help="its demonstrations")
+    targets.add_argument("--targets", nargs="+", default=["euler:2", "euler:4", "euler:8", "bootstrap:8"],
+                         help="TARGET:STEPS options, the first the reference: euler:8, euler:2,4,8 (a schedule), bootstrap:8")
+    targets.add_argument("--batch-size", type=int, default=64)
+    targets.add_argument("--warmup", type=int, default=5)
+    targets.add_argument("--repeats", type=int, default=30)
+    targets.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
+    targets.add_argument("--output-dir", default="outputs/bench-targets")
+    targets.set_defaults(run=_bench_targets)
 
     sweep = commands.add_parser("sweep", parents=[common], help="run sweep configs (seeds, ablations, baselines) and write their results")
     sweep.add_argument("configs", nargs="+", help="sweep TOML files, e.g. configs/sweeps/mt10-state.toml")

@@ -26,7 +26,7 @@ from snapflow.objective.snapflow import SnapFlowObjective
 from snapflow.policies.minivla import MiniVLA, MiniVLAConfig, MiniVLAProcessor
 from snapflow.training.checkpoint import LoadedPolicy, load_policy, policy_metadata
 from snapflow.training.data import ChunkData
-from snapflow.training.distill import DistillSettings
+from snapflow.training.distill import DistillSettings, TargetOption
 from snapflow.training.trainer import TrainConfig, train
 
 
@@ -88,6 +88,12 @@ def train_teacher(
     return train(policy, objective, train_data, val_data, config, output, metadata, resume=resume, progress=progress)
 
 
+def _expert_parameter_names(policy: SnapFlowPolicy) -> list[str]:
+    """What distillation trains with the prefix frozen: the action expert and phi_s."""
+    frozen = {id(p) for p in policy.model.prefix_parameters()}
+    return [name for name, p in policy.named_parameters() if id(p) not in frozen]
+
+
 def distill(
     teacher: str | Path, data: str | Path, output: str | Path, config: TrainConfig, settings: DistillSettings | None = None,
     val_fraction: float | None = None, resume: bool = False, progress: bool = True,
@@ -103,11 +109,25 @@ def distill(
     policy = loaded.policy
     trainable = None
     if settings.freeze_prefix:
-        frozen = {id(p) for p in policy.model.prefix_parameters()}
-        trainable = [p for p in policy.parameters() if id(p) not in frozen]
+        names = set(_expert_parameter_names(policy))
+        trainable = [p for name, p in policy.named_parameters() if name in names]
     metadata = policy_metadata(policy, loaded.processor, stage="snapflow", teacher=str(loaded.path), distill=asdict(settings),
                                data={"path": str(data), "val_fraction": val_fraction})
     return train(policy, settings.objective(UniformTimeSampler()), train_data, val_data, config, output, metadata, resume=resume, trainable=trainable, progress=progress)
+
+
+def training_cost(
+    teacher: str | Path, data: str | Path, options: list[TargetOption], batch_size: int = 64, warmup: int = 5, repeats: int = 30,
+) -> dict[str, Any]:
+    """Seconds per distillation step of each SnapFlow target on the MiniVLA student of ``teacher``, on one batch of
+    its demonstrations, as ``distill`` trains it (phi_s added, prefix frozen); see :mod:`snapflow.benchmark.training_cost`."""
+    from snapflow.benchmark.training_cost import time_training_steps
+
+    loaded = load_policy(teacher, target_time=True)
+    train_data, _ = _chunk_data(Demonstrations.load(data), loaded.processor, loaded.val_fraction)
+    observation, actions = train_data.batch(torch.randint(len(train_data), (batch_size,), generator=torch.Generator().manual_seed(0)))
+    return time_training_steps(loaded.policy, observation, actions, options, UniformTimeSampler(), _expert_parameter_names(loaded.policy),
+                               warmup, repeats)
 
 
 def evaluate(

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, replace
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -19,45 +19,7 @@ import numpy as np
 
 from snapflow.experiments.toy import ToyConfig
 from snapflow.io import atomic_write, write_json
-from snapflow.training.distill import TARGETS
-
-
-@dataclass(frozen=True)
-class TargetOption:
-    """A SnapFlow target and its Euler steps (a tuple: a schedule over equal stages of training)."""
-
-    target: str
-    steps: int | tuple[int, ...]
-
-    @classmethod
-    def parse(cls, text: str) -> TargetOption:
-        """``euler:8``, ``euler:2,4,8`` (a schedule) or ``bootstrap:8``."""
-        target, _, steps = text.partition(":")
-        if target not in TARGETS or not steps:
-            raise ValueError(f"a target option reads TARGET:STEPS with TARGET in {list(TARGETS)}, e.g. euler:8, euler:2,4,8 or bootstrap:8; got {text!r}")
-        try:
-            values = tuple(int(k) for k in steps.split(","))
-        except ValueError:
-            raise ValueError(f"target steps must be integers, got {steps!r} in {text!r}") from None
-        return cls(target, values[0] if len(values) == 1 else values)
-
-    @property
-    def name(self) -> str:
-        steps = self.steps if isinstance(self.steps, int) else "-".join(map(str, self.steps))
-        return f"{self.target}-{steps}"
-
-    @property
-    def label(self) -> str:
-        if self.target == "bootstrap":
-            return f"bootstrapped (K -> {self.steps})"
-        return f"K = {self.steps}" if isinstance(self.steps, int) else "K = " + " -> ".join(map(str, self.steps))
-
-    @property
-    def teacher_passes(self) -> float:
-        """No-grad passes per one-step row (averaged over a schedule's stages); each row adds one gradient pass."""
-        if self.target == "bootstrap":
-            return 2.0
-        return float(self.steps if isinstance(self.steps, int) else np.mean(self.steps))
+from snapflow.training.distill import TargetOption
 
 
 def _job(config: ToyConfig, path: str) -> str:
@@ -166,4 +128,4 @@ def plot_comparison(summary: dict[str, Any], path: Path) -> None:
     plt.close(figure)
 
 
-__all__ = ["TargetOption", "compare_targets", "markdown_comparison", "plot_comparison"]
+__all__ = ["compare_targets", "markdown_comparison", "plot_comparison"]

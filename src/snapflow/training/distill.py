@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from snapflow.flow.time_sampling import BetaTimeSampler, TimeSampler
 from snapflow.objective import (
@@ -72,4 +72,46 @@ class DistillSettings:
                                  self.target_steps)
 
 
-__all__ = ["DistillSettings", "METHODS", "TARGETS"]
+@dataclass(frozen=True)
+class TargetOption:
+    """A SnapFlow target and its Euler steps (a tuple: a schedule over equal stages of training)."""
+
+    target: str
+    steps: int | tuple[int, ...]
+
+    @classmethod
+    def parse(cls, text: str) -> TargetOption:
+        """``euler:8``, ``euler:2,4,8`` (a schedule) or ``bootstrap:8``."""
+        target, _, steps = text.partition(":")
+        if target not in TARGETS or not steps:
+            raise ValueError(f"a target option reads TARGET:STEPS with TARGET in {list(TARGETS)}, e.g. euler:8, euler:2,4,8 or bootstrap:8; got {text!r}")
+        try:
+            values = tuple(int(k) for k in steps.split(","))
+        except ValueError:
+            raise ValueError(f"target steps must be integers, got {steps!r} in {text!r}") from None
+        return cls(target, values[0] if len(values) == 1 else values)
+
+    @property
+    def name(self) -> str:
+        steps = self.steps if isinstance(self.steps, int) else "-".join(map(str, self.steps))
+        return f"{self.target}-{steps}"
+
+    @property
+    def label(self) -> str:
+        if self.target == "bootstrap":
+            return f"bootstrapped (K -> {self.steps})"
+        return f"K = {self.steps}" if isinstance(self.steps, int) else "K = " + " -> ".join(map(str, self.steps))
+
+    def settings(self, base: DistillSettings | None = None) -> DistillSettings:
+        """``base`` (default: the paper's settings) with this target."""
+        return replace(base or DistillSettings(), target=self.target, target_steps=self.steps)
+
+    @property
+    def teacher_passes(self) -> float:
+        """No-grad passes per one-step row (averaged over a schedule's stages); each row adds one gradient pass."""
+        if self.target == "bootstrap":
+            return 2.0
+        return float(self.steps if isinstance(self.steps, int) else sum(self.steps) / len(self.steps))
+
+
+__all__ = ["DistillSettings", "METHODS", "TARGETS", "TargetOption"]
