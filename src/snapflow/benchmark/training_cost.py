@@ -71,7 +71,7 @@ def markdown_training_cost(result: dict[str, Any]) -> str:
         "|---|---|---|---|---|",
     ]
     for row in result["rows"]:
-        lines.append(f"| {row['label']} | {row['teacher_passes_per_row']:g} + 1 | {row['step_ms_median']:.1f} | {row['step_ms_p90']:.1f} | "
+        lines.append(f"| {row['label']} | {row['teacher_passes_per_row']:.3g} + 1 | {row['step_ms_median']:.1f} | {row['step_ms_p90']:.1f} | "
                      f"{row['relative_to_first']:.2f}x |")
     return "\n".join(lines)
 

@@ -103,7 +103,7 @@ def markdown_comparison(summary: dict[str, Any]) -> str:
     for row in rows:
         per_seed = " / ".join(f"{value:.3f}" for value in row["distance_per_seed"])
         lines.append(f"| {row['label']} | {row['distance_mean']:.3f} ± {row['distance_std']:.3f} | {per_seed} | {row['ratio_to_first_mean']:.2f} | "
-                     f"{row['ratio_to_teacher_mean']:.2f} | {row['teacher_passes_per_row']:g} + 1 | {row['step_ms_median']:.1f} |")
+                     f"{row['ratio_to_teacher_mean']:.2f} | {row['teacher_passes_per_row']:.3g} + 1 | {row['step_ms_median']:.1f} |")
     return "\n".join(lines)
 
 
