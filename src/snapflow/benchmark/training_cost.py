@@ -18,6 +18,7 @@ import torch
 from snapflow.benchmark.latency import machine
 from snapflow.flow.time_sampling import TimeSampler
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
+from snapflow.objective.snapflow import target_stages
 from snapflow.training.distill import TargetOption
 
 
@@ -38,7 +39,7 @@ def time_training_steps(
         optimizer = torch.optim.AdamW(parameters, lr=learning_rate)
         runners.append((option, policy, option.settings().objective(time_sampler), optimizer))
     generator = torch.Generator().manual_seed(0)
-    stages = {option: len(option.steps) if isinstance(option.steps, tuple) else 1 for option in options}
+    stages = {option: len(target_stages(option.steps)) for option in options}
     times: dict[TargetOption, list[float]] = {option: [] for option in options}
     for repeat in range(warmup + repeats):
         for option, policy, objective, optimizer in runners:

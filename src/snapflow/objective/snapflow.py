@@ -24,8 +24,8 @@ from typing import Any, Literal
 import torch
 from torch import Tensor
 
-from snapflow.flow.path import conditional_velocity, euler_step
-from snapflow.flow.solver import VelocityFn
+from snapflow.flow.path import conditional_velocity
+from snapflow.flow.solver import SamplingMode, VelocityFn, euler_sample
 from snapflow.flow.time_sampling import BetaTimeSampler, TimeSampler
 from snapflow.objective.base import OneStepRows, TwoBranchObjective
 from snapflow.protocol import Context, FlowPolicy
@@ -35,24 +35,18 @@ TEACHER_VELOCITIES = ("marginal", "conditional")
 
 def euler_shortcut_target(velocity: VelocityFn, x_1: Tensor, steps: int = 2, clamp: float | None = None) -> Tensor:
     """Average of the ``steps`` Euler velocities from t = 1 to 0 along the model's own marginal field,
-    i.e. (x_1 - x_0) for the K-step Euler solution x_0; ``steps = 2`` is the paper's target.
+    i.e. x_1 - x_0 for the K-step Euler solution x_0 (uniform steps); ``steps = 2`` is the paper's target.
 
     Computed without gradient: it is a regression target. ``clamp`` bounds each velocity to +-clamp.
     """
-    if steps < 1:
-        raise ValueError(f"an Euler shortcut takes at least one step, got {steps}")
-    grid = torch.linspace(1.0, 0.0, steps + 1, device=x_1.device)[:, None].expand(-1, x_1.shape[0])
-    total = torch.zeros_like(x_1)
-    x = x_1
+    teacher = velocity if clamp is None else (lambda x, t, s: velocity(x, t, s).clamp(-clamp, clamp))
     with torch.no_grad():
-        for step in range(steps):
-            t, t_next = grid[step], grid[step + 1]
-            v = velocity(x, t, t)
-            if clamp is not None:
-                v = v.clamp(-clamp, clamp)
-            total = total + v
-            x = euler_step(x, v, t, t_next)
-    return total / steps
+        return x_1 - euler_sample(teacher, x_1, SamplingMode(steps, jump=False))
+
+
+def target_stages(target_steps: int | Sequence[int]) -> tuple[int, ...]:
+    """``target_steps`` as a schedule: one stage for a fixed K."""
+    return (target_steps,) if isinstance(target_steps, int) else tuple(target_steps)
 
 
 def stage_at(stages: Sequence[int], progress: float) -> int:
@@ -89,15 +83,14 @@ class SnapFlowObjective(TwoBranchObjective):
             raise ValueError(f"teacher_velocity_clamp must be positive, got {self.teacher_velocity_clamp}")
         if self.teacher_velocity not in TEACHER_VELOCITIES:
             raise ValueError(f"teacher_velocity must be one of {TEACHER_VELOCITIES}, got {self.teacher_velocity!r}")
-        stages = (self.target_steps,) if isinstance(self.target_steps, int) else tuple(self.target_steps)
+        stages = target_stages(self.target_steps)
         if not stages or not all(isinstance(k, int) and k >= 1 for k in stages):
             raise ValueError(f"target_steps must be a positive integer or a non-empty list of them, got {self.target_steps!r}")
         object.__setattr__(self, "target_steps", stages[0] if len(stages) == 1 else stages)
 
     def schedule(self, progress: float) -> dict[str, int]:
         """K in force at ``progress``, logged by the trainer."""
-        stages = (self.target_steps,) if isinstance(self.target_steps, int) else self.target_steps
-        return {"target_steps": stage_at(stages, progress)}
+        return {"target_steps": stage_at(target_stages(self.target_steps), progress)}
 
     def one_step_rows(
         self, policy: FlowPolicy, observation: Any, context: Context, actions: Tensor, noise: Tensor,
@@ -113,4 +106,4 @@ class SnapFlowObjective(TwoBranchObjective):
         return OneStepRows(noise, ones, torch.zeros_like(ones), target)
 
 
-__all__ = ["SnapFlowObjective", "TEACHER_VELOCITIES", "euler_shortcut_target", "stage_at"]
+__all__ = ["SnapFlowObjective", "TEACHER_VELOCITIES", "euler_shortcut_target", "stage_at", "target_stages"]

@@ -12,7 +12,7 @@ from snapflow.objective import (
     SnapFlowObjective,
     TwoBranchObjective,
 )
-from snapflow.objective.snapflow import TEACHER_VELOCITIES
+from snapflow.objective.snapflow import TEACHER_VELOCITIES, target_stages
 
 METHODS = ("snapflow", "consistency-distillation", "meanflow")
 TARGETS = ("euler", "bootstrap")
@@ -111,7 +111,8 @@ class TargetOption:
         """No-grad passes per one-step row (averaged over a schedule's stages); each row adds one gradient pass."""
         if self.target == "bootstrap":
             return 2.0
-        return float(self.steps if isinstance(self.steps, int) else sum(self.steps) / len(self.steps))
+        stages = target_stages(self.steps)
+        return sum(stages) / len(stages)
 
 
 __all__ = ["DistillSettings", "METHODS", "TARGETS", "TargetOption"]
