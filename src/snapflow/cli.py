@@ -10,7 +10,7 @@ from pathlib import Path
 
 from snapflow.experiments.toy import ToyConfig
 from snapflow.objective.snapflow import TEACHER_VELOCITIES
-from snapflow.training.distill import METHODS, TARGETS
+from snapflow.training.distill import METHODS, TARGETS, parse_target_steps
 from snapflow.io import atomic_write, write_json
 
 
@@ -214,12 +214,10 @@ def _add_training_options(parser: argparse.ArgumentParser, data_required: bool =
 
 
 def _target_steps(value: str) -> int | tuple[int, ...]:
-    """``8`` or a schedule ``2,4,8``."""
     try:
-        steps = tuple(int(k) for k in value.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer or a comma-separated schedule such as 2,4,8, got {value!r}") from None
-    return steps[0] if len(steps) == 1 else steps
+        return parse_target_steps(value)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def _add_target_options(parser: argparse.ArgumentParser) -> None:

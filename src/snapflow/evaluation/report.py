@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 
 from snapflow.benchmark.latency import machine
 from snapflow.io import atomic_write, write_json
@@ -18,6 +19,11 @@ def pyplot():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def mean_std(values: list[float]) -> tuple[float, float]:
+    """Mean and sample standard deviation (0 for a single value) of per-seed results."""
+    return float(np.mean(values)), float(np.std(values, ddof=1)) if len(values) > 1 else 0.0
 
 
 def machine_description() -> str:
@@ -116,4 +122,4 @@ def write_report(report: dict[str, Any], directory: str | Path) -> None:
         plot_latency(report, directory / "latency.png")
 
 
-__all__ = ["write_report", "markdown_report", "machine_description"]
+__all__ = ["write_report", "markdown_report", "machine_description", "mean_std"]

@@ -37,6 +37,7 @@ import numpy as np
 
 from snapflow.data.demonstrations import META_FILE
 from snapflow.envs.metaworld import MT10_TASKS, check_tasks
+from snapflow.evaluation.report import mean_std
 from snapflow.flow.solver import SamplingMode
 from snapflow.io import atomic_write, write_json
 from snapflow.policies.minivla import MiniVLAConfig
@@ -362,17 +363,13 @@ def run_sweeps(configs: list[SweepConfig], workers: int = 1, progress: bool = Tr
 # ------------------------------------------------------------------------------------------- results
 
 
-def _mean_std(values: list[float]) -> tuple[float, float]:
-    return float(np.mean(values)), float(np.std(values, ddof=1)) if len(values) > 1 else 0.0
-
-
 def table_results(config: SweepConfig, table: TableSpec) -> dict[str, Any]:
     """Per row: success over seeds (mean, std, per seed, episode counts), per task, offline metrics, times."""
     rows = []
     for row in table.rows:
         evals = [json.loads(_eval_path(config, row.run, seed, row.mode.name, row.n_act, table.episodes_per_task).read_text()) for seed in table.seeds]
         rates = [100 * e["success"]["mean"]["success_rate"] for e in evals]
-        mean, std = _mean_std(rates)
+        mean, std = mean_std(rates)
         entry: dict[str, Any] = {
             "label": row.label, "run": row.run, "mode": row.mode.name, "nfe": row.mode.num_steps, "n_act": row.n_act,
             "series": row.series, "x": row.x, "seeds": list(table.seeds), "success_mean": mean, "success_std": std,

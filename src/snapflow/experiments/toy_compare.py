@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from snapflow.evaluation.report import mean_std
 from snapflow.experiments.toy import ToyConfig
 from snapflow.io import atomic_write, write_json
 from snapflow.training.distill import TargetOption
@@ -57,35 +58,34 @@ def compare_targets(
             future.result()
 
     runs = {key: json.loads(path.read_text()) for key, path in paths.items()}
-    per_seed = {name: [runs[(options[0], seed)]["energy_distance"][name] for seed in seeds] for name in ("teacher-10", "naive-1")}
-    reference = None
+
+    def per_seed(option: TargetOption, name: str) -> list[float]:
+        return [runs[(option, seed)]["energy_distance"][name] for seed in seeds]
+
+    teacher, reference = per_seed(options[0], "teacher-10"), per_seed(options[0], "snapflow-1")
     rows = []
     for option in options:
-        distances = [runs[(option, seed)]["energy_distance"]["snapflow-1"] for seed in seeds]
-        reference = reference or distances
+        distances = per_seed(option, "snapflow-1")
+        mean, std = mean_std(distances)
         step_ms = [1000 * runs[(option, seed)]["distill_step_s"] for seed in seeds]
         rows.append({
             "option": option.name, "label": option.label, "target": option.target,
             "target_steps": option.steps if isinstance(option.steps, int) else list(option.steps),
-            "distance_mean": float(np.mean(distances)), "distance_std": _std(distances), "distance_per_seed": distances,
+            "distance_mean": mean, "distance_std": std, "distance_per_seed": distances,
             "ratio_to_first_mean": float(np.mean(np.divide(distances, reference))),
-            "ratio_to_teacher_mean": float(np.mean(np.divide(distances, per_seed["teacher-10"]))),
+            "ratio_to_teacher_mean": float(np.mean(np.divide(distances, teacher))),
             "teacher_passes_per_row": option.teacher_passes, "step_ms_median": float(np.median(step_ms)), "step_ms_per_seed": step_ms,
         })
-    summary = {
-        "config": {**asdict(base), "seed": None, "target": None, "target_steps": None}, "seeds": seeds,
-        "teacher-10": {"mean": float(np.mean(per_seed["teacher-10"])), "std": _std(per_seed["teacher-10"]), "per_seed": per_seed["teacher-10"]},
-        "naive-1": {"mean": float(np.mean(per_seed["naive-1"])), "std": _std(per_seed["naive-1"]), "per_seed": per_seed["naive-1"]},
-        "rows": rows,
-    }
+    summary: dict[str, Any] = {"config": {**asdict(base), "seed": None, "target": None, "target_steps": None}, "seeds": seeds}
+    for name in ("teacher-10", "naive-1"):  # one teacher per seed, whatever the target
+        values = per_seed(options[0], name)
+        mean, std = mean_std(values)
+        summary[name] = {"mean": mean, "std": std, "per_seed": values}
+    summary["rows"] = rows
     write_json(output_dir / "comparison.json", summary)
     atomic_write(output_dir / "comparison.md", lambda temporary: temporary.write_text(markdown_comparison(summary) + "\n"))
     plot_comparison(summary, output_dir / "comparison.png")
     return summary
-
-
-def _std(values: list[float]) -> float:
-    return float(np.std(values, ddof=1)) if len(values) > 1 else 0.0
 
 
 def markdown_comparison(summary: dict[str, Any]) -> str:

@@ -56,6 +56,8 @@ class DistillSettings:
             raise ValueError("target and target_steps are options of the snapflow method only")
         if self.target == "bootstrap" and (self.teacher_velocity != "marginal" or self.teacher_velocity_clamp is not None):
             raise ValueError("the bootstrapped target is built from the model's own jumps: it takes no teacher_velocity or clamp")
+        if self.target == "bootstrap" and not isinstance(self.target_steps, int):
+            raise ValueError(f"a bootstrapped target grows by itself; give target_steps one power of two, not the schedule {list(self.target_steps)}")
         self.objective(BetaTimeSampler())  # the objective checks its own settings (target_steps) with named errors
 
     def objective(self, time_sampler: TimeSampler) -> TwoBranchObjective:
@@ -65,11 +67,18 @@ class DistillSettings:
         if self.method == "meanflow":
             return MeanFlowObjective(self.alpha, self.consistency_weight, time_sampler)
         if self.target == "bootstrap":
-            if not isinstance(self.target_steps, int):
-                raise ValueError(f"a bootstrapped target grows by itself; give target_steps one power of two, not the schedule {list(self.target_steps)}")
             return BootstrappedSnapFlowObjective(self.alpha, self.consistency_weight, time_sampler, self.target_steps)
         return SnapFlowObjective(self.alpha, self.consistency_weight, time_sampler, self.teacher_velocity_clamp, self.teacher_velocity,
                                  self.target_steps)
+
+
+def parse_target_steps(text: str) -> int | tuple[int, ...]:
+    """``8``, or a schedule ``2,4,8``."""
+    try:
+        steps = tuple(int(k) for k in text.split(","))
+    except ValueError:
+        raise ValueError(f"target steps must be integers (8, or a schedule such as 2,4,8), got {text!r}") from None
+    return steps[0] if len(steps) == 1 else steps
 
 
 @dataclass(frozen=True)
@@ -85,11 +94,7 @@ class TargetOption:
         target, _, steps = text.partition(":")
         if target not in TARGETS or not steps:
             raise ValueError(f"a target option reads TARGET:STEPS with TARGET in {list(TARGETS)}, e.g. euler:8, euler:2,4,8 or bootstrap:8; got {text!r}")
-        try:
-            values = tuple(int(k) for k in steps.split(","))
-        except ValueError:
-            raise ValueError(f"target steps must be integers, got {steps!r} in {text!r}") from None
-        return cls(target, values[0] if len(values) == 1 else values)
+        return cls(target, parse_target_steps(steps))
 
     @property
     def name(self) -> str:
@@ -115,4 +120,4 @@ class TargetOption:
         return sum(stages) / len(stages)
 
 
-__all__ = ["DistillSettings", "METHODS", "TARGETS", "TargetOption"]
+__all__ = ["DistillSettings", "METHODS", "TARGETS", "TargetOption", "parse_target_steps"]
