@@ -1,5 +1,7 @@
 """SnapFlow: one-step action generation for flow-matching policies by progressive self-distillation."""
 
+from importlib.metadata import version
+
 from snapflow.flow import (
     NAIVE_1,
     SNAPFLOW_1,
@@ -16,7 +18,7 @@ from snapflow.nn import SnapFlowPolicy, TargetTimeEmbedding
 from snapflow.objective import LossOutput, SnapFlowObjective
 from snapflow.protocol import FlowPolicy, TimeEmbeddingModel
 
-__version__ = "0.1.0"
+__version__ = version("snapflow")
 
 __all__ = [
     "FlowPolicy",

@@ -11,6 +11,7 @@ batch and reuses it for every velocity pass, as the real VLAs reuse their prefix
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, Protocol, runtime_checkable
 
 from torch import Tensor
@@ -53,19 +54,27 @@ class TimeEmbeddingModel(Protocol):
 
     def velocity_from_time_embedding(self, x_t: Tensor, time_embedding: Tensor, context: Context) -> Tensor: ...
 
+    # Optional: ``prefix_parameters() -> list[Parameter]``, the parameters of ``encode`` that distillation keeps
+    # frozen by default (see SnapFlowPolicy.expert_parameters).
 
-def index_batch(context: Context, index: slice | Tensor) -> Context:
-    """Select batch rows from every tensor in a context; non-tensor leaves are returned as they are."""
+
+def map_tensors(context: Context, function: Callable[[Tensor], Tensor]) -> Context:
+    """Apply ``function`` to every tensor in a (nested) context; non-tensor leaves are returned as they are."""
     if isinstance(context, Tensor):
-        return context[index]
+        return function(context)
     if isinstance(context, dict):
-        return {key: index_batch(value, index) for key, value in context.items()}
+        return {key: map_tensors(value, function) for key, value in context.items()}
     if isinstance(context, (list, tuple)):
-        selected = [index_batch(value, index) for value in context]
+        mapped = [map_tensors(value, function) for value in context]
         if hasattr(context, "_fields"):  # namedtuple
-            return type(context)(*selected)
-        return type(context)(selected)
+            return type(context)(*mapped)
+        return type(context)(mapped)
     return context
 
 
-__all__ = ["Context", "FlowPolicy", "TimeEmbeddingModel", "index_batch"]
+def index_batch(context: Context, index: slice | Tensor) -> Context:
+    """Select batch rows from every tensor in a context (an observation or an encoded prefix)."""
+    return map_tensors(context, lambda tensor: tensor[index])
+
+
+__all__ = ["Context", "FlowPolicy", "TimeEmbeddingModel", "index_batch", "map_tensors"]

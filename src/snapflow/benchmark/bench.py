@@ -1,7 +1,7 @@
 """``snapflow bench``: batch-1 latency of one policy at NFE 10, 5, 2 and 1, with the fast path and a profile.
 
 The fast path is what deployment runs: the prefix encoded once per chunk, then one pass of the action expert.
-Optionally that pass is ``torch.compile``-d (``mode="reduce-overhead"`` captures it in a CUDA graph on a GPU)
+Optionally that pass is compiled (:func:`snapflow.inference.compile_policy`; ``reduce-overhead`` captures a CUDA graph on a GPU)
 and the policy runs in bfloat16 / float16. The profile of the one-step path shows where its time goes.
 """
 
@@ -13,11 +13,14 @@ from typing import Any
 
 import torch
 
-from snapflow.benchmark.latency import machine, measure_latency
+from snapflow.benchmark.latency import measure_latency
 from snapflow.benchmark.subjects import BenchSubject
-from snapflow.evaluation.report import pyplot
 from snapflow.flow.solver import SNAPFLOW_1, SamplingMode, sample_actions
-from snapflow.io import atomic_write, write_json
+from snapflow.inference.compile import compile_policy
+from snapflow.reporting.figures import pyplot, save_figure
+from snapflow.reporting.files import write_json, write_text
+from snapflow.reporting.machine import machine
+from snapflow.reporting.tables import markdown_table
 
 BENCH_MODES = (SamplingMode(10, jump=False), SamplingMode(5, jump=False), SamplingMode(2, jump=False), SNAPFLOW_1)
 # the paper's A800 figures (end-to-end ms per chunk, batch 1), for the LeRobot architectures
@@ -25,16 +28,6 @@ PAPER_A800 = {
     "pi05": {"teacher_10_ms": 274.0, "snapflow_1_ms": 83.0, "denoising_share_10": 241.0 / 274.0, "per_step_ms": 23.0},
     "smolvla": {"teacher_10_ms": 178.0, "snapflow_1_ms": 50.0},
 }
-COMPILE_MODES = ("default", "reduce-overhead", "max-autotune")
-
-
-def compile_velocity(policy: torch.nn.Module, mode: str) -> None:
-    """Compile the one-pass action-expert call in place (the prefix pass runs once per chunk and is left eager)."""
-    if mode not in COMPILE_MODES:
-        raise ValueError(f"unknown compile mode {mode!r}; choose one of {', '.join(COMPILE_MODES)}")
-    policy.velocity = torch.compile(policy.velocity, mode=mode, dynamic=False)
-
-
 @torch.inference_mode()
 def profile_one_step(subject: BenchSubject, calls: int = 20) -> tuple[str, dict[str, float]]:
     """torch.profiler table of ``calls`` one-step generations, and how the wall time splits: the operators'
@@ -62,10 +55,11 @@ def run_bench(subject: BenchSubject, warmup: int = 10, repeats: int = 50, compil
               profile: bool = True, modes: tuple[SamplingMode, ...] = BENCH_MODES) -> dict[str, Any]:
     """Time ``subject`` at every mode (the first is the reference of the speedups) and, optionally, profile 1-NFE."""
     if compile_mode:
-        compile_velocity(subject.policy, compile_mode)
+        compile_policy(subject.policy, compile_mode)
     report: dict[str, Any] = {
         "subject": subject.name, "details": subject.details, "machine": machine(), "dtype": str(subject.noise.dtype).removeprefix("torch."),
-        "compile": compile_mode, "latency": measure_latency(subject.policy, subject.observation, subject.noise, list(modes), warmup, repeats),
+        "compile": compile_mode,
+        "latency": measure_latency(subject.policy, subject.observation, subject.noise, list(modes), warmup, repeats).to_dict(),
     }
     paper = PAPER_A800.get(subject.details.get("policy_type", ""))
     if paper:
@@ -84,13 +78,10 @@ def markdown_bench(report: dict[str, Any]) -> str:
              f"Batch 1 on {device}, {report['dtype']}, torch {host['torch']}, compile: {report['compile'] or 'off'}; medians (P90) of "
              f"{latency['repeats']} round-robin repeats after {latency['warmup']} warm-up calls of each.", "",
              f"Prefix (VLM) encoding: {latency['prefix']['median_ms']:.2f} ms (P90 {latency['prefix']['p90_ms']:.2f}).", "",
-             "| mode | NFE | denoising ms | per pass ms | end-to-end ms | denoising share | denoising speedup | end-to-end speedup |",
-             "|---|---|---|---|---|---|---|---|"]
-    for name, entry in latency["modes"].items():
-        denoise, end_to_end = entry["denoising"], entry["end_to_end"]
-        lines.append(f"| {name} | {entry['nfe']} | {denoise['median_ms']:.2f} ({denoise['p90_ms']:.2f}) | {entry['per_pass_ms']:.2f} | "
-                     f"{end_to_end['median_ms']:.2f} ({end_to_end['p90_ms']:.2f}) | {entry['denoising_share']:.0%} | "
-                     f"{entry['denoising_speedup']:.2f}x | {entry['end_to_end_speedup']:.2f}x |")
+             markdown_table(["mode", "NFE", "denoising ms", "per pass ms", "end-to-end ms", "denoising share", "denoising speedup", "end-to-end speedup"],
+                            [[name, entry["nfe"], f"{entry['denoising']['median_ms']:.2f} ({entry['denoising']['p90_ms']:.2f})", f"{entry['per_pass_ms']:.2f}",
+                              f"{entry['end_to_end']['median_ms']:.2f} ({entry['end_to_end']['p90_ms']:.2f})", f"{entry['denoising_share']:.0%}",
+                              f"{entry['denoising_speedup']:.2f}x", f"{entry['end_to_end_speedup']:.2f}x"] for name, entry in latency["modes"].items()])]
     if "paper_a800" in report:
         paper = report["paper_a800"]
         lines += ["", f"The paper on an A800: {paper['teacher_10_ms']:.0f} ms (10-step teacher) -> {paper['snapflow_1_ms']:.0f} ms "
@@ -123,20 +114,19 @@ def plot_bench(report: dict[str, Any], path: Path) -> None:
     host = report["machine"]
     axis.set_title(f"{report['subject']} on {host['gpu'] or host['cpu']}", fontsize=8)
     figure.tight_layout()
-    atomic_write(path, lambda temporary: figure.savefig(temporary, dpi=110, format="png"))
-    plt.close(figure)
+    save_figure(figure, path)
 
 
 def write_bench(report: dict[str, Any], directory: str | Path) -> Path:
     """``bench.json``, ``bench.md``, ``latency.png`` and (when profiled) ``profile.txt``."""
     directory = Path(directory)
     write_json(directory / "bench.json", {key: value for key, value in report.items() if key != "profile_table"})
-    atomic_write(directory / "bench.md", lambda path: path.write_text(markdown_bench(report) + "\n"))
+    write_text(directory / "bench.md", markdown_bench(report) + "\n")
     plot_bench(report, directory / "latency.png")
     if "profile_table" in report:
-        atomic_write(directory / "profile.txt", lambda path: path.write_text(report["profile_table"] + "\n"))
+        write_text(directory / "profile.txt", report["profile_table"] + "\n")
     return directory
 
 
-__all__ = ["BENCH_MODES", "PAPER_A800", "COMPILE_MODES", "compile_velocity", "profile_one_step", "run_bench",
+__all__ = ["BENCH_MODES", "PAPER_A800", "profile_one_step", "run_bench",
            "markdown_bench", "plot_bench", "write_bench"]

@@ -8,28 +8,16 @@ Medians and P90; CUDA events on a GPU, a monotonic clock elsewhere.
 
 from __future__ import annotations
 
-import platform
 import statistics
 import time
 from collections.abc import Callable
-from pathlib import Path
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import torch
 
 from snapflow.flow.solver import SamplingMode, euler_sample, sample_actions
 from snapflow.protocol import FlowPolicy
-
-
-def machine() -> dict[str, Any]:
-    """The machine the figures come from, named."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        cpu = next(line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return {"cpu": cpu, "threads": torch.get_num_threads(), "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
-            "torch": torch.__version__, "python": platform.python_version()}
 
 
 def _time_once_ms(function: Callable[[], Any], device: torch.device) -> float:
@@ -45,13 +33,62 @@ def _time_once_ms(function: Callable[[], Any], device: torch.device) -> float:
     return (time.perf_counter() - began) * 1e3
 
 
-def _summary(samples: list[float]) -> dict[str, float]:
-    ordered = sorted(samples)
-    return {"median_ms": statistics.median(ordered), "p90_ms": ordered[min(int(0.9 * len(ordered)), len(ordered) - 1)],
-            "repeats": len(ordered)}
+@dataclass(frozen=True)
+class Timing:
+    """Median and P90 milliseconds of ``repeats`` timed calls."""
+
+    median_ms: float
+    p90_ms: float
+    repeats: int
+
+    @classmethod
+    def of(cls, samples: list[float]) -> Timing:
+        ordered = sorted(samples)
+        return cls(statistics.median(ordered), ordered[min(int(0.9 * len(ordered)), len(ordered) - 1)], len(ordered))
 
 
-def time_round_robin(functions: dict[str, Callable[[], Any]], device: torch.device, warmup: int, repeats: int) -> dict[str, dict[str, float]]:
+@dataclass
+class LatencyRow:
+    """One sampling mode: denoising passes alone and end-to-end, their ratio, and speedups over a reference row.
+    ``prefix`` is the row's own prefix time where rows come from different policies."""
+
+    nfe: int
+    denoising: Timing
+    end_to_end: Timing
+    prefix: Timing | None = None
+    denoising_speedup: float = 1.0
+    end_to_end_speedup: float = 1.0
+
+    @property
+    def per_pass_ms(self) -> float:
+        return self.denoising.median_ms / self.nfe
+
+    @property
+    def denoising_share(self) -> float:
+        return self.denoising.median_ms / self.end_to_end.median_ms
+
+    def to_dict(self) -> dict[str, Any]:
+        row = {"prefix": asdict(self.prefix)} if self.prefix is not None else {}
+        return {**row, "nfe": self.nfe, "denoising": asdict(self.denoising), "per_pass_ms": self.per_pass_ms, "end_to_end": asdict(self.end_to_end),
+                "denoising_share": self.denoising_share, "denoising_speedup": self.denoising_speedup, "end_to_end_speedup": self.end_to_end_speedup}
+
+
+@dataclass
+class LatencyReport:
+    """What :func:`measure_latency` measured of one policy: its prefix and every mode (speedups over the first)."""
+
+    prefix: Timing
+    modes: dict[str, LatencyRow]
+    warmup: int
+    repeats: int
+    device: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"prefix": asdict(self.prefix), "modes": {name: row.to_dict() for name, row in self.modes.items()}, "warmup": self.warmup,
+                "repeats": self.repeats, "device": self.device}
+
+
+def time_round_robin(functions: dict[str, Callable[[], Any]], device: torch.device, warmup: int, repeats: int) -> dict[str, Timing]:
     """Median / P90 milliseconds of each function, timed in rotating order after ``warmup`` calls of each."""
     if repeats < 1 or warmup < 0:
         raise ValueError(f"need repeats >= 1 and warmup >= 0, got {repeats} and {warmup}")
@@ -64,13 +101,13 @@ def time_round_robin(functions: dict[str, Callable[[], Any]], device: torch.devi
         shift = repeat % len(names)
         for name in names[shift:] + names[:shift]:
             samples[name].append(_time_once_ms(functions[name], device))
-    return {name: _summary(values) for name, values in samples.items()}
+    return {name: Timing.of(values) for name, values in samples.items()}
 
 
 @torch.inference_mode()
 def measure_latency(
     policy: FlowPolicy, observation: Any, noise: torch.Tensor, modes: list[SamplingMode], warmup: int = 10, repeats: int = 50,
-) -> dict[str, Any]:
+) -> LatencyReport:
     """Prefix, denoising-only (and per pass) and end-to-end time per chunk for each mode, the denoising share of
     end-to-end time, and every speedup over the first mode (the reference, normally the 10-step teacher)."""
     device = noise.device
@@ -84,24 +121,17 @@ def measure_latency(
         functions[f"{mode.name}/denoising"] = lambda mode=mode: euler_sample(velocity, noise, mode)
         functions[f"{mode.name}/end_to_end"] = lambda mode=mode: sample_actions(policy, observation, noise, mode)
     timed = time_round_robin(functions, device, warmup, repeats)
-    result: dict[str, Any] = {"prefix": timed["prefix"], "modes": {}, "warmup": warmup, "repeats": repeats, "device": str(device)}
-    for mode in modes:
-        denoise, end_to_end = timed[f"{mode.name}/denoising"], timed[f"{mode.name}/end_to_end"]
-        result["modes"][mode.name] = {
-            "nfe": mode.num_steps, "denoising": denoise, "per_pass_ms": denoise["median_ms"] / mode.num_steps,
-            "end_to_end": end_to_end, "denoising_share": denoise["median_ms"] / end_to_end["median_ms"],
-        }
-    add_speedups(result["modes"])
-    return result
+    rows = {mode.name: LatencyRow(mode.num_steps, timed[f"{mode.name}/denoising"], timed[f"{mode.name}/end_to_end"]) for mode in modes}
+    return LatencyReport(timed["prefix"], add_speedups(rows), warmup, repeats, str(device))
 
 
-def add_speedups(entries: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
-    """Add denoising and end-to-end speedups of every entry over the first one (the reference)."""
-    reference = next(iter(entries.values()))
-    for entry in entries.values():
-        entry["denoising_speedup"] = reference["denoising"]["median_ms"] / entry["denoising"]["median_ms"]
-        entry["end_to_end_speedup"] = reference["end_to_end"]["median_ms"] / entry["end_to_end"]["median_ms"]
-    return entries
+def add_speedups(rows: dict[str, LatencyRow]) -> dict[str, LatencyRow]:
+    """Set the denoising and end-to-end speedups of every row over the first one (the reference)."""
+    reference = next(iter(rows.values()))
+    for row in rows.values():
+        row.denoising_speedup = reference.denoising.median_ms / row.denoising.median_ms
+        row.end_to_end_speedup = reference.end_to_end.median_ms / row.end_to_end.median_ms
+    return rows
 
 
-__all__ = ["machine", "measure_latency", "add_speedups", "time_round_robin"]
+__all__ = ["Timing", "LatencyRow", "LatencyReport", "measure_latency", "add_speedups", "time_round_robin"]

@@ -11,10 +11,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
-ARCHITECTURES = ("minivla", "pi0", "pi05", "smolvla")
+from snapflow.nn.snapflow_policy import SnapFlowPolicy
+from snapflow.policies.checkpoint import LATEST, POLICY_CONFIG, LoadedPolicy, load_policy, policy_metadata
+from snapflow.policies.factory import POLICIES, default_config, make_model, make_processor, policy_type
+from snapflow.policies.processor import NormalizationStats
+from snapflow.protocol import map_tensors
+
+LEROBOT_ARCHITECTURES = ("pi0", "pi05", "smolvla")
 # the paper's LIBERO setting for the LeRobot architectures: two 224-pixel cameras, an 8-D state, 7-D actions
 LIBERO_CAMERAS = ("observation.images.image", "observation.images.image2")
 LIBERO_STATE_DIM, LIBERO_ACTION_DIM = 8, 7
@@ -33,28 +40,36 @@ def _parameter_count(module: nn.Module) -> int:
     return sum(parameter.numel() for parameter in module.parameters())
 
 
-def builtin_subject(path: str | None, device: torch.device, dtype: torch.dtype) -> BenchSubject:
-    """A built-in MiniVLA checkpoint, or (``path=None``) the demo's architecture with random weights."""
-    from snapflow.experiments.metaworld import PRESETS
-    from snapflow.nn.snapflow_policy import SnapFlowPolicy
-    from snapflow.policies.minivla import MiniVLA
-    from snapflow.training.checkpoint import load_policy
+def builtin_subject(loaded: LoadedPolicy, name: str, device: torch.device = torch.device("cpu"), dtype: torch.dtype = torch.float32) -> BenchSubject:
+    """A built-in policy with a batch-1 observation made by its own processor (a zero state, the first instruction it
+    knows, a black image where it reads one) and fixed noise: the values do not change the timing."""
+    processor = loaded.processor
+    torch.manual_seed(0)
+    images = np.zeros((1, processor.image_size, processor.image_size, 3), dtype=np.uint8) if processor.image_size else None
+    instruction = processor.instructions[0] if processor.instructions else "push the puck to the goal"
+    observation = _cast(processor.observation(np.zeros((1, processor.state_dim), dtype=np.float32), [instruction], images), device, dtype)
+    noise = torch.randn(1, processor.chunk_length, processor.action_dim).to(device=device, dtype=dtype)
+    policy = loaded.policy.to(device=device, dtype=dtype).eval()
+    return BenchSubject(name, policy, observation, noise, {"parameters": _parameter_count(policy), "policy_type": loaded.metadata["policy"],
+                                                          "config": processor.config.to_dict()})
 
-    if path is None:
-        config, policy, name = PRESETS["fast"].policy, SnapFlowPolicy(MiniVLA(PRESETS["fast"].policy)), "minivla (random weights)"
-    else:
-        loaded = load_policy(path)
-        config, policy, name = loaded.processor.config, loaded.policy, f"minivla ({path})"
-    observation: dict[str, Tensor] = {
-        "state": torch.randn(1, config.state_dim, device=device, dtype=dtype),
-        "tokens": torch.ones(1, config.max_instruction_tokens, dtype=torch.long, device=device),
-        "token_mask": torch.ones(1, config.max_instruction_tokens, dtype=torch.bool, device=device),
-    }
-    if config.use_image:
-        observation["image"] = torch.rand(1, 3, config.image_size, config.image_size, device=device, dtype=dtype)
-    policy = policy.to(device=device, dtype=dtype).eval()
-    noise = torch.randn(1, config.chunk_length, config.action_dim, device=device, dtype=dtype)
-    return BenchSubject(name, policy, observation, noise, {"parameters": _parameter_count(policy), "config": config.to_dict()})
+
+def random_builtin_policy(name: str) -> LoadedPolicy:
+    """Built-in policy ``name`` at its default size on Meta-World MT10's dimensions, with random weights and unit
+    normalisation: what ``--architecture minivla`` times."""
+    from snapflow.envs.metaworld import ACTION_DIM, MT10_INSTRUCTIONS, STATE_DIM
+
+    instructions = list(MT10_INSTRUCTIONS.values())
+    config = default_config(name, STATE_DIM, ACTION_DIM, instructions)
+    state_dim = policy_type(name).processor_class.state_entries(config, instructions)
+    processor = make_processor(config, NormalizationStats([0.0] * state_dim, [1.0] * state_dim, [0.0] * ACTION_DIM, [1.0] * ACTION_DIM), instructions)
+    policy = SnapFlowPolicy(make_model(config))
+    return LoadedPolicy(policy, processor, policy_metadata(policy, processor), Path(f"<random {name}>"))
+
+
+def _cast(observation: Any, device: torch.device, dtype: torch.dtype) -> Any:
+    """Floating-point tensors of an observation to ``dtype`` and every tensor to ``device``."""
+    return map_tensors(observation, lambda tensor: tensor.to(device=device, dtype=dtype if tensor.is_floating_point() else tensor.dtype))
 
 
 def lerobot_observation(policy: nn.Module, device: torch.device) -> dict[str, Tensor]:
@@ -117,22 +132,26 @@ def lerobot_architecture(policy_type: str, device: torch.device, vlm: str | None
     return get_policy_class(policy_type)(config)
 
 
+def architectures() -> tuple[str, ...]:
+    """What ``--architecture`` accepts: every built-in policy, then LeRobot's."""
+    return (*POLICIES, *LEROBOT_ARCHITECTURES)
+
+
 def make_subject(policy: str | None, architecture: str | None, device: torch.device, dtype: torch.dtype, vlm: str | None = None) -> BenchSubject:
-    """The subject the CLI names: ``--policy`` (a checkpoint, a distilled LeRobot folder, or a LeRobot hub id
+    """The subject the CLI names: ``--policy`` (a built-in checkpoint, a distilled LeRobot folder, or a LeRobot hub id
     or folder) or ``--architecture`` (random weights at full size; ``minivla`` is the demo's policy)."""
     if (policy is None) == (architecture is None):
         raise ValueError("give either --policy or --architecture")
     if architecture is not None:
-        if architecture not in ARCHITECTURES:
-            raise ValueError(f"unknown architecture {architecture!r}; choose one of {', '.join(ARCHITECTURES)}")
-        if architecture == "minivla":
-            return builtin_subject(None, device, dtype)
+        if architecture not in architectures():
+            raise ValueError(f"unknown architecture {architecture!r}; choose one of {', '.join(architectures())}")
+        if architecture in POLICIES:
+            return builtin_subject(random_builtin_policy(architecture), f"{architecture} (random weights)", device, dtype)
         return lerobot_subject(lerobot_architecture(architecture, device, vlm), f"{architecture} (full size, random weights)", device, dtype)
-    from snapflow.training.checkpoint import LATEST, POLICY_CONFIG
-
     local = Path(policy)
     if (local / POLICY_CONFIG).is_file() or (local / LATEST).is_file():  # what resolve_checkpoint accepts
-        return builtin_subject(policy, device, dtype)
+        loaded = load_policy(policy)
+        return builtin_subject(loaded, f"{loaded.metadata['policy']} ({policy})", device, dtype)
     from snapflow.adapters.lerobot import load_distilled, load_pretrained_policy
     from snapflow.adapters.lerobot.checkpoint import SNAPFLOW_MARKER
 
@@ -140,4 +159,4 @@ def make_subject(policy: str | None, architecture: str | None, device: torch.dev
     return lerobot_subject(loaded, policy, device, dtype)
 
 
-__all__ = ["ARCHITECTURES", "BenchSubject", "builtin_subject", "lerobot_observation", "lerobot_subject", "lerobot_architecture", "make_subject"]
+__all__ = ["LEROBOT_ARCHITECTURES", "architectures", "BenchSubject", "builtin_subject", "random_builtin_policy", "lerobot_observation", "lerobot_subject", "lerobot_architecture", "make_subject"]

@@ -10,45 +10,50 @@ from __future__ import annotations
 
 import copy
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from snapflow.benchmark.latency import machine
+from snapflow.data.chunks import split_chunk_data
+from snapflow.data.demonstrations import Demonstrations
 from snapflow.flow.time_sampling import TimeSampler
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
 from snapflow.objective.snapflow import target_stages
+from snapflow.policies.checkpoint import load_policy
+from snapflow.reporting.machine import machine
+from snapflow.reporting.tables import markdown_table
 from snapflow.training.distill import TargetOption
+from snapflow.training.recipes import STUDENT_TRAINING, TIME_SAMPLER
+from snapflow.training.trainer import ObjectiveModule, train_step
 
 
 def time_training_steps(
     student: SnapFlowPolicy, observation: Any, actions: torch.Tensor, options: list[TargetOption], time_sampler: TimeSampler,
-    trainable: list[str] | None = None, warmup: int = 5, repeats: int = 30, learning_rate: float = 3e-5,
+    freeze_prefix: bool = True, warmup: int = 5, repeats: int = 30, learning_rate: float = STUDENT_TRAINING.learning_rate,
 ) -> dict[str, Any]:
-    """Median and P90 seconds of one training step per option; ``trainable`` names the parameters the optimiser
-    updates (default: all). The student is copied per option, so the options never see each other's updates."""
+    """Median and P90 seconds of one training step (:func:`snapflow.training.trainer.train_step`) per option; with
+    ``freeze_prefix`` the optimiser updates the student's ``expert_parameters()``, as ``snapflow distill`` does.
+    The student is copied per option, so the options never see each other's updates."""
     if not options:
         raise ValueError("time at least one target option")
     if warmup < 0 or repeats < 1:
         raise ValueError(f"need warmup >= 0 and repeats >= 1, got {warmup} and {repeats}")
     runners = []
     for option in options:
-        policy = copy.deepcopy(student).train()
-        parameters = [p for name, p in policy.named_parameters() if trainable is None or name in trainable]
+        policy = copy.deepcopy(student)
+        parameters = policy.expert_parameters() if freeze_prefix else list(policy.parameters())
         optimizer = torch.optim.AdamW(parameters, lr=learning_rate)
-        runners.append((option, policy, option.settings().objective(time_sampler), optimizer))
+        runners.append((option, ObjectiveModule(policy, option.settings().objective(time_sampler)), optimizer))
     generator = torch.Generator().manual_seed(0)
     stages = {option: len(target_stages(option.steps)) for option in options}
     times: dict[TargetOption, list[float]] = {option: [] for option in options}
     for repeat in range(warmup + repeats):
-        for option, policy, objective, optimizer in runners:
+        for option, module, optimizer in runners:
             progress = (repeat % stages[option] + 0.5) / stages[option]
             started = time.perf_counter()
-            loss = objective(policy, observation, actions, generator=generator, progress=progress).loss
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            optimizer.step()
+            train_step(module, optimizer, observation, actions, learning_rate=learning_rate, generator=generator, progress=progress)
             elapsed = time.perf_counter() - started
             if repeat >= warmup:
                 times[option].append(elapsed)
@@ -61,6 +66,17 @@ def time_training_steps(
     return {"batch_size": int(actions.shape[0]), "warmup": warmup, "repeats": repeats, "machine": machine(), "rows": rows}
 
 
+def checkpoint_training_cost(
+    teacher: str | Path, data: str | Path, options: list[TargetOption], batch_size: int = 64, warmup: int = 5, repeats: int = 30,
+) -> dict[str, Any]:
+    """:func:`time_training_steps` for the student of a built-in ``teacher`` checkpoint (phi_s added, prefix frozen, as
+    ``snapflow distill`` trains it) on one batch of its training demonstrations."""
+    loaded = load_policy(teacher, target_time=True)
+    train_data, _ = split_chunk_data(Demonstrations.load(data), loaded.processor, loaded.val_fraction)
+    observation, actions = train_data.batch(torch.randint(len(train_data), (batch_size,), generator=torch.Generator().manual_seed(0)))
+    return time_training_steps(loaded.policy, observation, actions, options, TIME_SAMPLER, warmup=warmup, repeats=repeats)
+
+
 def markdown_training_cost(result: dict[str, Any]) -> str:
     first = result["rows"][0]["label"]
     lines = [
@@ -68,13 +84,11 @@ def markdown_training_cost(result: dict[str, Any]) -> str:
         f"round-robin repeats after {result['warmup']} warm-up steps; {result['machine']['cpu']}, {result['machine']['threads']} thread(s), "
         f"torch {result['machine']['torch']}.",
         "",
-        f"| target | no-grad passes per one-step row | ms per step (median) | P90 | / {first} |",
-        "|---|---|---|---|---|",
+        markdown_table(["target", "no-grad passes per one-step row", "ms per step (median)", "P90", f"/ {first}"],
+                       [[row["label"], f"{row['teacher_passes_per_row']:.3g} + 1", f"{row['step_ms_median']:.1f}", f"{row['step_ms_p90']:.1f}",
+                         f"{row['relative_to_first']:.2f}x"] for row in result["rows"]]),
     ]
-    for row in result["rows"]:
-        lines.append(f"| {row['label']} | {row['teacher_passes_per_row']:.3g} + 1 | {row['step_ms_median']:.1f} | {row['step_ms_p90']:.1f} | "
-                     f"{row['relative_to_first']:.2f}x |")
     return "\n".join(lines)
 
 
-__all__ = ["markdown_training_cost", "time_training_steps"]
+__all__ = ["checkpoint_training_cost", "markdown_training_cost", "time_training_steps"]

@@ -1,5 +1,5 @@
-"""Demonstration storage and collection."""
+"""Demonstrations: collection from a benchmark's experts, storage, and (observation, action chunk) training pairs."""
 
-from snapflow.data.demonstrations import Demonstrations, DemonstrationError, Episode, NormalizationStats
+from snapflow.data.demonstrations import DemonstrationError, Demonstrations, Episode
 
-__all__ = ["Demonstrations", "DemonstrationError", "Episode", "NormalizationStats"]
+__all__ = ["Demonstrations", "DemonstrationError", "Episode"]

@@ -5,8 +5,9 @@
     actions        float32 (N, action_dim)    action taken at that step
     episode_index  int64   (N,)               which episode each step belongs to (episodes are contiguous)
     images         uint8   (N, H, W, 3)       optional camera frames
-``meta.json``: ``format``, ``version``, ``state_dim``, ``action_dim``, ``episodes`` (task, variation, start,
-length), ``instructions`` (task -> text) and ``stats`` (mean / std of states and actions).
+``meta.json``: ``format``, ``version``, ``env`` (the benchmark's registered name), ``state_dim``, ``action_dim``,
+``episodes`` (task, variation, start, length), ``instructions`` (task -> text) and ``stats`` (mean / std of states
+and actions).
 """
 
 from __future__ import annotations
@@ -18,7 +19,9 @@ from typing import Any
 
 import numpy as np
 
-from snapflow.io import atomic_write, write_json
+from snapflow.envs.factory import DEFAULT_BENCHMARK
+from snapflow.policies.processor import NormalizationStats
+from snapflow.reporting.files import atomic_write, write_json
 
 FORMAT = "snapflow-demonstrations"
 VERSION = 1
@@ -34,23 +37,6 @@ class Episode:
     length: int
 
 
-@dataclass(frozen=True)
-class NormalizationStats:
-    """Per-dimension mean and std; std is floored so constant dimensions (unused object slots) stay finite."""
-
-    state_mean: list[float]
-    state_std: list[float]
-    action_mean: list[float]
-    action_std: list[float]
-
-    @classmethod
-    def from_arrays(cls, states: np.ndarray, actions: np.ndarray, min_std: float = 1e-2) -> NormalizationStats:
-        return cls(
-            states.mean(0).tolist(), np.maximum(states.std(0), min_std).tolist(),
-            actions.mean(0).tolist(), np.maximum(actions.std(0), min_std).tolist(),
-        )
-
-
 class DemonstrationError(ValueError):
     """A demonstration set that cannot be used, with the reason."""
 
@@ -63,6 +49,7 @@ class Demonstrations:
     episodes: list[Episode]
     instructions: dict[str, str]
     images: np.ndarray | None = None
+    env: str = DEFAULT_BENCHMARK
 
     def __post_init__(self) -> None:
         self.validate()
@@ -123,7 +110,7 @@ class Demonstrations:
             arrays["images"] = self.images
         atomic_write(directory / ARRAYS_FILE, lambda path: np.savez_compressed(open(path, "wb"), **arrays))
         write_json(directory / META_FILE, {
-            "format": FORMAT, "version": VERSION,
+            "format": FORMAT, "version": VERSION, "env": self.env,
             "state_dim": int(self.states.shape[1]), "action_dim": int(self.actions.shape[1]),
             "num_steps": int(len(self.states)), "has_images": self.images is not None,
             "instructions": self.instructions, "episodes": [asdict(e) for e in self.episodes],
@@ -156,7 +143,7 @@ class Demonstrations:
         if missing:
             raise DemonstrationError(f"{arrays_path} lacks arrays {missing}")
         return cls(loaded["states"], loaded["actions"], loaded["episode_index"], _episodes(meta["episodes"], meta_path),
-                   _instructions(meta["instructions"], meta_path), loaded.get("images"))
+                   _instructions(meta["instructions"], meta_path), loaded.get("images"), _env(meta.get("env", DEFAULT_BENCHMARK), meta_path))
 
 
 def _episodes(entries: Any, source: Path) -> list[Episode]:
@@ -176,10 +163,16 @@ def _episodes(entries: Any, source: Path) -> list[Episode]:
     return episodes
 
 
+def _env(name: Any, source: Path) -> str:
+    if not isinstance(name, str):
+        raise DemonstrationError(f"{source}: 'env' must name a benchmark, got {name!r}")
+    return name
+
+
 def _instructions(instructions: Any, source: Path) -> dict[str, str]:
     if not isinstance(instructions, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in instructions.items()):
         raise DemonstrationError(f"{source}: 'instructions' must map task names to instruction strings")
     return instructions
 
 
-__all__ = ["Demonstrations", "DemonstrationError", "Episode", "NormalizationStats", "FORMAT", "VERSION"]
+__all__ = ["Demonstrations", "DemonstrationError", "Episode", "FORMAT", "VERSION", "ARRAYS_FILE", "META_FILE"]

@@ -1,1 +1,2 @@
-"""Simulated benchmarks. Import the submodule you need (``snapflow.envs.metaworld``); each pulls in its simulator."""
+"""Simulated benchmarks behind one interface (:mod:`snapflow.envs.base`), registered by name in ``factory``.
+Importing them is free: a simulator is imported when its first environment is built."""

@@ -1,11 +1,14 @@
 """Meta-World MT10 as a language-conditioned benchmark, with its own scripted experts for demonstrations.
 
 Observation = Meta-World's 39-d state vector + a natural-language instruction + optionally a camera
-image, rendered off-screen on the CPU (``MUJOCO_GL=egl`` by default, ``osmesa`` also works). Success is the
+image, rendered off-screen on the CPU (``MUJOCO_GL=egl`` unless set, ``osmesa`` also works). Success is the
 environment's own ``info["success"]``; an episode stops at success or at the benchmark's 500-step limit.
 Task variations (object and goal positions) come from Meta-World's own sampler: training demonstrations
 use the variations of ``MT10(seed=TRAIN_SEED)``, evaluation those of ``MT10(seed=EVAL_SEED)``, which no
 demonstration saw.
+
+``MetaWorld(via_points=True)`` is the multimodal variant (:mod:`snapflow.envs.via_points`): its experts detour by
+a via-point and its episodes succeed only through one.
 """
 
 from __future__ import annotations
@@ -13,15 +16,13 @@ from __future__ import annotations
 import functools
 import os
 import warnings
-from dataclasses import dataclass
+import zlib
 from typing import Any
 
 import numpy as np
 
-from snapflow.envs.via_points import ViaPointTracker
-
-# MuJoCo picks its off-screen GL backend when first imported; EGL (Mesa) renders on a CPU-only machine.
-os.environ.setdefault("MUJOCO_GL", "egl")
+from snapflow.envs.base import Benchmark, Environment, Observation
+from snapflow.envs.via_points import ViaPointExpert, ViaPointTracker
 
 MT10_INSTRUCTIONS: dict[str, str] = {
     "reach-v3": "reach the goal position with the gripper",
@@ -51,23 +52,13 @@ MT10_TASKS: tuple[str, ...] = tuple(MT10_INSTRUCTIONS)
 STATE_DIM = 39
 ACTION_DIM = 4
 MAX_EPISODE_STEPS = 500
-TRAIN_SEED = 0
-EVAL_SEED = 1
-SPLIT_SEEDS = {"train": TRAIN_SEED, "eval": EVAL_SEED}
-
-
-def check_tasks(tasks: list[str] | tuple[str, ...]) -> list[str]:
-    """Return ``tasks`` if all are MT10 task names, else raise a ValueError listing the valid ones."""
-    unknown = [task for task in tasks if task not in MT10_INSTRUCTIONS]
-    if unknown:
-        raise ValueError(f"unknown Meta-World task(s) {unknown}; MT10 has {list(MT10_TASKS)}")
-    if not tasks:
-        raise ValueError("no task given")
-    return list(tasks)
+SPLIT_SEEDS = {"train": 0, "eval": 1}
 
 
 @functools.lru_cache(maxsize=2)
 def _benchmark(seed: int) -> Any:
+    # MuJoCo picks its off-screen GL backend when first imported; EGL (Mesa) renders on a CPU-only machine
+    os.environ.setdefault("MUJOCO_GL", "egl")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         import metaworld
@@ -75,49 +66,33 @@ def _benchmark(seed: int) -> Any:
         return metaworld.MT10(seed=seed)
 
 
-def num_variations(split: str) -> int:
-    """How many variations Meta-World's sampler provides per task in one split (50 in Meta-World 3)."""
-    benchmark = _benchmark(SPLIT_SEEDS[split])
-    return sum(task.env_name == MT10_TASKS[0] for task in benchmark.train_tasks)
-
-
-@dataclass(frozen=True)
-class Observation:
-    state: np.ndarray  # (39,) float32
-    instruction: str
-    image: np.ndarray | None = None  # (H, W, 3) uint8, only when rendering was asked for
-
-
-class MetaWorldEnv:
+class MetaWorldEnv(Environment):
     """One MT10 task; ``reset(variation)`` picks a variation of the split from Meta-World's own sampler.
 
-    ``via_points=True`` is the multimodal variant: an episode still ends at the task's success, but counts
-    as a success only if the hand passed a via-point before (see :mod:`snapflow.envs.via_points`).
+    ``via_points=True``: an episode still ends at the task's success, but counts as a success only if the hand
+    passed a via-point before (see :mod:`snapflow.envs.via_points`).
     """
 
     def __init__(self, task: str, split: str = "train", image_size: int | None = None, via_points: bool = False) -> None:
-        check_tasks([task])
-        if split not in SPLIT_SEEDS:
-            raise ValueError(f"split must be one of {list(SPLIT_SEEDS)}, got {split!r}")
+        benchmark = MetaWorld(via_points)
+        benchmark.check_tasks([task])
+        benchmark.check_split(split)
         self.task = task
         self.split = split
         self.instruction = MT10_INSTRUCTIONS[task]
         self.image_size = image_size
-        benchmark = _benchmark(SPLIT_SEEDS[split])
-        self._variations = [t for t in benchmark.train_tasks if t.env_name == task]
+        suite = _benchmark(SPLIT_SEEDS[split])
+        self._variations = [t for t in suite.train_tasks if t.env_name == task]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             if image_size:
-                self._env = benchmark.train_classes[task](
-                    render_mode="rgb_array", camera_name="corner", width=image_size, height=image_size
-                )
+                self._env = suite.train_classes[task](render_mode="rgb_array", camera_name="corner", width=image_size, height=image_size)
                 # Shadows and multisampling cost most of a CPU-rendered frame and add nothing at this size.
                 self._env.model.vis.quality.shadowsize = 0
                 self._env.model.vis.quality.offsamples = 0
             else:
-                self._env = benchmark.train_classes[task]()
+                self._env = suite.train_classes[task]()
         self.steps = 0
-        # the multimodal variant (see snapflow.envs.via_points): success also needs a via-point visited first
         self._via_points = ViaPointTracker() if via_points else None
 
     def _observe(self, state: np.ndarray, render: bool) -> Observation:
@@ -137,7 +112,6 @@ class MetaWorldEnv:
         return self._observe(state, render)
 
     def step(self, action: np.ndarray, render: bool = False) -> tuple[Observation, bool, bool]:
-        """Apply one action; returns (observation, success, done). Render only when asked (re-planning steps)."""
         state, _, _, _, info = self._env.step(np.clip(np.asarray(action, dtype=np.float32), -1.0, 1.0))
         self.steps += 1
         task_success = bool(info["success"])
@@ -149,23 +123,58 @@ class MetaWorldEnv:
         self._env.close()
 
 
-def make_expert(task: str) -> Any:
-    """Meta-World's scripted expert policy for ``task`` (``get_action(state) -> action``)."""
-    check_tasks([task])
-    import metaworld.policies
+class ScriptedExpert:
+    """Meta-World's scripted policy of a task, behind the :class:`snapflow.envs.base.Expert` interface."""
 
-    return getattr(metaworld.policies, EXPERT_POLICIES[task])()
+    def __init__(self, policy: Any) -> None:
+        self.policy = policy
+
+    def reset(self, observation: Observation) -> None:
+        """Meta-World's experts are memoryless."""
+
+    def act(self, observation: Observation) -> np.ndarray:
+        return np.asarray(self.policy.get_action(observation.state), dtype=np.float32)
 
 
-__all__ = [
-    "MT10_TASKS",
-    "MT10_INSTRUCTIONS",
-    "STATE_DIM",
-    "ACTION_DIM",
-    "MAX_EPISODE_STEPS",
-    "Observation",
-    "MetaWorldEnv",
-    "make_expert",
-    "check_tasks",
-    "num_variations",
-]
+class MetaWorld(Benchmark):
+    """Meta-World MT10 (``via_points=False``) or its multimodal via-point variant."""
+
+    state_dim = STATE_DIM
+    action_dim = ACTION_DIM
+    max_episode_steps = MAX_EPISODE_STEPS
+
+    def __init__(self, via_points: bool = False) -> None:
+        self.via_points = via_points
+        self.name = "metaworld-via-points" if via_points else "metaworld"
+        self.title = "Meta-World MT10, via-point variant" if via_points else "Meta-World MT10"
+
+    @property
+    def tasks(self) -> tuple[str, ...]:
+        return MT10_TASKS
+
+    def instruction(self, task: str) -> str:
+        self.check_tasks([task])
+        return MT10_INSTRUCTIONS[task]
+
+    def num_variations(self, split: str) -> int:
+        """How many variations Meta-World's sampler provides per task in one split (50 in Meta-World 3)."""
+        self.check_split(split)
+        return sum(task.env_name == MT10_TASKS[0] for task in _benchmark(SPLIT_SEEDS[split]).train_tasks)
+
+    def make_env(self, task: str, split: str, image_size: int | None = None) -> MetaWorldEnv:
+        return MetaWorldEnv(task, split, image_size, self.via_points)
+
+    def make_expert(self, task: str) -> ScriptedExpert | ViaPointExpert:
+        """Meta-World's scripted expert of ``task``; in the via-point variant routed through a via-point drawn per
+        episode (left or right) from a generator seeded by the task's name."""
+        self.check_tasks([task])
+        import metaworld.policies
+
+        expert = ScriptedExpert(getattr(metaworld.policies, EXPERT_POLICIES[task])())
+        if self.via_points:
+            return ViaPointExpert(expert, np.random.default_rng(zlib.crc32(task.encode())))
+        return expert
+
+
+__all__ = ["MT10_TASKS", "MT10_INSTRUCTIONS", "STATE_DIM", "ACTION_DIM", "MAX_EPISODE_STEPS", "MetaWorld", "MetaWorldEnv",
+           "ScriptedExpert"]

@@ -32,25 +32,25 @@ def via_points(hand_start: np.ndarray) -> np.ndarray:
 
 
 class ViaPointExpert:
-    """Meta-World's scripted ``expert`` routed through via-point ``side`` (0 left, 1 right) of the episode.
+    """A scripted ``expert`` routed through one of the episode's two via-points, drawn at each ``reset`` from
+    ``sides`` (0 left, 1 right); the expert takes over once the hand is within ``HANDOVER_DISTANCE`` of it."""
 
-    Call ``reset(state, side)`` with each episode's first state; then ``get_action(state)`` as for the expert.
-    """
-
-    def __init__(self, expert: Any) -> None:
+    def __init__(self, expert: Any, sides: np.random.Generator) -> None:
         self.expert = expert
+        self.sides = sides
         self.target: np.ndarray | None = None
         self.reached = False
 
-    def reset(self, state: np.ndarray, side: int) -> None:
-        self.target = via_points(hand_position(state))[side]
+    def reset(self, observation: Any) -> None:
+        self.expert.reset(observation)
+        self.target = via_points(hand_position(observation.state))[int(self.sides.integers(2))]
         self.reached = False
 
-    def get_action(self, state: np.ndarray) -> np.ndarray:
+    def act(self, observation: Any) -> np.ndarray:
         if self.target is None:
-            raise RuntimeError("call reset(state, side) at the start of every episode")
-        action = np.asarray(self.expert.get_action(state), dtype=np.float32)
-        offset = self.target - hand_position(state)
+            raise RuntimeError("call reset(observation) at the start of every episode")
+        action = np.asarray(self.expert.act(observation), dtype=np.float32)
+        offset = self.target - hand_position(observation.state)
         self.reached = self.reached or bool(np.linalg.norm(offset) < HANDOVER_DISTANCE)
         if self.reached:
             return action

@@ -1,5 +1,1 @@
-"""Evaluation metrics."""
-
-from snapflow.evaluation.distances import energy_distance
-
-__all__ = ["energy_distance"]
+"""Evaluation: closed-loop success on a benchmark, offline action error, sample distances, and their reports."""

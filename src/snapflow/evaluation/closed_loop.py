@@ -1,48 +1,38 @@
-"""Closed-loop success on Meta-World: all episodes of all tasks run side by side, one batched policy call
-for every environment that needs a new chunk, so inference uses every core while environments step."""
+"""Closed-loop success on a benchmark: all episodes of all tasks run side by side, one batched policy call for every
+environment that needs a new chunk, so inference uses every core while environments step."""
 
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
 
 import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from snapflow.envs.metaworld import MetaWorldEnv, check_tasks, num_variations
+from snapflow.envs.base import Benchmark
+from snapflow.evaluation.results import EpisodeResult
 from snapflow.flow.solver import SamplingMode, sample_actions
-from snapflow.nn.snapflow_policy import SnapFlowPolicy
-from snapflow.policies.minivla import MiniVLAProcessor
+from snapflow.policies.processor import Processor
+from snapflow.protocol import FlowPolicy
 
 
-@dataclass(frozen=True)
-class EpisodeResult:
-    task: str
-    variation: int
-    success: bool
-    steps: int
+class ClosedLoopEvaluator:
+    """Holds one environment per (task, episode) on the benchmark's evaluation split, reused across policies and modes."""
 
-
-class MetaWorldEvaluator:
-    """Holds one environment per (task, episode) on the evaluation split, reused across policies and modes;
-    ``via_points``: the multimodal variant (see :mod:`snapflow.envs.via_points`)."""
-
-    def __init__(self, tasks: list[str], episodes_per_task: int, image_size: int | None = None, via_points: bool = False) -> None:
-        check_tasks(tasks)
-        available = num_variations("eval")
+    def __init__(self, benchmark: Benchmark, tasks: list[str], episodes_per_task: int, image_size: int | None = None) -> None:
+        benchmark.check_tasks(tasks)
+        available = benchmark.num_variations("eval")
         if not 1 <= episodes_per_task <= available:
-            raise ValueError(f"episodes per task must be in [1, {available}] (Meta-World's evaluation variations), got {episodes_per_task}")
+            raise ValueError(f"episodes per task must be in [1, {available}] ({benchmark.name}'s evaluation variations), got {episodes_per_task}")
         self.slots = [(task, variation) for task in tasks for variation in range(episodes_per_task)]
-        self.envs = [MetaWorldEnv(task, "eval", image_size, via_points) for task, _ in self.slots]
+        self.envs = [benchmark.make_env(task, "eval", image_size) for task, _ in self.slots]
 
     @torch.no_grad()
     def run(
-        self, policy: SnapFlowPolicy, processor: MiniVLAProcessor, mode: SamplingMode, n_act: int,
-        seed: int = 0, progress: bool = True,
+        self, policy: FlowPolicy, processor: Processor, mode: SamplingMode, n_act: int, seed: int = 0, progress: bool = True,
     ) -> list[EpisodeResult]:
         """Roll out every slot to success or the step limit, re-planning a chunk every ``n_act`` actions."""
-        chunk_length = processor.config.chunk_length
+        chunk_length = processor.chunk_length
         if not 1 <= n_act <= chunk_length:
             raise ValueError(f"n_act must be in [1, {chunk_length}] (the policy's chunk length), got {n_act}")
         policy.eval()
@@ -56,9 +46,9 @@ class MetaWorldEvaluator:
             if replan:
                 batch = processor.observation(
                     np.stack([observations[i].state for i in replan]), [observations[i].instruction for i in replan],
-                    np.stack([observations[i].image for i in replan]) if processor.config.use_image else None,
+                    np.stack([observations[i].image for i in replan]) if processor.image_size else None,
                 )
-                noise = torch.randn(len(replan), chunk_length, processor.config.action_dim, generator=generator)
+                noise = torch.randn(len(replan), chunk_length, processor.action_dim, generator=generator)
                 chunks = processor.unnormalize_actions(sample_actions(policy, batch, noise, mode)).numpy()
                 for row, i in enumerate(replan):
                     queues[i].extend(chunks[row, :n_act])
@@ -79,21 +69,4 @@ class MetaWorldEvaluator:
             env.close()
 
 
-def success_by_task(results: list[EpisodeResult]) -> dict[str, dict[str, float]]:
-    """Per task: successes, episodes and rate; plus ``mean`` over tasks."""
-    table: dict[str, dict[str, float]] = {}
-    for result in results:
-        entry = table.setdefault(result.task, {"successes": 0, "episodes": 0})
-        entry["successes"] += int(result.success)
-        entry["episodes"] += 1
-    for entry in table.values():
-        entry["success_rate"] = entry["successes"] / entry["episodes"]
-    table["mean"] = {
-        "successes": sum(e["successes"] for e in table.values()),
-        "episodes": sum(e["episodes"] for e in table.values()),
-        "success_rate": float(np.mean([e["success_rate"] for e in table.values()])),
-    }
-    return table
-
-
-__all__ = ["EpisodeResult", "MetaWorldEvaluator", "success_by_task"]
+__all__ = ["ClosedLoopEvaluator"]

@@ -12,7 +12,9 @@ import torch
 
 from snapflow.adapters.lerobot.checkpoint import load_distilled
 from snapflow.flow.solver import SamplingMode
-from snapflow.io import atomic_write, write_json
+from snapflow.inference.compile import CompileMode, compile_policy
+from snapflow.reporting.files import write_json, write_text
+from snapflow.reporting.tables import markdown_table
 
 
 def make_lerobot_env_config(env_type: str, task: str | None = None) -> Any:
@@ -28,12 +30,13 @@ def make_lerobot_env_config(env_type: str, task: str | None = None) -> Any:
 def evaluate_in_lerobot_env(
     policy_directory: str | Path, env_type: str, modes: list[SamplingMode], episodes: int, task: str | None = None,
     n_action_steps: int | None = None, n_envs: int = 1, seed: int = 1000, max_episode_steps: int | None = None,
-    device: str | None = None,
+    device: str | None = None, compile_mode: CompileMode | None = None,
 ) -> dict[str, Any]:
     """Run ``episodes`` rollouts per mode and return ``{"modes": {name: LeRobot's eval info + NFE}, ...}``.
 
     ``n_action_steps`` actions of each predicted chunk are executed before re-planning (default: the policy's
-    own setting); ``max_episode_steps`` cuts episodes short of the environment's own limit (quick checks).
+    own setting); ``max_episode_steps`` cuts episodes short of the environment's own limit (quick checks);
+    ``compile_mode`` runs the denoising passes compiled (:func:`snapflow.inference.compile_policy`).
     """
     os.environ.setdefault("MUJOCO_GL", "egl")  # Meta-World and ALOHA render off-screen
     from lerobot.envs.factory import make_env, make_env_pre_post_processors
@@ -53,6 +56,8 @@ def evaluate_in_lerobot_env(
     device = device or ("cuda" if torch.cuda.is_available() else "cpu")
     policy.config.device = device
     policy.to(device).eval()
+    if compile_mode:
+        compile_policy(adapter, compile_mode)
 
     env_config = make_lerobot_env_config(env_type, task)
     preprocessor, postprocessor = make_pre_post_processors(
@@ -83,15 +88,11 @@ def evaluate_in_lerobot_env(
 
 def lerobot_eval_table(report: dict[str, Any]) -> str:
     """Markdown summary: success rate with its episode count, rewards and wall time per sampling mode."""
-    lines = [f"{report['policy_type']} in LeRobot's {report['env']} ({report['task']}), {report['n_action_steps']} of "
-             f"{report['chunk_size']} actions executed per chunk", "",
-             "| mode | NFE | success | episodes | avg max reward | avg sum reward | eval s |",
-             "|---|---|---|---|---|---|---|"]
-    for name, info in report["modes"].items():
-        overall = info["overall"]
-        lines.append(f"| {name} | {info['nfe']} | {overall['pc_success']:.1f}% | {overall['n_episodes']} | "
-                     f"{overall['avg_max_reward']:.3f} | {overall['avg_sum_reward']:.3f} | {overall['eval_s']:.1f} |")
-    return "\n".join(lines)
+    title = (f"{report['policy_type']} in LeRobot's {report['env']} ({report['task']}), {report['n_action_steps']} of "
+             f"{report['chunk_size']} actions executed per chunk")
+    rows = [(name, info["nfe"], f"{info['overall']['pc_success']:.1f}%", info["overall"]["n_episodes"], f"{info['overall']['avg_max_reward']:.3f}",
+             f"{info['overall']['avg_sum_reward']:.3f}", f"{info['overall']['eval_s']:.1f}") for name, info in report["modes"].items()]
+    return title + "\n\n" + markdown_table(["mode", "NFE", "success", "episodes", "avg max reward", "avg sum reward", "eval s"], rows)
 
 
 def write_lerobot_eval(report: dict[str, Any], output_dir: str | Path) -> Path:
@@ -100,7 +101,7 @@ def write_lerobot_eval(report: dict[str, Any], output_dir: str | Path) -> Path:
     for name, info in report["modes"].items():
         write_json(output_dir / name / "eval_info.json", {key: value for key, value in info.items() if key != "nfe"})
     write_json(output_dir / "report.json", report)
-    atomic_write(output_dir / "report.md", lambda path: path.write_text(lerobot_eval_table(report) + "\n"))
+    write_text(output_dir / "report.md", lerobot_eval_table(report) + "\n")
     return output_dir
 
 

@@ -4,15 +4,16 @@ from __future__ import annotations
 
 import torch
 
+from snapflow.data.chunks import ChunkData
+from snapflow.evaluation.results import OfflineMetrics
 from snapflow.flow.solver import SamplingMode, sample_actions
-from snapflow.nn.snapflow_policy import SnapFlowPolicy
-from snapflow.training.data import ChunkData
+from snapflow.protocol import FlowPolicy
 
 
 @torch.no_grad()
 def offline_metrics(
-    policy: SnapFlowPolicy, data: ChunkData, mode: SamplingMode, max_samples: int = 500, seed: int = 0, batch_size: int = 250,
-) -> dict[str, float]:
+    policy: FlowPolicy, data: ChunkData, mode: SamplingMode, max_samples: int = 500, seed: int = 0, batch_size: int = 250,
+) -> OfflineMetrics:
     """Per-sample MSE of the predicted chunk (normalised action space) summarised by mean, median, std,
     P90 and P95, and the mean cosine similarity of flattened chunks. Sample subset and noise are fixed by
     ``seed``, so every mode and checkpoint is scored on identical inputs."""
@@ -27,15 +28,8 @@ def offline_metrics(
         errors.append((prediction - target).pow(2).flatten(1).mean(1))
         cosines.append(torch.nn.functional.cosine_similarity(prediction.flatten(1), target.flatten(1), dim=1))
     mse, cosine = torch.cat(errors).double(), torch.cat(cosines).double()
-    return {
-        "samples": len(mse),
-        "mse": mse.mean().item(),
-        "mse_median": mse.median().item(),
-        "mse_std": mse.std().item(),
-        "mse_p90": torch.quantile(mse, 0.90).item(),
-        "mse_p95": torch.quantile(mse, 0.95).item(),
-        "cosine": cosine.mean().item(),
-    }
+    return OfflineMetrics(len(mse), mse.mean().item(), mse.median().item(), mse.std().item(), torch.quantile(mse, 0.90).item(),
+                          torch.quantile(mse, 0.95).item(), cosine.mean().item())
 
 
 __all__ = ["offline_metrics"]

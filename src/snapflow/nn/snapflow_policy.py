@@ -30,6 +30,13 @@ class SnapFlowPolicy(nn.Module):
         self.model = model
         self.target_time_embedding = TargetTimeEmbedding(model.time_embedding_dim) if target_time else None
 
+    def expert_parameters(self) -> list[nn.Parameter]:
+        """What distillation trains with the prefix frozen, as the paper freezes the VLM: every parameter but the
+        model's ``prefix_parameters()`` (all of them for a model without a prefix), phi_s included."""
+        prefix = getattr(self.model, "prefix_parameters", None)
+        frozen = {id(parameter) for parameter in prefix()} if prefix is not None else set()
+        return [parameter for parameter in self.parameters() if id(parameter) not in frozen]
+
     def encode(self, observation: Any) -> Context:
         return self.model.encode(observation)
 

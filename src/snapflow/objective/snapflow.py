@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 import torch
 from torch import Tensor
@@ -30,7 +30,8 @@ from snapflow.flow.time_sampling import BetaTimeSampler, TimeSampler
 from snapflow.objective.base import OneStepRows, TwoBranchObjective
 from snapflow.protocol import Context, FlowPolicy
 
-TEACHER_VELOCITIES = ("marginal", "conditional")
+TeacherVelocity = Literal["marginal", "conditional"]
+TEACHER_VELOCITIES: tuple[str, ...] = get_args(TeacherVelocity)
 
 
 def euler_shortcut_target(velocity: VelocityFn, x_1: Tensor, steps: int = 2, clamp: float | None = None) -> Tensor:
@@ -74,7 +75,7 @@ class SnapFlowObjective(TwoBranchObjective):
     consistency_weight: float = 0.1
     time_sampler: TimeSampler = field(default_factory=BetaTimeSampler)
     teacher_velocity_clamp: float | None = None
-    teacher_velocity: Literal["marginal", "conditional"] = "marginal"
+    teacher_velocity: TeacherVelocity = "marginal"
     target_steps: int | tuple[int, ...] = 2
 
     def __post_init__(self) -> None:
@@ -106,4 +107,4 @@ class SnapFlowObjective(TwoBranchObjective):
         return OneStepRows(noise, ones, torch.zeros_like(ones), target)
 
 
-__all__ = ["SnapFlowObjective", "TEACHER_VELOCITIES", "euler_shortcut_target", "stage_at", "target_stages"]
+__all__ = ["SnapFlowObjective", "TEACHER_VELOCITIES", "TeacherVelocity", "euler_shortcut_target", "stage_at", "target_stages"]

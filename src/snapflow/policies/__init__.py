@@ -1,1 +1,1 @@
-"""Built-in policies, one folder each with its configuration and modeling."""
+"""Built-in policies, one folder each (configuration, modeling, processor), registered by name in ``factory``."""

@@ -2,20 +2,20 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
+from typing import Literal, get_args
 
 from snapflow.flow.time_sampling import BetaTimeSampler, TimeSampler
-from snapflow.objective import (
-    BootstrappedSnapFlowObjective,
-    ConsistencyDistillationObjective,
-    MeanFlowObjective,
-    SnapFlowObjective,
-    TwoBranchObjective,
-)
-from snapflow.objective.snapflow import TEACHER_VELOCITIES, target_stages
+from snapflow.objective.base import TwoBranchObjective
+from snapflow.objective.registry import make_objective, objective_options
+from snapflow.objective.snapflow import TeacherVelocity, target_stages
 
-METHODS = ("snapflow", "consistency-distillation", "meanflow")
-TARGETS = ("euler", "bootstrap")
+Method = Literal["snapflow", "consistency-distillation", "meanflow"]
+Target = Literal["euler", "bootstrap"]
+METHODS: tuple[str, ...] = get_args(Method)
+TARGETS: tuple[str, ...] = get_args(Target)
+# the settings that reach the objective as keyword options (alpha and lambda reach every objective)
+OBJECTIVE_OPTIONS = ("teacher_velocity_clamp", "teacher_velocity", "target_steps")
 
 
 @dataclass(frozen=True)
@@ -28,17 +28,17 @@ class DistillSettings:
     SnapFlow's target is ``target="euler"`` (the average of ``target_steps`` Euler velocities; a list of
     them is a schedule over equal stages of training) or ``target="bootstrap"`` (built from the model's own
     half-jumps, reaching ``target_steps`` Euler steps at three passes per row; see
-    :mod:`snapflow.objective.bootstrap`).
+    :mod:`snapflow.objective.bootstrap`). An option the chosen objective does not take must keep its default.
     """
 
     alpha: float = 0.5
     consistency_weight: float = 0.1
     teacher_velocity_clamp: float | None = None
     freeze_prefix: bool = True
-    method: str = "snapflow"
-    teacher_velocity: str = "marginal"
+    method: Method = "snapflow"
+    teacher_velocity: TeacherVelocity = "marginal"
     target_time: bool = True
-    target: str = "euler"
+    target: Target = "euler"
     target_steps: int | tuple[int, ...] = 2
 
     def __post_init__(self) -> None:
@@ -48,28 +48,29 @@ class DistillSettings:
             raise ValueError(f"unknown SnapFlow target {self.target!r}; choose one of {list(TARGETS)}")
         if self.method not in METHODS:
             raise ValueError(f"unknown distillation method {self.method!r}; choose one of {list(METHODS)}")
-        if self.teacher_velocity not in TEACHER_VELOCITIES:
-            raise ValueError(f"teacher_velocity must be one of {list(TEACHER_VELOCITIES)}, got {self.teacher_velocity!r}")
-        if self.method != "snapflow" and (self.teacher_velocity != "marginal" or self.teacher_velocity_clamp is not None):
-            raise ValueError("teacher_velocity and the velocity clamp are options of the snapflow method only")
-        if self.method != "snapflow" and (self.target != "euler" or self.target_steps != 2):
-            raise ValueError("target and target_steps are options of the snapflow method only")
-        if self.target == "bootstrap" and (self.teacher_velocity != "marginal" or self.teacher_velocity_clamp is not None):
-            raise ValueError("the bootstrapped target is built from the model's own jumps: it takes no teacher_velocity or clamp")
-        if self.target == "bootstrap" and not isinstance(self.target_steps, int):
-            raise ValueError(f"a bootstrapped target grows by itself; give target_steps one power of two, not the schedule {list(self.target_steps)}")
-        self.objective(BetaTimeSampler())  # the objective checks its own settings (target_steps) with named errors
+        if self.method != "snapflow" and self.target != "euler":
+            raise ValueError("target is an option of the snapflow method only")
+        self.objective(BetaTimeSampler())  # the objective names what it does not take, and checks its own values
+
+    @property
+    def objective_name(self) -> str:
+        """The registered objective these settings pick (:data:`snapflow.objective.registry.OBJECTIVES`)."""
+        return "snapflow-bootstrap" if self.method == "snapflow" and self.target == "bootstrap" else self.method
 
     def objective(self, time_sampler: TimeSampler) -> TwoBranchObjective:
-        """The chosen loss with these settings and the policy's own FM time distribution."""
-        if self.method == "consistency-distillation":
-            return ConsistencyDistillationObjective(self.alpha, self.consistency_weight, time_sampler)
-        if self.method == "meanflow":
-            return MeanFlowObjective(self.alpha, self.consistency_weight, time_sampler)
-        if self.target == "bootstrap":
-            return BootstrappedSnapFlowObjective(self.alpha, self.consistency_weight, time_sampler, self.target_steps)
-        return SnapFlowObjective(self.alpha, self.consistency_weight, time_sampler, self.teacher_velocity_clamp, self.teacher_velocity,
-                                 self.target_steps)
+        """The chosen loss with these settings and the policy's own FM time distribution: every option the objective
+        takes is passed; one it does not take must be at its default."""
+        accepted = objective_options(self.objective_name)
+        defaults = {field.name: field.default for field in fields(self)}
+        options = {}
+        for name in OBJECTIVE_OPTIONS:
+            value = getattr(self, name)
+            if name in accepted:
+                options[name] = value
+            elif value != defaults[name]:
+                raise ValueError(f"{name} is not an option of the {self.objective_name} objective")
+        return make_objective(self.objective_name, alpha=self.alpha, consistency_weight=self.consistency_weight,
+                              time_sampler=time_sampler, **options)
 
 
 def parse_target_steps(text: str) -> int | tuple[int, ...]:

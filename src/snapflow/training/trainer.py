@@ -11,23 +11,18 @@ import math
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import torch
 from accelerate import Accelerator
 from torch import Tensor, nn
 from tqdm.auto import tqdm
 
-from snapflow.io import write_json
 from snapflow.objective.base import TwoBranchObjective
-from snapflow.training.checkpoint import (
-    LATEST,
-    CheckpointError,
-    mark_latest,
-    restore_training,
-    save_checkpoint,
-)
-from snapflow.training.data import ChunkData
+from snapflow.policies.checkpoint import LATEST, CheckpointError
+from snapflow.protocol import map_tensors
+from snapflow.reporting.files import write_json
+from snapflow.training.checkpoint import mark_latest, restore_training, save_checkpoint
 
 HISTORY = "history.json"  # the run's losses and validation, written when training reaches its last step
 
@@ -73,18 +68,57 @@ class ObjectiveModule(nn.Module):
         self.objective = objective
 
     def forward(
-        self, observation: dict[str, Tensor], actions: Tensor, noise: Tensor, time: Tensor, generator: torch.Generator | None = None,
-        progress: float = 1.0,
+        self, observation: Any, actions: Tensor, noise: Tensor | None = None, time: Tensor | None = None,
+        generator: torch.Generator | None = None, progress: float = 1.0,
     ) -> tuple[Tensor, Tensor, Tensor]:
         output = self.objective(self.policy, observation, actions, noise=noise, time=time, generator=generator, progress=progress)
         return output.loss, output.flow_matching_loss, output.consistency_loss
+
+
+class ChunkSource(Protocol):
+    """What the trainer draws batches from: ``len()`` and ``batch(indices) -> (observation, actions)``."""
+
+    def __len__(self) -> int: ...
+
+    def batch(self, indices: Tensor) -> tuple[Any, Tensor]: ...
+
+
+def train_step(
+    module: nn.Module, optimizer: torch.optim.Optimizer, observation: Any, actions: Tensor, *, learning_rate: float,
+    grad_clip: float = 0.0, noise: Tensor | None = None, time: Tensor | None = None, generator: torch.Generator | None = None,
+    progress: float = 1.0, accelerator: Accelerator | None = None,
+) -> Tensor:
+    """One optimisation step of an :class:`ObjectiveModule` (or its data-parallel wrapper): the objective, backward,
+    gradient clipping (``grad_clip`` > 0) and the optimizer at ``learning_rate``. Returns [loss, FM loss, one-step
+    loss], detached and on the device (read them back only when logging: ``.item()`` per step syncs a GPU).
+
+    ``noise`` and ``time`` are drawn by the objective from ``generator`` when not given. The trainer, the toy
+    experiment and the training-cost benchmark all step through here.
+    """
+    for group in optimizer.param_groups:
+        group["lr"] = learning_rate
+    module.train()
+    loss, fm, sc = module(observation, actions, noise, time, generator, progress)
+    optimizer.zero_grad(set_to_none=True)
+    if accelerator is not None:
+        accelerator.backward(loss)
+    else:
+        loss.backward()
+    if grad_clip:
+        parameters = [p for group in optimizer.param_groups for p in group["params"]]
+        if accelerator is not None:
+            accelerator.clip_grad_norm_(parameters, grad_clip)
+        else:
+            torch.nn.utils.clip_grad_norm_(parameters, grad_clip)
+    optimizer.step()
+    return torch.stack([loss.detach(), fm, sc])
 
 
 def _step_generator(seed: int, process: int, step: int) -> torch.Generator:
     return torch.Generator().manual_seed(seed * 1_000_003 + process * 7_919 + step)
 
 
-def _draw(objective: TwoBranchObjective, data: ChunkData, batch_size: int, generator: torch.Generator):
+def _draw(objective: TwoBranchObjective, data: ChunkSource, batch_size: int, generator: torch.Generator):
     indices = torch.randint(len(data), (batch_size,), generator=generator)
     observation, actions = data.batch(indices)
     noise = torch.randn(actions.shape, generator=generator)
@@ -92,15 +126,14 @@ def _draw(objective: TwoBranchObjective, data: ChunkData, batch_size: int, gener
     return observation, actions, noise, time
 
 
-def _to(device: torch.device, observation: dict[str, Any], *tensors: Tensor):
+def _to(device: torch.device, observation: Any, *tensors: Tensor):
     """Move the tensors of a batch (other entries, such as LeRobot's task strings, stay as they are)."""
-    moved = {k: v.to(device) if torch.is_tensor(v) else v for k, v in observation.items()}
-    return moved, *(t.to(device) for t in tensors)
+    return map_tensors(observation, lambda tensor: tensor.to(device)), *(t.to(device) for t in tensors)
 
 
 @torch.no_grad()
 def validation_loss(
-    module: ObjectiveModule, data: ChunkData, batch_size: int, device: torch.device, batches: int = 8, progress: float = 1.0,
+    module: ObjectiveModule, data: ChunkSource, batch_size: int, device: torch.device, batches: int = 8, progress: float = 1.0,
 ) -> dict[str, float]:
     """Objective on held-out chunks with fixed draws, so values are comparable across steps and runs (with a
     scheduled objective, across runs at the same ``progress``)."""
@@ -114,14 +147,15 @@ def validation_loss(
 
 
 def train(
-    policy: nn.Module, objective: TwoBranchObjective, train_data: ChunkData, val_data: ChunkData | None,
+    policy: nn.Module, objective: TwoBranchObjective, train_data: ChunkSource, val_data: ChunkSource | None,
     config: TrainConfig, run_directory: str | Path, metadata: dict[str, Any], resume: bool = False,
     trainable: list[nn.Parameter] | None = None, progress: bool = True,
 ) -> dict[str, Any]:
     """Optimise ``objective`` on ``policy`` (any module implementing FlowPolicy); checkpoints under
     ``run_directory/checkpoints``. The data needs ``len()`` and ``batch(indices) -> (observation, actions)``.
 
-    ``trainable`` restricts the optimised parameters (e.g. the action expert and phi_s); default: all.
+    ``trainable`` restricts the optimised parameters (a policy's ``expert_parameters()``: the action expert and
+    phi_s); default: all.
     ``metadata`` is the policy description saved beside the weights (see ``policy_metadata``).
     Returns the trainer state (history of losses and validation).
     """
@@ -162,19 +196,11 @@ def train(
                disable=not progress or not accelerator.is_main_process, dynamic_ncols=True)
     running = []
     for step in bar:
-        for group in optimizer.param_groups:
-            group["lr"] = config.learning_rate_at(step)
         generator = _step_generator(config.seed, accelerator.process_index, step)
         observation, actions, noise, time_ = _to(device, *_draw(objective, train_data, config.batch_size, generator))
-        module.train()
         fraction_done = step / config.steps  # what scheduled objectives read
-        loss, fm, sc = module(observation, actions, noise, time_, generator, fraction_done)
-        optimizer.zero_grad(set_to_none=True)
-        accelerator.backward(loss)
-        if config.grad_clip:
-            accelerator.clip_grad_norm_(parameters, config.grad_clip)
-        optimizer.step()
-        running.append(torch.stack([loss.detach(), fm, sc]))  # read back only when logging: .item() per step syncs a GPU
+        running.append(train_step(module, optimizer, observation, actions, learning_rate=config.learning_rate_at(step), grad_clip=config.grad_clip,
+                                  noise=noise, time=time_, generator=generator, progress=fraction_done, accelerator=accelerator))
         done = step + 1
         if done % config.log_every == 0 or done == config.steps:
             mean = torch.stack(running).float().mean(0).tolist()

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
+
+from snapflow.policies.configuration import PolicyConfig
 
 
 @dataclass(frozen=True)
-class MiniVLAConfig:
+class MiniVLAConfig(PolicyConfig):
     """Sizes of the prefix encoder (instruction, state, optional image) and of the action expert.
 
     Both share ``num_heads`` x ``head_dim`` attention so that each expert layer can attend to the
@@ -33,14 +35,7 @@ class MiniVLAConfig:
     mlp_ratio: int = 4
 
     def __post_init__(self) -> None:
-        for field in fields(self):
-            value = getattr(self, field.name)
-            expected = {"int": int, "bool": bool}[field.type]
-            # bool is an int subclass: a flag given for a size (or a size for a flag) is as wrong as a string
-            if not isinstance(value, expected) or (expected is int and isinstance(value, bool)):
-                raise ValueError(f"MiniVLAConfig.{field.name} must be {field.type}, got {value!r}")
-            if expected is int and value < 1:
-                raise ValueError(f"MiniVLAConfig.{field.name} must be at least 1, got {value}")
+        super().__post_init__()
         if self.use_image and self.image_size % self.patch_size:
             raise ValueError(f"MiniVLAConfig.image_size ({self.image_size}) must be a multiple of patch_size ({self.patch_size})")
 
@@ -51,14 +46,3 @@ class MiniVLAConfig:
     @property
     def prefix_length(self) -> int:
         return self.max_instruction_tokens + 1 + self.num_patches
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: dict) -> MiniVLAConfig:
-        known = {field.name for field in fields(cls)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ValueError(f"unknown MiniVLAConfig field(s) {unknown}")
-        return cls(**data)

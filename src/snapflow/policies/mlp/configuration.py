@@ -4,10 +4,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from snapflow.policies.configuration import PolicyConfig
+
 
 @dataclass(frozen=True)
-class MLPPolicyConfig:
-    """A flat observation vector in, an action chunk of ``chunk_length`` x ``action_dim`` out."""
+class MLPPolicyConfig(PolicyConfig):
+    """A flat observation vector in, an action chunk of ``chunk_length`` x ``action_dim`` out.
+
+    On an environment the observation is the normalised state followed by a one-hot of the task's instruction
+    (:class:`snapflow.policies.mlp.MLPProcessor`), so ``observation_dim`` = state entries read + instructions.
+    """
 
     observation_dim: int
     action_dim: int
@@ -17,8 +23,6 @@ class MLPPolicyConfig:
     time_embedding_dim: int = 64
 
     def __post_init__(self) -> None:
-        for name in ("observation_dim", "action_dim", "chunk_length", "hidden_dim", "num_layers", "time_embedding_dim"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"MLPPolicyConfig.{name} must be at least 1, got {getattr(self, name)}")
+        super().__post_init__()
         if self.time_embedding_dim % 2:
             raise ValueError(f"MLPPolicyConfig.time_embedding_dim must be even, got {self.time_embedding_dim}")

@@ -30,6 +30,10 @@ class MLPFlowModel(nn.Module):
         layers.append(nn.Linear(width, action_size))
         self.velocity_mlp = nn.Sequential(*layers)
 
+    def prefix_parameters(self) -> list[nn.Parameter]:
+        """The observation encoder: the "prefix", frozen during distillation by default."""
+        return list(self.observation_encoder.parameters())
+
     def encode(self, observation: Tensor) -> Tensor:
         if observation.ndim != 2 or observation.shape[1] != self.config.observation_dim:
             raise ValueError(

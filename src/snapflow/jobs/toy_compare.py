@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from snapflow.evaluation.report import mean_std
-from snapflow.experiments.toy import ToyConfig
-from snapflow.io import atomic_write, write_json
+from snapflow.jobs.toy import ToyConfig
+from snapflow.reporting.files import atomic_write, write_json
+from snapflow.reporting.statistics import mean_std
 from snapflow.training.distill import TargetOption
 
 
@@ -27,7 +27,7 @@ def _job(config: ToyConfig, path: str) -> str:
     """Worker entry point: one toy run on one thread, written to ``path``."""
     import torch
 
-    from snapflow.experiments.toy import run_toy_experiment
+    from snapflow.jobs.toy import run_toy_experiment
 
     torch.set_num_threads(1)
     result = run_toy_experiment(config, progress=False)
@@ -109,7 +109,7 @@ def markdown_comparison(summary: dict[str, Any]) -> str:
 
 def plot_comparison(summary: dict[str, Any], path: Path) -> None:
     """Bars: 1-NFE distance per target (mean ± std over seeds), with the teacher's and the naive step's levels."""
-    from snapflow.evaluation.report import pyplot
+    from snapflow.reporting.figures import pyplot
 
     plt = pyplot()
     rows = summary["rows"]

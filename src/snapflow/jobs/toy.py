@@ -1,14 +1,12 @@
-"""A conditional problem with a known answer: 2-D Gaussian mixtures whose mode weights depend on a context.
+"""``snapflow toy``: the paper's story in miniature, on a conditional Gaussian mixture whose samples are exact.
 
-Exact samples are free, so every sampling mode can be scored by its energy distance to the data. The
-story is the paper's in miniature: train a flow-matching teacher, SnapFlow-distill it, then compare the
-10-step teacher, the naive 1-step teacher (which collapses onto the conditional mean) and SnapFlow 1-NFE.
+Train a flow-matching teacher, SnapFlow-distill it, then compare the 10-step teacher, the naive 1-step teacher
+(which collapses onto the conditional mean) and SnapFlow 1-NFE by their energy distance to the data.
 """
 
 from __future__ import annotations
 
 import copy
-import math
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -17,43 +15,17 @@ import torch
 from torch import Tensor
 from tqdm.auto import tqdm
 
+from snapflow.data.toy_mixture import ConditionalGaussianMixture
 from snapflow.evaluation.distances import energy_distance
 from snapflow.flow.solver import NAIVE_1, SNAPFLOW_1, TEACHER_10, SamplingMode, sample_actions
 from snapflow.flow.time_sampling import UniformTimeSampler
-from snapflow.evaluation.report import pyplot
-from snapflow.io import atomic_write
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
+from snapflow.objective.base import TwoBranchObjective
 from snapflow.objective.snapflow import SnapFlowObjective
-from snapflow.training.distill import DistillSettings
 from snapflow.policies.mlp import MLPFlowModel, MLPPolicyConfig
-
-
-class ConditionalGaussianMixture:
-    """p(a | c) = sum_k softmax(gain * W c)_k N(mu_k, std^2 I), modes evenly spaced on a circle.
-
-    Contexts are c ~ N(0, I). ``W`` is fixed by ``seed``, so the distribution is the same on every machine.
-    """
-
-    def __init__(
-        self, num_modes: int = 6, context_dim: int = 4, radius: float = 2.0, mode_std: float = 0.12,
-        weight_gain: float = 2.0, seed: int = 0,
-    ) -> None:
-        angles = torch.arange(num_modes, dtype=torch.float32) * (2 * math.pi / num_modes)
-        self.means = radius * torch.stack([angles.cos(), angles.sin()], dim=1)
-        self.mode_std = mode_std
-        self.context_dim = context_dim
-        self.logit_map = weight_gain * torch.randn(num_modes, context_dim, generator=torch.Generator().manual_seed(seed))
-
-    def mode_weights(self, context: Tensor) -> Tensor:
-        return torch.softmax(context @ self.logit_map.T, dim=1)
-
-    def sample_contexts(self, n: int, generator: torch.Generator | None = None) -> Tensor:
-        return torch.randn(n, self.context_dim, generator=generator)
-
-    def sample(self, context: Tensor, generator: torch.Generator | None = None) -> Tensor:
-        """One exact sample a ~ p(a | c) per context row, shape (B, 2)."""
-        modes = torch.multinomial(self.mode_weights(context), 1, generator=generator).squeeze(1)
-        return self.means[modes] + self.mode_std * torch.randn(len(modes), 2, generator=generator)
+from snapflow.reporting.figures import pyplot, save_figure
+from snapflow.training.distill import DistillSettings, Method, Target
+from snapflow.training.trainer import ObjectiveModule, TrainConfig, train_step
 
 
 @dataclass(frozen=True)
@@ -70,8 +42,8 @@ class ToyConfig:
     distill_lr: float = 1e-3
     alpha: float = 0.5
     consistency_weight: float = 0.1
-    method: str = "snapflow"  # or a one-step baseline, see snapflow.training.distill.METHODS
-    target: str = "euler"  # SnapFlow's target and its steps (a list: a schedule), see DistillSettings
+    method: Method = "snapflow"  # or a one-step baseline
+    target: Target = "euler"  # SnapFlow's target and its steps (a list: a schedule), see DistillSettings
     target_steps: int | tuple[int, ...] = 2
     hidden_dim: int = 256
     eval_contexts: int = 12
@@ -97,23 +69,30 @@ class ToyResult:
 MODES: tuple[SamplingMode, ...] = (TEACHER_10, NAIVE_1, SNAPFLOW_1)
 
 
-def _fit(policy, objective, mixture, steps, lr, batch_size, generator, description, progress) -> float:
-    """Adam with a cosine-decayed learning rate on fresh exact samples at every step; returns seconds per step."""
-    optimizer = torch.optim.AdamW(policy.parameters(), lr=lr, weight_decay=0.0)
-    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, steps)
-    bar = tqdm(range(steps), desc=description, disable=not progress, leave=False)
+def _fit(
+    policy: SnapFlowPolicy, objective: TwoBranchObjective, mixture: ConditionalGaussianMixture, config: TrainConfig,
+    generator: torch.Generator, description: str, progress: bool,
+) -> float:
+    """The trainer's step (AdamW, cosine-decayed learning rate) on fresh exact samples at every step; returns seconds
+    per step."""
+    module = ObjectiveModule(policy, objective)
+    optimizer = torch.optim.AdamW(policy.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
+    bar = tqdm(range(config.steps), desc=description, disable=not progress, leave=False)
     started = time.perf_counter()
     for step in bar:
-        context = mixture.sample_contexts(batch_size, generator)
+        context = mixture.sample_contexts(config.batch_size, generator)
         actions = mixture.sample(context, generator)[:, None, :]
-        output = objective(policy, context, actions, generator=generator, progress=step / steps)
-        optimizer.zero_grad(set_to_none=True)
-        output.loss.backward()
-        optimizer.step()
-        schedule.step()
+        losses = train_step(module, optimizer, context, actions, learning_rate=config.learning_rate_at(step), grad_clip=config.grad_clip,
+                            generator=generator, progress=step / config.steps)
         if step % 50 == 0:
-            bar.set_postfix(fm=f"{output.flow_matching_loss.item():.3f}", sc=f"{output.consistency_loss.item():.4f}", refresh=False)
-    return (time.perf_counter() - started) / steps
+            bar.set_postfix(fm=f"{losses[1].item():.3f}", sc=f"{losses[2].item():.4f}", refresh=False)
+    return (time.perf_counter() - started) / config.steps
+
+
+def _schedule(steps: int, learning_rate: float, batch_size: int) -> TrainConfig:
+    """The toy's optimisation: cosine decay to zero from the first step, no warm-up, no gradient clipping."""
+    return TrainConfig(steps=steps, batch_size=batch_size, learning_rate=learning_rate, warmup_steps=0, min_learning_rate_ratio=0.0,
+                       grad_clip=0.0)
 
 
 def run_toy_experiment(config: ToyConfig = ToyConfig(), progress: bool = True) -> ToyResult:
@@ -125,13 +104,13 @@ def run_toy_experiment(config: ToyConfig = ToyConfig(), progress: bool = True) -
     model = MLPFlowModel(MLPPolicyConfig(observation_dim=mixture.context_dim, action_dim=2, hidden_dim=config.hidden_dim))
     teacher = SnapFlowPolicy(model, target_time=False)
     time_sampler = UniformTimeSampler()
-    _fit(teacher, SnapFlowObjective(alpha=1.0, time_sampler=time_sampler), mixture, config.teacher_steps,
-         config.teacher_lr, config.batch_size, generator, "teacher (flow matching)", progress)
+    _fit(teacher, SnapFlowObjective(alpha=1.0, time_sampler=time_sampler), mixture, _schedule(config.teacher_steps, config.teacher_lr, config.batch_size),
+         generator, "teacher (flow matching)", progress)
 
     student = SnapFlowPolicy(copy.deepcopy(model), target_time=True)
     settings = DistillSettings(config.alpha, config.consistency_weight, method=config.method, target=config.target, target_steps=config.target_steps)
-    step_s = _fit(student, settings.objective(time_sampler), mixture, config.distill_steps, config.distill_lr, config.batch_size, generator,
-                  f"{config.method} distillation", progress)
+    step_s = _fit(student, settings.objective(time_sampler), mixture, _schedule(config.distill_steps, config.distill_lr, config.batch_size),
+                  generator, f"{config.method} distillation", progress)
 
     eval_generator = torch.Generator().manual_seed(config.seed + 1)
     contexts = mixture.sample_contexts(config.eval_contexts, eval_generator)
@@ -177,8 +156,7 @@ def plot_toy_result(result: ToyResult, path: Path, num_contexts: int = 3) -> Non
         axes[row][0].set_ylabel(f"context {row}")
     figure.suptitle("Conditional Gaussian mixture: samples per mode (ED = mean energy distance to data)")
     figure.tight_layout()
-    atomic_write(path, lambda temporary: figure.savefig(temporary, dpi=110, format="png"))
-    plt.close(figure)
+    save_figure(figure, path)
 
 
-__all__ = ["ConditionalGaussianMixture", "ToyConfig", "ToyResult", "run_toy_experiment", "plot_toy_result"]
+__all__ = ["ToyConfig", "ToyResult", "run_toy_experiment", "plot_toy_result"]

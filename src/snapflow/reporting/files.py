@@ -33,7 +33,12 @@ def atomic_write(path: str | Path, write: Callable[[Path], None]) -> Path:
 
 def write_json(path: str | Path, data: Any) -> Path:
     """Atomically write ``data`` as indented JSON."""
-    return atomic_write(path, lambda temporary: temporary.write_text(json.dumps(data, indent=2) + "\n"))
+    return write_text(path, json.dumps(data, indent=2) + "\n")
 
 
-__all__ = ["atomic_write", "write_json"]
+def write_text(path: str | Path, text: str) -> Path:
+    """Atomically write ``text``."""
+    return atomic_write(path, lambda temporary: temporary.write_text(text))
+
+
+__all__ = ["atomic_write", "write_json", "write_text"]

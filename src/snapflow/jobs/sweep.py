@@ -36,10 +36,10 @@ from typing import Any
 import numpy as np
 
 from snapflow.data.demonstrations import META_FILE
-from snapflow.envs.metaworld import MT10_TASKS, check_tasks
-from snapflow.evaluation.report import mean_std
+from snapflow.envs.metaworld import MT10_TASKS
 from snapflow.flow.solver import SamplingMode
-from snapflow.io import atomic_write, write_json
+from snapflow.reporting.files import atomic_write, write_json
+from snapflow.reporting.statistics import mean_std
 from snapflow.policies.minivla import MiniVLAConfig
 from snapflow.training.distill import DistillSettings
 from snapflow.training.trainer import HISTORY, TrainConfig
@@ -133,7 +133,7 @@ def _seeds(section: str, value: Any) -> tuple[int, ...]:
 
 def load_sweep(path: str | Path) -> SweepConfig:
     """Read and check a sweep config; every mistake is a ValueError naming its section and key."""
-    from snapflow.experiments.metaworld import PRESETS
+    from snapflow.jobs.demo import PRESETS
 
     path = Path(path)
     if not path.is_file():
@@ -240,14 +240,14 @@ def eval_groups(config: SweepConfig) -> list[EvalGroup]:
 
 
 def _collect_job(config: SweepConfig) -> None:
-    from snapflow.experiments.metaworld import collect
+    from snapflow.jobs.demo import collect
 
     data = config.data
     collect(list(data.tasks), data.episodes_per_task, config.data_dir, data.image_size, progress=False, via_points=data.via_points)
 
 
 def _train_job(config: SweepConfig, run_name: str, seed: int) -> None:
-    from snapflow.experiments.metaworld import PRESETS, distill, train_teacher
+    from snapflow.jobs.demo import PRESETS, distill, train_teacher
 
     run = config.runs[run_name]
     train_config = replace(run.train, seed=seed)
@@ -258,7 +258,7 @@ def _train_job(config: SweepConfig, run_name: str, seed: int) -> None:
 
 
 def _eval_job(config: SweepConfig, group: EvalGroup) -> None:
-    from snapflow.experiments.metaworld import evaluate
+    from snapflow.jobs.demo import evaluate
     from snapflow.training.checkpoint import load_policy
 
     loaded = load_policy(config.run_dir(group.run, group.seed))
@@ -438,7 +438,7 @@ def markdown_per_task(config: SweepConfig, result: dict[str, Any]) -> str:
 
 def plot_table(result: dict[str, Any], path: Path) -> None:
     """Success (mean ± std over seeds): lines over ``x`` when the rows carry one, bars otherwise."""
-    from snapflow.evaluation.report import pyplot
+    from snapflow.reporting.figures import pyplot
 
     plt = pyplot()
     rows = result["rows"]

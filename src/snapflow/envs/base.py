@@ -1,0 +1,99 @@
+"""The environment interface: a benchmark of language-conditioned tasks, each with variations, a scripted expert,
+and episodes that end at success or a step limit.
+
+Collection (:mod:`snapflow.data.collect`) and closed-loop evaluation (:mod:`snapflow.evaluation.closed_loop`) use
+nothing else, so a new simulator is one module implementing :class:`Benchmark` and one line in
+:mod:`snapflow.envs.factory`.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+SPLITS = ("train", "eval")
+
+
+@dataclass(frozen=True)
+class Observation:
+    state: np.ndarray  # (state_dim,) float32
+    instruction: str
+    image: np.ndarray | None = None  # (H, W, 3) uint8, only when rendering was asked for
+
+
+class Environment(ABC):
+    """One task of a benchmark; ``reset(variation)`` starts an episode on one of the split's variations."""
+
+    task: str
+    instruction: str
+    steps: int  # actions taken in the current episode
+
+    @abstractmethod
+    def reset(self, variation: int, render: bool = True) -> Observation:
+        """Start an episode; ``render`` asks for the camera image (when the environment has a camera)."""
+
+    @abstractmethod
+    def step(self, action: np.ndarray, render: bool = False) -> tuple[Observation, bool, bool]:
+        """Apply one action; returns (observation, success, done). Render only when asked (re-planning steps)."""
+
+    @abstractmethod
+    def close(self) -> None: ...
+
+
+class Expert(Protocol):
+    """A scripted demonstrator: ``reset`` at each episode's first observation, then ``act`` at every step."""
+
+    def reset(self, observation: Observation) -> None: ...
+
+    def act(self, observation: Observation) -> np.ndarray: ...
+
+
+class Benchmark(ABC):
+    """A suite of tasks with training and evaluation variations (no evaluation variation is shown in training)."""
+
+    name: str  # its name in the registry (snapflow.envs.factory)
+    title: str  # for people: report titles
+    state_dim: int
+    action_dim: int
+    max_episode_steps: int
+
+    @property
+    @abstractmethod
+    def tasks(self) -> tuple[str, ...]:
+        """Every task of the benchmark, in its canonical order."""
+
+    @abstractmethod
+    def instruction(self, task: str) -> str:
+        """The natural-language instruction of ``task``."""
+
+    @abstractmethod
+    def num_variations(self, split: str) -> int:
+        """How many variations each task has in ``split`` (one of :data:`SPLITS`)."""
+
+    @abstractmethod
+    def make_env(self, task: str, split: str, image_size: int | None = None) -> Environment:
+        """``task`` on ``split``'s variations; ``image_size``: also render a square camera image of that side."""
+
+    @abstractmethod
+    def make_expert(self, task: str) -> Expert:
+        """The scripted expert of ``task``."""
+
+    def check_tasks(self, tasks: Sequence[str]) -> list[str]:
+        """``tasks`` if all are tasks of this benchmark, else a ValueError listing the valid ones."""
+        unknown = [task for task in tasks if task not in self.tasks]
+        if unknown:
+            raise ValueError(f"unknown {self.name} task(s) {unknown}; it has {list(self.tasks)}")
+        if not tasks:
+            raise ValueError("no task given")
+        return list(tasks)
+
+    def check_split(self, split: str) -> None:
+        if split not in SPLITS:
+            raise ValueError(f"split must be one of {list(SPLITS)}, got {split!r}")
+
+
+__all__ = ["SPLITS", "Observation", "Environment", "Expert", "Benchmark"]

@@ -1,0 +1,24 @@
+"""The registry of benchmarks by name; the CLI's ``--env`` choices and the demonstrations' ``env`` field read it."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from snapflow.envs.base import Benchmark
+from snapflow.envs.metaworld import MetaWorld
+
+BENCHMARKS: dict[str, Callable[[], Benchmark]] = {
+    "metaworld": MetaWorld,
+    "metaworld-via-points": lambda: MetaWorld(via_points=True),
+}
+DEFAULT_BENCHMARK = "metaworld"
+
+
+def make_benchmark(name: str = DEFAULT_BENCHMARK) -> Benchmark:
+    """The benchmark registered as ``name``, or a ValueError listing the known ones."""
+    if name not in BENCHMARKS:
+        raise ValueError(f"unknown environment {name!r}; choose one of {', '.join(BENCHMARKS)}")
+    return BENCHMARKS[name]()
+
+
+__all__ = ["BENCHMARKS", "DEFAULT_BENCHMARK", "make_benchmark"]

@@ -1,0 +1,65 @@
+"""Evaluate built-in checkpoints: closed-loop success per task, offline action error on held-out demonstrations,
+and batch-1 latency, per (label, policy, sampling mode), into one :class:`EvaluationReport`."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from snapflow.benchmark.latency import LatencyRow, add_speedups, measure_latency
+from snapflow.benchmark.subjects import builtin_subject
+from snapflow.data.chunks import ChunkData
+from snapflow.data.demonstrations import Demonstrations
+from snapflow.envs.base import Benchmark
+from snapflow.evaluation.closed_loop import ClosedLoopEvaluator
+from snapflow.evaluation.offline import offline_metrics
+from snapflow.evaluation.results import EvaluationReport, EvaluationRow, success_by_task
+from snapflow.flow.solver import SamplingMode
+from snapflow.policies.checkpoint import LoadedPolicy
+
+Run = tuple[str, LoadedPolicy, SamplingMode]  # (label, policy, sampling mode)
+N_ACT = 4  # actions executed per predicted chunk before re-planning
+OFFLINE_SAMPLES = 500  # held-out chunks scored offline, as the paper's Table 2
+
+
+def evaluate(
+    runs: list[Run], benchmark: Benchmark, tasks: list[str], episodes_per_task: int, n_act: int = N_ACT, data: str | Path | None = None,
+    offline_samples: int = OFFLINE_SAMPLES, seed: int = 0, progress: bool = True, timing: bool = True,
+) -> EvaluationReport:
+    """Closed-loop success, offline metrics (when ``data`` is given) and, with ``timing``, batch-1 latency for each
+    (label, policy, mode); latency speedups are relative to the first entry."""
+    evaluator = ClosedLoopEvaluator(benchmark, tasks, episodes_per_task, runs[0][1].processor.image_size)
+    demonstrations = Demonstrations.load(data) if data is not None else None
+    held_out: dict[Path, ChunkData | None] = {}  # per checkpoint: its modes share one set of held-out chunks
+    report = EvaluationReport(benchmark.name, list(tasks), episodes_per_task, n_act, {})
+    try:
+        for label, loaded, mode in runs:
+            started = time.perf_counter()
+            episodes = evaluator.run(loaded.policy, loaded.processor, mode, n_act, seed, progress)
+            row = EvaluationRow(str(loaded.path), mode.name, mode.num_steps, success_by_task(episodes), time.perf_counter() - started)
+            if demonstrations is not None:
+                if loaded.path not in held_out:
+                    _, val_episodes = demonstrations.split(loaded.val_fraction)
+                    held_out[loaded.path] = ChunkData(demonstrations, val_episodes, loaded.processor) if val_episodes else None
+                if held_out[loaded.path] is not None:
+                    row.offline = offline_metrics(loaded.policy, held_out[loaded.path], mode, offline_samples, seed)
+            report.rows[label] = row
+    finally:
+        evaluator.close()
+    if timing:
+        report.latency = checkpoint_latency(runs)
+    return report
+
+
+def checkpoint_latency(runs: list[Run], warmup: int = 10, repeats: int = 50) -> dict[str, LatencyRow]:
+    """Batch-1 timing of each (label, policy, mode), each row with its own policy's prefix; speedups over the first."""
+    rows: dict[str, LatencyRow] = {}
+    for label, loaded, mode in runs:
+        subject = builtin_subject(loaded, label)
+        measured = measure_latency(subject.policy, subject.observation, subject.noise, [mode], warmup, repeats)
+        rows[label] = measured.modes[mode.name]
+        rows[label].prefix = measured.prefix
+    return add_speedups(rows)
+
+
+__all__ = ["N_ACT", "OFFLINE_SAMPLES", "Run", "evaluate", "checkpoint_latency"]

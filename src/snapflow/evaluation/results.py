@@ -1,0 +1,105 @@
+"""Typed evaluation results; ``to_dict()`` gives the JSON of ``report.json``."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from snapflow.benchmark.latency import LatencyRow
+
+
+@dataclass(frozen=True)
+class EpisodeResult:
+    task: str
+    variation: int
+    success: bool
+    steps: int
+
+
+@dataclass(frozen=True)
+class SuccessCount:
+    successes: int
+    episodes: int
+    success_rate: float
+
+
+def success_by_task(results: list[EpisodeResult]) -> dict[str, SuccessCount]:
+    """Per task: successes, episodes and rate; plus ``mean``: all episodes, and the mean of the tasks' rates."""
+    counts: dict[str, list[int]] = {}
+    for result in results:
+        entry = counts.setdefault(result.task, [0, 0])
+        entry[0] += int(result.success)
+        entry[1] += 1
+    table = {task: SuccessCount(successes, episodes, successes / episodes) for task, (successes, episodes) in counts.items()}
+    rates = [entry.success_rate for entry in table.values()]
+    table["mean"] = SuccessCount(sum(e.successes for e in table.values()), sum(e.episodes for e in table.values()), float(np.mean(rates)))
+    return table
+
+
+@dataclass(frozen=True)
+class OfflineMetrics:
+    """Per-sample MSE of predicted chunks (normalised actions) summarised, and the mean cosine similarity."""
+
+    samples: int
+    mse: float
+    mse_median: float
+    mse_std: float
+    mse_p90: float
+    mse_p95: float
+    cosine: float
+
+
+@dataclass
+class EvaluationRow:
+    """One (policy, sampling mode): closed-loop success per task and, with held-out data, offline action error."""
+
+    policy: str
+    mode: str
+    nfe: int
+    success: dict[str, SuccessCount]
+    closed_loop_s: float
+    offline: OfflineMetrics | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        row = asdict(self)
+        if self.offline is None:
+            del row["offline"]
+        return row
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> EvaluationRow:
+        return cls(data["policy"], data["mode"], data["nfe"], {task: SuccessCount(**entry) for task, entry in data["success"].items()},
+                   data["closed_loop_s"], OfflineMetrics(**data["offline"]) if "offline" in data else None)
+
+
+@dataclass
+class EvaluationReport:
+    """Rows by label on one benchmark's tasks; ``latency`` by label; ``timings`` and ``preset`` from the demo."""
+
+    env: str
+    tasks: list[str]
+    episodes_per_task: int
+    n_act: int
+    rows: dict[str, EvaluationRow]
+    latency: dict[str, LatencyRow] = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
+    preset: dict[str, Any] = field(default_factory=dict)
+    machine: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        report: dict[str, Any] = {"env": self.env, "tasks": self.tasks, "episodes_per_task": self.episodes_per_task, "n_act": self.n_act,
+                                  "rows": {label: row.to_dict() for label, row in self.rows.items()}}
+        if self.latency:
+            report["latency"] = {label: row.to_dict() for label, row in self.latency.items()}
+        if self.timings:
+            report["timings"] = self.timings
+        if self.preset:
+            report["preset"] = self.preset
+        if self.machine:
+            report["machine"] = self.machine
+        return report
+
+
+__all__ = ["EpisodeResult", "SuccessCount", "success_by_task", "OfflineMetrics", "EvaluationRow", "EvaluationReport"]

@@ -1,0 +1,142 @@
+"""A built-in policy on disk: ``policy.safetensors`` (every tensor, no pickle) + ``policy.json`` (the registered
+policy's name, configuration, processor statistics and whether phi_s is attached).
+
+A training run keeps such checkpoints under ``checkpoints/step_*`` and names the newest in ``latest.json``
+(see :mod:`snapflow.training.checkpoint`); anything that loads a policy accepts either folder.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
+from torch import nn
+
+from snapflow.nn.snapflow_policy import SnapFlowPolicy
+from snapflow.policies.factory import make_model, make_processor, policy_type, policy_type_of
+from snapflow.policies.processor import NormalizationStats, Processor
+from snapflow.reporting.files import write_json
+
+POLICY_WEIGHTS, POLICY_CONFIG = "policy.safetensors", "policy.json"
+LATEST = "latest.json"
+FORMAT = "snapflow-policy"
+VERSION = 1
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that is missing, corrupt, or does not match what it is loaded into."""
+
+
+@dataclass
+class LoadedPolicy:
+    policy: SnapFlowPolicy
+    processor: Processor
+    metadata: dict[str, Any]
+    path: Path
+
+    @property
+    def val_fraction(self) -> float:
+        """Share of each task's demonstration episodes the run held out (0.1 where the metadata predates it)."""
+        return self.metadata.get("data", {}).get("val_fraction", 0.1)
+
+
+def policy_metadata(policy: SnapFlowPolicy, processor: Processor, **extra: Any) -> dict[str, Any]:
+    """What ``policy.json`` records of a built-in policy, plus ``extra`` (stage, data, settings)."""
+    return {
+        "format": FORMAT, "version": VERSION, "policy": policy_type_of(processor.config).name,
+        "config": processor.config.to_dict(), "target_time": policy.target_time_embedding is not None,
+        "stats": vars(processor.stats), "instructions": list(processor.instructions), **extra,
+    }
+
+
+def read_json(path: Path) -> dict[str, Any]:
+    if not path.is_file():
+        raise CheckpointError(f"{path} not found")
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise CheckpointError(f"{path} is corrupt (not JSON: {error})") from None
+
+
+def read_tensors(path: Path) -> dict[str, torch.Tensor]:
+    if not path.is_file():
+        raise CheckpointError(f"{path} not found")
+    try:
+        return load_file(path)
+    except (SafetensorError, OSError, ValueError, RuntimeError) as error:
+        raise CheckpointError(f"{path} is corrupt or not a safetensors file ({error})") from None
+
+
+def load_state_strict(module: nn.Module, tensors: dict[str, torch.Tensor], source: Path) -> None:
+    """Load weights, naming every missing, unexpected or differently shaped tensor."""
+    expected = module.state_dict()
+    missing = sorted(set(expected) - set(tensors))
+    unexpected = sorted(set(tensors) - set(expected))
+    shapes = [f"{k}: checkpoint {tuple(tensors[k].shape)} vs model {tuple(v.shape)}" for k, v in expected.items() if k in tensors and tensors[k].shape != v.shape]
+    if missing or unexpected or shapes:
+        details = "; ".join(filter(None, [
+            f"missing {missing[:5]}{'...' if len(missing) > 5 else ''}" if missing else "",
+            f"unexpected {unexpected[:5]}{'...' if len(unexpected) > 5 else ''}" if unexpected else "",
+            f"shape mismatch {shapes[:5]}" if shapes else "",
+        ]))
+        raise CheckpointError(f"{source} does not match the policy: {details}")
+    module.load_state_dict(tensors, strict=True)
+
+
+def write_policy(directory: Path, policy: nn.Module, metadata: dict[str, Any]) -> None:
+    """``policy.safetensors`` and ``policy.json`` into ``directory`` (callers make the folder appear atomically)."""
+    save_file({key: value.detach().cpu().contiguous() for key, value in policy.state_dict().items()}, directory / POLICY_WEIGHTS)
+    write_json(directory / POLICY_CONFIG, metadata)
+
+
+def resolve_checkpoint(path: str | Path) -> Path:
+    """A checkpoint directory, or a run directory whose ``latest.json`` names one."""
+    path = Path(path)
+    if (path / POLICY_CONFIG).is_file():
+        return path
+    if (path / LATEST).is_file():
+        return path / read_json(path / LATEST)["checkpoint"]
+    if not path.exists():
+        raise CheckpointError(f"{path} does not exist")
+    raise CheckpointError(f"{path} holds neither a checkpoint ({POLICY_CONFIG}) nor a run ({LATEST})")
+
+
+def load_policy(path: str | Path, target_time: bool | None = None) -> LoadedPolicy:
+    """Build the registered policy a checkpoint describes and load its weights.
+
+    ``target_time=True`` on a checkpoint saved without phi_s (a teacher) adds a fresh, zero-initialised
+    one: that is how distillation starts from the teacher.
+    """
+    directory = resolve_checkpoint(path)
+    metadata = read_json(directory / POLICY_CONFIG)
+    if metadata.get("format") != FORMAT:
+        raise CheckpointError(f"{directory / POLICY_CONFIG} is not a snapflow policy (format {metadata.get('format')!r})")
+    for field in ("policy", "config", "stats", "target_time"):
+        if field not in metadata:
+            raise CheckpointError(f"{directory / POLICY_CONFIG} lacks the field {field!r}")
+    try:
+        entry = policy_type(metadata["policy"])
+    except ValueError as error:
+        raise CheckpointError(f"{directory / POLICY_CONFIG}: {error}") from None
+    try:
+        config = entry.config_class.from_dict(metadata["config"])
+        processor = make_processor(config, NormalizationStats(**metadata["stats"]), metadata.get("instructions", ()))
+    except (TypeError, ValueError) as error:
+        raise CheckpointError(f"{directory / POLICY_CONFIG}: invalid field: {error}") from None
+    saved_target_time = bool(metadata["target_time"])
+    policy = SnapFlowPolicy(make_model(config), target_time=saved_target_time)
+    load_state_strict(policy, read_tensors(directory / POLICY_WEIGHTS), directory / POLICY_WEIGHTS)
+    if target_time and not saved_target_time:
+        policy = SnapFlowPolicy(policy.model, target_time=True)
+    elif target_time is False and saved_target_time:
+        raise CheckpointError(f"{directory} is a SnapFlow student; it cannot be loaded without its target-time embedding")
+    return LoadedPolicy(policy, processor, metadata, directory)
+
+
+__all__ = ["CheckpointError", "LoadedPolicy", "LATEST", "POLICY_CONFIG", "POLICY_WEIGHTS", "load_policy", "load_state_strict",
+           "policy_metadata", "read_json", "read_tensors", "resolve_checkpoint", "write_policy"]

@@ -1,0 +1,41 @@
+"""What every built-in policy configuration shares: typed, validated fields and a JSON round trip."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+from typing import Any, TypeVar
+
+Config = TypeVar("Config", bound="PolicyConfig")
+
+
+@dataclass(frozen=True)
+class PolicyConfig:
+    """Base of the built-in policies' frozen dataclass configurations.
+
+    Every field is an ``int`` (at least 1) or a ``bool``; a flag given for a size (or a size for a flag) is as wrong
+    as a string, so ``bool`` is not accepted where an ``int`` is expected. Subclasses add their own checks in
+    ``__post_init__`` after calling ``super().__post_init__()``. Each has ``chunk_length`` and ``action_dim`` fields.
+    """
+
+    def __post_init__(self) -> None:
+        name = type(self).__name__
+        for field in fields(self):
+            value = getattr(self, field.name)
+            expected = {"int": int, "bool": bool}[field.type]
+            if not isinstance(value, expected) or (expected is int and isinstance(value, bool)):
+                raise ValueError(f"{name}.{field.name} must be {field.type}, got {value!r}")
+            if expected is int and value < 1:
+                raise ValueError(f"{name}.{field.name} must be at least 1, got {value}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls: type[Config], data: dict[str, Any]) -> Config:
+        unknown = sorted(set(data) - {field.name for field in fields(cls)})
+        if unknown:
+            raise ValueError(f"unknown {cls.__name__} field(s) {unknown}")
+        return cls(**data)
+
+
+__all__ = ["PolicyConfig"]
