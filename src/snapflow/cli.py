@@ -19,6 +19,7 @@ from snapflow.jobs.toy import ToyConfig
 from snapflow.objective.snapflow import TEACHER_VELOCITIES
 from snapflow.policies.factory import POLICIES
 from snapflow.reporting.files import write_json, write_text
+from snapflow.reporting.tables import markdown_table
 from snapflow.training.distill import METHODS, TARGETS, DistillSettings, TargetOption, parse_target_steps
 from snapflow.training.recipes import STUDENT_TRAINING, TEACHER_TRAINING, VAL_FRACTION
 from snapflow.training.trainer import TrainConfig
@@ -50,11 +51,8 @@ def _toy(args: argparse.Namespace) -> int:
     rows = [("teacher 10-NFE", "teacher-10", 10), ("naive 1-NFE", "naive-1", 1), (student, "snapflow-1", 1)]
     print(f"\nConditional Gaussian mixture, seed {config.seed}: {config.eval_contexts} contexts x "
           f"{config.samples_per_context} samples, energy distance to exact samples (lower is better)\n")
-    width = max(len(label) for label, _, _ in rows)
-    print(f"| {'sampler':<{width}} | NFE | energy distance | / naive 1-NFE |")
-    print(f"|{'-' * (width + 2)}|-----|-----------------|---------------|")
-    for label, key, nfe in rows:
-        print(f"| {label:<{width}} | {nfe:>3} | {result.distances[key]:>15.4f} | {result.distances[key] / naive:>13.3f} |")
+    print(markdown_table(["sampler", "NFE", "energy distance", "/ naive 1-NFE"],
+                         [[label, nfe, f"{result.distances[key]:.4f}", f"{result.distances[key] / naive:.3f}"] for label, key, nfe in rows]))
     print(f"\ntrained and evaluated in {elapsed:.1f} s ({1000 * result.distill_step_s:.1f} ms per distillation step)")
 
     output = Path(args.output_dir)
@@ -114,11 +112,11 @@ def _distill(args: argparse.Namespace) -> int:
     if not (built_in or lerobot):
         raise ValueError("give either --teacher and --data (a built-in policy) or --policy and --dataset (LeRobot)")
     if lerobot:
-        from snapflow.training.lerobot import EXPORT_DIRECTORY, PAPER_TRAINING, distill_lerobot
+        from snapflow.training.lerobot import EXPORT_DIRECTORY, distill_lerobot, paper_training
 
         local = Path(args.dataset).is_dir()  # a dataset root on disk, or else a repo id LeRobot fetches and caches
         repo_id = (args.repo_id or f"local/{Path(args.dataset).name}") if local else args.dataset
-        state = distill_lerobot(args.policy, args.dataset if local else None, repo_id, args.output, _train_config(args, PAPER_TRAINING), settings,
+        state = distill_lerobot(args.policy, args.dataset if local else None, repo_id, args.output, _train_config(args, paper_training()), settings,
                                 args.resume, not args.no_progress)
         print(f"SnapFlow student trained to step {state['step']}; LeRobot policy in {Path(args.output) / EXPORT_DIRECTORY}")
         return 0

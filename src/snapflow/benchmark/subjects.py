@@ -40,7 +40,7 @@ def _parameter_count(module: nn.Module) -> int:
     return sum(parameter.numel() for parameter in module.parameters())
 
 
-def builtin_subject(loaded: LoadedPolicy, name: str, device: torch.device = torch.device("cpu"), dtype: torch.dtype = torch.float32) -> BenchSubject:
+def builtin_subject(loaded: LoadedPolicy, name: str, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32) -> BenchSubject:
     """A built-in policy with a batch-1 observation made by its own processor (a zero state, the first instruction it
     knows, a black image where it reads one) and fixed noise: the values do not change the timing."""
     processor = loaded.processor

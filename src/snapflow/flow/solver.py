@@ -8,8 +8,9 @@ is a single jump from t = 1 to s = 0. Naive 1-NFE is the teacher run with one st
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import torch
 from torch import Tensor

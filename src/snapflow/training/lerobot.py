@@ -16,11 +16,12 @@ from snapflow.flow.time_sampling import BetaTimeSampler
 from snapflow.training.distill import DistillSettings
 from snapflow.training.trainer import TrainConfig, train
 
-# The paper's settings: AdamW at 2.5e-5 after 500 warm-up steps, batch 4, ~30k steps, bf16 where available.
-PAPER_TRAINING = TrainConfig(
-    steps=30000, batch_size=4, learning_rate=2.5e-5, warmup_steps=500, min_learning_rate_ratio=1.0, checkpoint_every=1000,
-    mixed_precision="bf16" if torch.cuda.is_available() and torch.cuda.is_bf16_supported() else "no",
-)
+
+def paper_training() -> TrainConfig:
+    """The paper's settings: AdamW at 2.5e-5 after 500 warm-up steps, batch 4, ~30k steps, bf16 where the GPU has it
+    (asked of the machine when called, not at import)."""
+    return TrainConfig(steps=30000, batch_size=4, learning_rate=2.5e-5, warmup_steps=500, min_learning_rate_ratio=1.0, checkpoint_every=1000,
+                       mixed_precision="bf16" if torch.cuda.is_available() and torch.cuda.is_bf16_supported() else "no")
 EXPORT_DIRECTORY = "lerobot_policy"
 PREPROCESSOR_FILE = "policy_preprocessor.json"
 
@@ -70,7 +71,7 @@ def check_finite(dataset: Any, keys: list[str]) -> None:
 
 
 def distill_lerobot(
-    policy_path: str, dataset_root: str | Path | None, repo_id: str, output: str | Path, config: TrainConfig = PAPER_TRAINING,
+    policy_path: str, dataset_root: str | Path | None, repo_id: str, output: str | Path, config: TrainConfig | None = None,
     settings: DistillSettings | None = None, resume: bool = False, progress: bool = True,
     preprocessor_overrides: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
@@ -80,6 +81,7 @@ def distill_lerobot(
     from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
 
     settings = settings or DistillSettings()
+    config = config or paper_training()
     if not settings.freeze_prefix:
         raise ValueError("LeRobot policies are distilled with their VLM frozen, as in the paper")
     if settings.method != "snapflow" or not settings.target_time:
@@ -105,4 +107,4 @@ def distill_lerobot(
     return state
 
 
-__all__ = ["PAPER_TRAINING", "EXPORT_DIRECTORY", "check_dataset_features", "check_finite", "policy_processors", "distill_lerobot"]
+__all__ = ["paper_training", "EXPORT_DIRECTORY", "check_dataset_features", "check_finite", "policy_processors", "distill_lerobot"]

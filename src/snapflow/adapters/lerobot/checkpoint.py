@@ -9,8 +9,8 @@ from pathlib import Path
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
 from snapflow.adapters.lerobot.registry import adapter_class
 from snapflow.flow.solver import SNAPFLOW_1, SamplingMode
-from snapflow.reporting.files import write_json
 from snapflow.policies.checkpoint import CheckpointError, load_state_strict, read_tensors
+from snapflow.reporting.files import write_json
 
 SNAPFLOW_MARKER = "snapflow.json"
 

@@ -1,0 +1,41 @@
+"""Static checks of the source tree, run by the README's test command: the layer contract (import-linter, declared in
+pyproject.toml) and ruff."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+
+
+def _run(command: list[str], **environment: str) -> subprocess.CompletedProcess:
+    return subprocess.run(command, cwd=ROOT, capture_output=True, text=True, env={**os.environ, **environment})
+
+
+def test_every_package_imports_only_the_layers_below_it():
+    result = _run([str(BIN / "lint-imports")])
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "1 kept, 0 broken" in result.stdout
+
+
+def test_the_layer_contract_catches_a_back_import(tmp_path):
+    """A copy of the package whose flow-matching math imports the demo job breaks the contract, naming the import."""
+    shutil.copytree(ROOT / "src" / "snapflow", tmp_path / "snapflow")
+    with open(tmp_path / "snapflow" / "flow" / "path.py", "a") as path_module:
+        path_module.write("\nimport snapflow.jobs.demo  # a deliberate back-import\n")
+    result = _run([str(BIN / "lint-imports")], PYTHONPATH=str(tmp_path))
+    assert result.returncode == 1
+    assert "snapflow.flow is not allowed to import snapflow.jobs" in result.stdout
+    assert "snapflow.flow.path -> snapflow.jobs.demo" in result.stdout
+
+
+def test_ruff_finds_nothing_to_fix_or_reformat():
+    check = _run([str(BIN / "ruff"), "check", "src", "tests"])
+    assert check.returncode == 0, check.stdout + check.stderr
+    formatted = _run([str(BIN / "ruff"), "format", "--check", "src", "tests"])
+    assert formatted.returncode == 0, formatted.stdout + formatted.stderr
