@@ -274,7 +274,7 @@ def build_parser() -> argparse.ArgumentParser:
     compare.add_argument("--teacher-steps", type=int, default=ToyConfig.teacher_steps, help="flow-matching training steps")
     compare.add_argument("--distill-steps", type=int, default=ToyConfig.distill_steps, help="distillation steps")
     compare.add_argument("--consistency-weight", "--lambda", type=float, default=ToyConfig.consistency_weight, dest="consistency_weight")
-    compare.add_argument("--workers", type=int, default=1, help="runs in parallel, one thread each")
+    compare.add_argument("--workers", type=int, default=1, help="runs in parallel, each on cores / workers threads")
     compare.add_argument("--output-dir", default="outputs/toy-compare", help="where runs, JSON, table and PNG go (finished runs are reused)")
     compare.set_defaults(run=_toy_compare)
 

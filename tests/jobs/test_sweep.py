@@ -1,42 +1,63 @@
-"""`snapflow sweep`: a tiny sweep run for real (Meta-World, training, evaluation, files on disk)."""
+"""`snapflow sweep`: the config schema, the cache rule keyed by each job's full settings (fast: finished jobs are
+records written the way the runner writes them), the Markdown of the committed results, and a tiny sweep run for
+real (slow: Meta-World, training, evaluation, files on disk)."""
 
 from __future__ import annotations
 
 import json
+from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any, ClassVar
 
 import pytest
 
 from snapflow.cli import main
-from snapflow.experiments.sweep import load_sweep, plan, replace_block
+from snapflow.jobs.runner import Job, is_done, read_record, run_jobs, write_record
+from snapflow.jobs.sweep import CollectJob, EvalJob, TrainJob, jobs, load_sweep, plan, replace_block, run_sweeps
+from snapflow.jobs.sweep.planning import train_job
+from snapflow.jobs.sweep.results import TableResult, markdown_blocks, tables_markdown
+from snapflow.policies.minivla import MiniVLAConfig
+from snapflow.policies.mlp import MLPPolicyConfig
+from snapflow.training.recipes import STUDENT_TRAINING, TEACHER_TRAINING
 
+ROOT = Path(__file__).resolve().parents[2]
 TINY_POLICY = "{ prefix_width = 32, expert_width = 32, num_layers = 1, num_heads = 2, head_dim = 16 }"
-TINY_TRAIN = "{ steps = 12, batch_size = 16, warmup_steps = 2, log_every = 4, validate_every = 6, checkpoint_every = 6 }"
+TINY_TRAIN = (
+    "{ steps = 12, batch_size = 16, warmup_steps = 2, log_every = 4, validate_every = 6, checkpoint_every = 6 }"
+)
 
 
-def write_config(directory: Path, seeds: str = "[0, 1]", extra_rows: str = "") -> Path:
+def write_config(
+    directory: Path,
+    seeds: str = "[0, 1]",
+    extra_rows: str = "",
+    teacher_policy: str = TINY_POLICY,
+    teacher_train: str = TINY_TRAIN,
+    snapflow_distill: str = "{ target_steps = [2, 4] }",
+    meanflow_distill: str = '{ method = "meanflow" }',
+) -> Path:
     path = directory / "tiny.toml"
     path.write_text(f"""
 name = "tiny"
 title = "two tasks, tiny policies"
 seeds = {seeds}
-output_dir = "{(directory / 'runs').as_posix()}"
-results_dir = "{(directory / 'results').as_posix()}"
+output_dir = "{(directory / "runs").as_posix()}"
+results_dir = "{(directory / "results").as_posix()}"
 
 [data]
 tasks = ["reach-v3", "push-v3"]
 episodes_per_task = 3
 
 [runs.teacher]
-policy = {TINY_POLICY}
-train = {TINY_TRAIN}
+policy = {teacher_policy}
+train = {teacher_train}
 [runs.snapflow]
 teacher = "teacher"
-distill = {{ target_steps = [2, 4] }}
+distill = {snapflow_distill}
 train = {TINY_TRAIN}
 [runs.meanflow]
 teacher = "teacher"
-distill = {{ method = "meanflow" }}
+distill = {meanflow_distill}
 train = {TINY_TRAIN}
 seeds = [0]
 
@@ -64,61 +85,189 @@ rows = [
     return path
 
 
-def test_a_sweep_runs_caches_and_writes_its_tables_into_the_document(tmp_path, capsys):
-    config_path = write_config(tmp_path)
-    document = tmp_path / "RESULTS.md"
-    document.write_text("# Results\n\nProse before.\n\n<!-- sweep:tiny/headline -->\nold table\n<!-- /sweep:tiny/headline -->\n\nProse after.\n")
-    jobs = plan(load_sweep(config_path))
-    # collect; teacher x2 seeds; snapflow x2, meanflow x1; evaluations: one group per (run, seed, n_act)
-    assert sum(job[0] == "collect" for job, _ in jobs) == 1
-    assert sorted(job[1:] for job, _ in jobs if job[0] == "train") == [("meanflow", 0), ("snapflow", 0), ("snapflow", 1), ("teacher", 0), ("teacher", 1)]
-    assert sum(job[0] == "eval" for job, _ in jobs) == 5
+def names(planned: list[Job]) -> set[tuple]:
+    """What each job is, in a few words: ("collect",), ("train", run, seed), ("eval", run, seed, mode)."""
 
-    assert main(["sweep", str(config_path), "--workers", "2", "--document", str(document), "--no-progress"]) == 0
-    results = json.loads((tmp_path / "results" / "results.json").read_text())
-    headline = results["tables"]["headline"]["rows"]
-    assert [row["label"] for row in headline] == ["teacher 10-NFE", "SnapFlow 1-NFE"]
-    for row in headline:
-        assert row["episodes"] == 2 * 2 * 2  # tasks x episodes per task x seeds
-        assert len(row["success_per_seed"]) == 2 and row["success_mean"] == pytest.approx(sum(row["success_per_seed"]) / 2)
-        assert 0 <= row["offline"]["mse"] and -1 <= row["offline"]["cosine"] <= 1
-        assert all(seconds > 0 for seconds in row["training_s"])
-    for seed in (0, 1):  # the table's numbers are the cached evaluation files'
-        cached = json.loads((tmp_path / "runs" / "evals" / "teacher" / f"seed-{seed}" / "teacher-10_nact4_eps2.json").read_text())
-        assert headline[0]["success_per_seed"][seed] == pytest.approx(100 * cached["success"]["mean"]["success_rate"])
-    for name in ("headline.png", "nfe.png", "tables.md"):
-        assert (tmp_path / "results" / name).stat().st_size > 0
+    def name(job: Job) -> tuple:
+        if isinstance(job, CollectJob):
+            return ("collect",)
+        if isinstance(job, TrainJob):
+            return ("train", job.run_name, job.seed)
+        assert isinstance(job, EvalJob)
+        return ("eval", job.policy.run_name, job.policy.seed, job.mode.name)
 
-    text = document.read_text()
-    assert "Prose before." in text and "Prose after." in text and "old table" not in text
-    assert "| SnapFlow 1-NFE | 1 | 4 |" in text and "<!-- sweep:tiny/nfe -->" in text
-    assert "](results/headline.png)" in text and "seeds 0, 1" in text
-
-    assert plan(load_sweep(config_path)) == []  # everything is cached: a second run does nothing
-    write_config(tmp_path, seeds="[0, 1, 2]")
-    new = plan(load_sweep(config_path))  # a new seed runs only what it needs
-    assert sorted(job[1:] for job, _ in new if job[0] == "train") == [("snapflow", 2), ("teacher", 2)]
-    assert {job[1].seed for job, _ in new if job[0] == "eval"} == {2}
+    return {name(job) for job in planned}
 
 
-@pytest.mark.parametrize("mistake, message", [
-    ('[data]\nepisodes = 3\n', "unknown key(s) ['episodes']"),
-    ('[runs.teacher]\npolicy = { width = 3 }\n', "unknown key(s) ['width']"),
-    ('[runs.student]\nteacher = "nobody"\n', "teacher 'nobody' is not a teacher run"),
-    ('[runs.teacher]\nseeds = [0]\n[runs.student]\nteacher = "teacher"\nseeds = [1]\n', "seeds [1] have no 'teacher' teacher"),
-    ('[runs.teacher]\ntrain = { steps = 0 }\n', "TrainConfig.steps must be at least 1"),
-    ('[runs.teacher]\n[runs.student]\nteacher = "teacher"\ndistill = { method = "dance" }\n', "unknown distillation method 'dance'"),
-    ('[runs.teacher]\n[runs.student]\nteacher = "teacher"\ndistill = { target = "bootstrap", target_steps = 6 }\n', "power of two"),
-    ('[runs.teacher]\n[[tables]]\nname = "t"\nrows = [{ label = "x", run = "ghost", mode = "naive" }]\n', "unknown run 'ghost'"),
-    ('[runs.teacher]\n[[tables]]\nname = "t"\nrows = [{ label = "x", run = "teacher", mode = "fast" }]\n', "unknown sampling mode 'fast'"),
-    ('[runs.teacher]\n[[tables]]\nname = "t"\nseeds = [5]\nrows = [{ label = "x", run = "teacher", mode = "naive" }]\n', "needs seeds [5]"),
-    ('[data]\ntasks = ["fly-v3"]\n', "unknown Meta-World task(s) ['fly-v3']"),
-    ('seeds = "all"\n', "seeds must be a non-empty list of integers"),
-    ('[runs.teacher\n', "not valid TOML"),
-    ('runs = 3\n', "[runs]: expected a table"),
-    ('[runs.teacher]\n[[tables]]\nname = "t"\nrows = 3\n', "rows must be a list"),
-    ('[runs.teacher]\n[[tables]]\nname = "t"\nrows = [3]\n', "row: expected a table"),
-])
+def finish(directory: Path, **changes: str) -> set[tuple]:
+    """Mark every job of the tiny sweep finished, as the runner would; then plan it again with ``changes``."""
+    for job in plan(load_sweep(write_config(directory))):
+        write_record(job)
+    assert plan(load_sweep(write_config(directory))) == [], "finished jobs are done"
+    return names(plan(load_sweep(write_config(directory, **changes))))
+
+
+ALL_EVALS = {
+    ("eval", "teacher", 0, "teacher-10"),
+    ("eval", "teacher", 1, "teacher-10"),
+    ("eval", "snapflow", 0, "snapflow-1"),
+    ("eval", "snapflow", 1, "snapflow-1"),
+    ("eval", "teacher", 0, "naive-1"),  # teacher-1 is the naive step
+    ("eval", "teacher", 0, "teacher-2"),
+    ("eval", "meanflow", 0, "snapflow-1"),
+}
+ALL_TRAINS = {
+    ("train", "teacher", 0),
+    ("train", "teacher", 1),
+    ("train", "snapflow", 0),
+    ("train", "snapflow", 1),
+    ("train", "meanflow", 0),
+}
+
+
+def test_a_new_sweep_plans_collect_every_run_per_seed_and_one_evaluation_per_cell(tmp_path):
+    planned = plan(load_sweep(write_config(tmp_path)))
+    assert names(planned) == {("collect",)} | ALL_TRAINS | ALL_EVALS
+    assert len(planned) == 1 + len(ALL_TRAINS) + len(ALL_EVALS)
+    position = {job: index for index, job in enumerate(planned)}
+    assert all(position[dep] < position[job] for job in planned for dep in job.dependencies), "dependencies come first"
+
+
+def test_changing_nothing_plans_nothing(tmp_path):
+    assert finish(tmp_path) == set()
+
+
+def test_changing_a_students_alpha_replans_exactly_that_student_and_its_evaluations(tmp_path):
+    replanned = finish(tmp_path, snapflow_distill="{ target_steps = [2, 4], alpha = 0.7 }")
+    assert replanned == {
+        ("train", "snapflow", 0),
+        ("train", "snapflow", 1),
+        ("eval", "snapflow", 0, "snapflow-1"),
+        ("eval", "snapflow", 1, "snapflow-1"),
+    }
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        {"teacher_train": TINY_TRAIN.replace("steps = 12", "steps = 13")},
+        {"teacher_policy": TINY_POLICY.replace("num_layers = 1", "num_layers = 2")},
+    ],
+    ids=["train.steps", "policy.num_layers"],
+)
+def test_changing_a_teacher_replans_it_every_student_of_it_and_all_their_evaluations(tmp_path, change):
+    assert finish(tmp_path, **change) == ALL_TRAINS | ALL_EVALS
+
+
+def test_a_default_written_out_changes_nothing(tmp_path):
+    """The settings are the resolved ones: giving a default explicitly is the same run."""
+    assert finish(tmp_path, teacher_policy=TINY_POLICY.replace("}", ", chunk_length = 8 }")) == set()
+
+
+def test_a_new_seed_plans_only_what_it_needs(tmp_path):
+    assert finish(tmp_path, seeds="[0, 1, 2]") == {
+        ("train", "teacher", 2),
+        ("train", "snapflow", 2),
+        ("eval", "teacher", 2, "teacher-10"),
+        ("eval", "snapflow", 2, "snapflow-1"),
+    }
+
+
+def test_job_settings_are_complete_and_keys_follow_the_dependencies(tmp_path):
+    config = load_sweep(write_config(tmp_path))
+    by_name = {next(iter(names([job]))): job for job in jobs(config)}
+    teacher, student = by_name[("train", "teacher", 0)], by_name[("train", "snapflow", 1)]
+    assert teacher.settings()["train"] == {**asdict(TEACHER_TRAINING), **teacher.settings()["train"]}
+    assert set(teacher.settings()["train"]) == set(asdict(TEACHER_TRAINING))  # every field, defaults included
+    assert teacher.settings()["policy"] == {"type": "minivla", **asdict(config.runs["teacher"].policy)}
+    assert student.settings()["train"]["learning_rate"] == STUDENT_TRAINING.learning_rate
+    assert student.settings()["distill"]["target_steps"] == (2, 4) and student.settings()["train"]["seed"] == 1
+    assert student.teacher == by_name[("train", "teacher", 1)] and student.teacher.data == by_name[("collect",)]
+    assert len({job.key for job in jobs(config)}) == len(jobs(config)), "every job has its own key"
+    evaluation = by_name[("eval", "snapflow", 1, "snapflow-1")]
+    assert not evaluation.record_path.exists()
+    write_record(evaluation, {"success": 1})
+    assert read_record(evaluation) == {
+        "config": evaluation.settings(),
+        "dependencies": [student.key, student.data.key],
+        "success": 1,
+    }
+
+
+def test_a_teacher_policy_table_picks_a_built_in_policy_sized_for_the_data(tmp_path):
+    mlp = load_sweep(write_config(tmp_path, teacher_policy='{ type = "mlp", hidden_dim = 64 }')).runs["teacher"].policy
+    assert mlp == MLPPolicyConfig(observation_dim=39 + 2, action_dim=4, chunk_length=8, hidden_dim=64)
+    camera = (
+        load_sweep(write_config(tmp_path, teacher_policy="{ use_image = true, state_dim = 4 }")).runs["teacher"].policy
+    )
+    assert camera == MiniVLAConfig(state_dim=4, action_dim=4, use_image=True)
+
+
+def test_the_via_point_sweep_collects_on_its_own_benchmark():
+    config = load_sweep(ROOT / "configs" / "sweeps" / "mt10-via-points.toml")
+    assert config.data.env == "metaworld-via-points" and len(config.data.tasks) == 10
+
+
+@pytest.mark.parametrize("name", ["mt10-state", "mt10-camera", "mt10-via-points"])
+def test_the_committed_results_render_to_the_committed_markdown_byte_for_byte(monkeypatch, name):
+    monkeypatch.chdir(ROOT)  # the command and links in the Markdown are the repository-relative paths
+    config = load_sweep(f"configs/sweeps/{name}.toml")
+    stored = json.loads((config.results_dir / "results.json").read_text())
+    results = {table.name: TableResult.from_dict(stored["tables"][table.name]) for table in config.tables}
+    assert {name: result.to_dict() for name, result in results.items()} == stored["tables"]
+    assert tables_markdown(config, results) == (config.results_dir / "tables.md").read_text()
+    document = (ROOT / "docs" / "RESULTS.md").read_text()
+    rewritten = document
+    for key, body in markdown_blocks(config, results, Path("docs")).items():
+        assert f"<!-- sweep:{key} -->" in document
+        rewritten = replace_block(rewritten, key, body)
+    assert rewritten == document
+
+
+@pytest.mark.parametrize(
+    "mistake, message",
+    [
+        ("[data]\nepisodes = 3\n", "unknown key(s) ['episodes']"),
+        ("[data]\nvia_points = true\n", "unknown key(s) ['via_points']"),
+        ('[data]\nenv = "mujoco"\n', "unknown environment 'mujoco'"),
+        ("[runs.teacher]\npolicy = { width = 3 }\n", "unknown key(s) ['width']"),
+        ('[runs.teacher]\npolicy = { type = "mlp", prefix_width = 3 }\n', "unknown key(s) ['prefix_width']"),
+        ('[runs.teacher]\npolicy = { type = "transformer" }\n', "unknown policy 'transformer'"),
+        ("[runs.teacher]\npolicy = { num_layers = 0 }\n", "MiniVLAConfig.num_layers must be at least 1"),
+        ('[runs.student]\nteacher = "nobody"\n', "teacher 'nobody' is not a teacher run"),
+        (
+            '[runs.teacher]\nseeds = [0]\n[runs.student]\nteacher = "teacher"\nseeds = [1]\n',
+            "seeds [1] have no 'teacher' teacher",
+        ),
+        ("[runs.teacher]\ntrain = { steps = 0 }\n", "TrainConfig.steps must be at least 1"),
+        (
+            '[runs.teacher]\n[runs.student]\nteacher = "teacher"\ndistill = { method = "dance" }\n',
+            "unknown distillation method 'dance'",
+        ),
+        (
+            '[runs.teacher]\n[runs.student]\nteacher = "teacher"\ndistill = { target = "bootstrap", target_steps = 6 }\n',
+            "power of two",
+        ),
+        (
+            '[runs.teacher]\n[[tables]]\nname = "t"\nrows = [{ label = "x", run = "ghost", mode = "naive" }]\n',
+            "unknown run 'ghost'",
+        ),
+        (
+            '[runs.teacher]\n[[tables]]\nname = "t"\nrows = [{ label = "x", run = "teacher", mode = "fast" }]\n',
+            "unknown sampling mode 'fast'",
+        ),
+        (
+            '[runs.teacher]\n[[tables]]\nname = "t"\nseeds = [5]\nrows = [{ label = "x", run = "teacher", mode = "naive" }]\n',
+            "needs seeds [5]",
+        ),
+        ('[data]\ntasks = ["fly-v3"]\n', "unknown metaworld task(s) ['fly-v3']"),
+        ('seeds = "all"\n', "seeds must be a non-empty list of integers"),
+        ("[runs.teacher\n", "not valid TOML"),
+        ("runs = 3\n", "[runs]: expected a table"),
+        ('[runs.teacher]\n[[tables]]\nname = "t"\nrows = 3\n', "rows must be a list"),
+        ('[runs.teacher]\n[[tables]]\nname = "t"\nrows = [3]\n', "row: expected a table"),
+    ],
+)
 def test_a_bad_sweep_config_is_refused_with_its_section_named(tmp_path, capsys, mistake, message):
     path = tmp_path / "bad.toml"
     body = 'name = "bad"\n' + mistake
@@ -137,9 +286,121 @@ def test_replace_block_appends_a_missing_block_and_replaces_an_existing_one():
     once = replace_block(document, "a/b", "first")
     assert once == "# R\n\ntext\n\n<!-- sweep:a/b -->\nfirst\n<!-- /sweep:a/b -->\n"
     assert replace_block(once, "a/b", "second") == once.replace("first", "second")
-    assert replace_block(once, "a/b", "x\\1") .count("x\\1") == 1  # bodies are literal text, not regex templates
+    assert replace_block(once, "a/b", "x\\1").count("x\\1") == 1  # bodies are literal text, not regex templates
 
 
 def test_report_only_on_an_unfinished_sweep_names_what_is_missing(tmp_path, capsys):
     assert main(["sweep", str(write_config(tmp_path)), "--report-only", "--no-progress"]) == 2
     assert "table 'headline' is incomplete" in capsys.readouterr().err
+
+
+def test_report_only_refuses_evaluations_made_with_other_settings(tmp_path, capsys):
+    finish(tmp_path)
+    write_config(tmp_path, teacher_train=TINY_TRAIN.replace("steps = 12", "steps = 13"))
+    assert main(["sweep", str(tmp_path / "tiny.toml"), "--report-only", "--no-progress"]) == 2
+    assert "made with other settings" in capsys.readouterr().err
+
+
+def test_the_runner_has_nothing_to_do_when_every_job_is_done(tmp_path):
+    finish(tmp_path)
+    assert run_jobs(jobs(load_sweep(tmp_path / "tiny.toml")), workers=2, progress=False) == {}
+
+
+@dataclass(frozen=True)
+class LogJob(Job):
+    """Appends a line to its log; ``fail`` (not a setting) makes it fail after writing, as an interrupted run."""
+
+    kind: ClassVar[str] = "log"
+    directory: Path
+    value: int
+    fail: bool = False
+
+    def settings(self) -> dict[str, Any]:
+        return {"value": self.value}
+
+    @property
+    def record_path(self) -> Path:
+        return self.directory / "job.json"
+
+    @property
+    def outputs(self) -> tuple[Path, ...]:
+        return (self.directory,)
+
+    def run(self) -> dict[str, Any]:
+        with open(self.directory / "log.txt", "a") as log:
+            log.write(f"{self.value}\n")
+        if self.fail:
+            raise RuntimeError("the job failed on purpose")
+        return {"lines": len((self.directory / "log.txt").read_text().splitlines())}
+
+    def describe(self) -> str:
+        return f"log {self.value}"
+
+
+@pytest.mark.slow
+def test_the_runner_continues_an_interrupted_job_and_restarts_a_stale_one(tmp_path):
+    directory = tmp_path / "job"
+    with pytest.raises(RuntimeError, match="failed on purpose"):  # a failed job stops the run with its own error
+        run_jobs([LogJob(directory, 1, fail=True)], progress=False)
+    assert not is_done(LogJob(directory, 1))
+    assert set(run_jobs([LogJob(directory, 1)], progress=False)) == {"log 1"}
+    assert read_record(LogJob(directory, 1)) == {"config": {"value": 1}, "lines": 2}, (
+        "same settings: its outputs were kept"
+    )
+    assert run_jobs([LogJob(directory, 1)], progress=False) == {}
+    run_jobs([LogJob(directory, 2)], progress=False)
+    assert read_record(LogJob(directory, 2))["lines"] == 1, "other settings: its old outputs were cleared first"
+    assert not is_done(LogJob(directory, 1))
+
+
+@pytest.mark.slow
+def test_a_sweep_runs_caches_reruns_a_changed_student_and_writes_its_tables_into_the_document(tmp_path, capsys):
+    config_path = write_config(tmp_path)
+    document = tmp_path / "RESULTS.md"
+    document.write_text(
+        "# Results\n\nProse before.\n\n<!-- sweep:tiny/headline -->\nold table\n<!-- /sweep:tiny/headline -->\n\nProse after.\n"
+    )
+    assert main(["sweep", str(config_path), "--workers", "2", "--document", str(document), "--no-progress"]) == 0
+    results = json.loads((tmp_path / "results" / "results.json").read_text())
+    headline = results["tables"]["headline"]["rows"]
+    assert [row["label"] for row in headline] == ["teacher 10-NFE", "SnapFlow 1-NFE"]
+    for row in headline:
+        assert row["episodes"] == 2 * 2 * 2  # tasks x episodes per task x seeds
+        assert len(row["success_per_seed"]) == 2 and row["success_mean"] == pytest.approx(
+            sum(row["success_per_seed"]) / 2
+        )
+        assert 0 <= row["offline"]["mse"] and -1 <= row["offline"]["cosine"] <= 1
+        assert all(seconds > 0 for seconds in row["training_s"])
+    for seed in (0, 1):  # the table's numbers are the cached evaluation records'
+        cached = json.loads(
+            (tmp_path / "runs" / "evals" / "teacher" / f"seed-{seed}" / "teacher-10_nact4_eps2.json").read_text()
+        )
+        assert headline[0]["success_per_seed"][seed] == pytest.approx(100 * cached["success"]["mean"]["success_rate"])
+    for name in ("headline.png", "nfe.png", "tables.md"):
+        assert (tmp_path / "results" / name).stat().st_size > 0
+
+    text = document.read_text()
+    assert "Prose before." in text and "Prose after." in text and "old table" not in text
+    assert "| SnapFlow 1-NFE | 1 | 4 |" in text and "<!-- sweep:tiny/nfe -->" in text
+    assert "](results/headline.png)" in text and "seeds 0, 1" in text
+    assert plan(load_sweep(config_path)) == []  # everything is cached: a second run does nothing
+
+    runs = tmp_path / "runs"
+    for run in ("teacher", "meanflow"):
+        (runs / run / "seed-0" / "left-over.txt").write_text("made with the old settings")
+    records = {path: path.stat().st_mtime_ns for path in runs.rglob("*.json")}
+    write_config(tmp_path, meanflow_distill='{ method = "meanflow", alpha = 0.7 }')
+    times = run_sweeps([load_sweep(config_path)], workers=2, progress=False)
+    assert set(times) == {"tiny: train meanflow seed 0", "tiny: evaluate meanflow seed 0 (snapflow-1; n_act 4)"}
+    rewritten = {
+        path.relative_to(runs).as_posix()
+        for path, stamp in records.items()
+        if not path.is_file() or path.stat().st_mtime_ns != stamp
+    }
+    assert {path for path in rewritten if not path.startswith("meanflow/seed-0/")} == {
+        "evals/meanflow/seed-0/snapflow-1_nact4_eps2.json"
+    }
+    assert "meanflow/seed-0/job.json" in rewritten
+    assert not (runs / "meanflow" / "seed-0" / "left-over.txt").exists(), "a stale run starts from an empty folder"
+    assert (runs / "teacher" / "seed-0" / "left-over.txt").exists(), "the teacher did not run again"
+    assert read_record(train_job(load_sweep(config_path), "meanflow", 0))["config"]["distill"]["alpha"] == 0.7

@@ -1,0 +1,203 @@
+"""One job runner for the sweeps and the toy comparison: typed jobs, one cache rule, one process pool.
+
+A job is a frozen dataclass. Its ``settings()`` are every value its result depends on (defaults included), its
+``key`` hashes its kind, settings and dependencies' keys, so a key changes whenever anything upstream changes.
+
+The cache rule: when a job has finished, the runner writes its *record*, ``{"config": settings, "dependencies":
+[keys], **what run() returned}`` (``dependencies`` only when it has some), atomically to ``job.record_path``. A job
+is done iff its record holds its current settings and its dependencies' current keys; anything else runs again,
+from scratch: its outputs are removed first, unless a *pending* record (written when it was started) shows an
+interrupted run with the same settings, which it then continues (trainers resume their checkpoints).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Iterable
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any, ClassVar
+
+import torch
+from tqdm.auto import tqdm
+
+from snapflow.reporting.files import write_json
+
+
+class Job(ABC):
+    """A unit of work with cached output; subclasses are frozen dataclasses (hashable, picklable to workers)."""
+
+    kind: ClassVar[str]
+
+    @abstractmethod
+    def settings(self) -> dict[str, Any]:
+        """The full resolved settings (JSON-able): every field of every dataclass involved, defaults included."""
+
+    @property
+    def dependencies(self) -> tuple[Job, ...]:
+        """Jobs whose outputs this one reads; they run first, and their keys are part of this job's."""
+        return ()
+
+    @property
+    @abstractmethod
+    def record_path(self) -> Path:
+        """Where the runner writes the record of the finished job."""
+
+    @property
+    def outputs(self) -> tuple[Path, ...]:
+        """Files and folders removed before the job runs again (its record is always removed)."""
+        return ()
+
+    @abstractmethod
+    def run(self) -> dict[str, Any]:
+        """Do the work (in a worker process); what it returns (JSON-able) goes into the record."""
+
+    @abstractmethod
+    def describe(self) -> str:
+        """A few words for progress lines and the wall-time table."""
+
+    @property
+    def key(self) -> str:
+        """Stable hash of (kind, settings, dependencies' keys)."""
+        identity = {
+            "kind": self.kind,
+            "settings": self.settings(),
+            "dependencies": [dep.key for dep in self.dependencies],
+        }
+        return hashlib.sha256(json.dumps(identity, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def record(job: Job, results: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The record the runner writes for ``job`` once it has finished with ``results``."""
+    entry: dict[str, Any] = {"config": json.loads(json.dumps(job.settings()))}  # as it reads back: tuples are lists
+    if job.dependencies:
+        entry["dependencies"] = [dep.key for dep in job.dependencies]
+    return {**entry, **(results or {})}
+
+
+def write_record(job: Job, results: dict[str, Any] | None = None) -> None:
+    """Mark ``job`` finished with ``results``: what the runner does after ``job.run()`` returned them."""
+    write_json(job.record_path, record(job, results))
+
+
+def read_record(job: Job) -> dict[str, Any]:
+    """The finished job's record; FileNotFoundError if there is none."""
+    return json.loads(job.record_path.read_text())
+
+
+def _matches(path: Path, job: Job) -> bool:
+    """Whether ``path`` holds a record (finished or pending) of ``job`` with its current settings."""
+    try:
+        stored = json.loads(path.read_text())
+    except (FileNotFoundError, json.JSONDecodeError):
+        return False
+    expected = record(job)
+    same_settings = stored.get("config") == expected["config"]
+    return same_settings and stored.get("dependencies", []) == expected.get("dependencies", [])
+
+
+def is_done(job: Job) -> bool:
+    """The one cache rule: the record exists and was written for the job's current settings and dependencies."""
+    return _matches(job.record_path, job)
+
+
+def _pending_path(job: Job) -> Path:
+    return job.record_path.with_name(f".{job.record_path.name}.pending")
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir():
+        shutil.rmtree(path)
+    else:
+        path.unlink(missing_ok=True)
+
+
+def _start(job: Job) -> None:
+    """Clear what a run with other settings (or an unknown one) left, then note the settings this run has."""
+    if not _matches(_pending_path(job), job):
+        for path in (*job.outputs, job.record_path):
+            _remove(path)
+        write_json(_pending_path(job), record(job))
+
+
+def _finish(job: Job, results: dict[str, Any]) -> None:
+    write_record(job, results)
+    _pending_path(job).unlink(missing_ok=True)
+
+
+def _work(job: Job, threads: int) -> tuple[dict[str, Any], float]:
+    """Worker entry point (a fresh process): run one job; returns its results and wall time."""
+    torch.set_num_threads(threads)
+    started = time.perf_counter()
+    results = job.run()
+    return results, time.perf_counter() - started
+
+
+def _to_do(jobs: Iterable[Job]) -> list[Job]:
+    """The jobs and their dependencies that are not done, shallowest first (collect before training before evaluation)."""
+    depth: dict[Job, int] = {}
+    writers: dict[Path, Job] = {}
+
+    def visit(job: Job) -> int:
+        if job not in depth:
+            other = writers.setdefault(job.record_path, job)
+            if other != job:
+                raise ValueError(
+                    f"{other.describe()} and {job.describe()} would write the same record {job.record_path}"
+                )
+            depth[job] = 1 + max((visit(dep) for dep in job.dependencies), default=-1)
+        return depth[job]
+
+    for job in jobs:
+        visit(job)
+    # a stable sort: within a depth, jobs keep the order they were given in
+    return sorted((job for job in depth if not is_done(job)), key=depth.__getitem__)
+
+
+def run_jobs(
+    jobs: Iterable[Job], workers: int = 1, progress: bool = True, description: str = "jobs"
+) -> dict[str, float]:
+    """Run every job (and dependency) that is not done on ``workers`` spawned processes, each on cores / workers
+    torch threads, a job once its dependencies have finished; returns each job's wall time (s) by description.
+
+    A failed job stops the run with its own error (after the jobs already running have finished).
+    """
+    if workers < 1:
+        raise ValueError(f"workers must be at least 1, got {workers}")
+    waiting = _to_do(jobs)
+    if not waiting:
+        return {}
+    unfinished = set(waiting)
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    times: dict[str, float] = {}
+    running: dict[Future, Job] = {}
+    bar = tqdm(total=len(waiting), desc=description, disable=not progress, dynamic_ncols=True)
+    # spawn: each worker imports torch afresh, with its own thread count and no inherited locks
+    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+        while waiting or running:
+            ready = [job for job in waiting if not unfinished.intersection(job.dependencies)]
+            for job in ready[: workers - len(running)]:
+                waiting.remove(job)
+                _start(job)
+                running[pool.submit(_work, job, threads)] = job
+                bar.write(f"started: {job.describe()}")
+            finished, _ = wait(running, return_when=FIRST_COMPLETED)
+            for future in finished:
+                job = running.pop(future)
+                results, seconds = future.result()
+                _finish(job, results)
+                unfinished.discard(job)
+                times[job.describe()] = seconds
+                bar.write(f"done in {seconds / 60:.1f} min: {job.describe()}")
+                bar.update()
+    bar.close()
+    return times
+
+
+__all__ = ["Job", "record", "write_record", "read_record", "is_done", "run_jobs"]

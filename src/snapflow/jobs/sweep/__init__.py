@@ -1,0 +1,46 @@
+"""Sweeps: the paper's experiments on MT10 from one TOML file, with seeds, caching and a report.
+
+A sweep config names a demonstration set, the runs trained on it (teachers, and students distilled from
+them, each with its own settings and seeds) and the tables to fill (rows = run x sampling mode x actions
+per chunk). ``run_sweeps`` runs, on :mod:`snapflow.jobs.runner`, every job that is not done: collect -> train
+teachers -> distill students -> evaluate, in dependency order and on several worker processes. A job is done when
+its record holds its current full settings and those of the jobs it reads, so an interrupted sweep picks up where it
+stopped, adding a seed or a row runs only what is new, and changing a setting re-runs exactly the jobs downstream of
+it. ``write_results`` then turns the cached evaluations into ``results.json``, one PNG per table and Markdown tables,
+which it writes between markers in a results document (``docs/RESULTS.md``) and leaves the prose around them alone.
+
+Config layout (see ``configs/sweeps/*.toml``)::
+
+    name = "mt10-state"                 # output_dir = outputs/sweeps/<name>, results in docs/results/sweeps/<name>
+    seeds = [0, 1, 2]                   # default seeds of every run and table
+    [data]                              # env (snapflow.envs.factory), tasks ("all" or a list), episodes_per_task,
+                                        # image_size
+    [runs.teacher]                      # a teacher: policy = {type = "minivla" | "mlp", fields of its config},
+                                        # train = {TrainConfig fields}
+    [runs.snapflow]                     # a student: teacher = "teacher", distill = {DistillSettings fields}, train
+    [[tables]]                          # name, title, episodes_per_task, n_act, seeds, per_task, x_label
+    rows = [{label = "...", run = "snapflow", mode = "snapflow-1", n_act = 4, series = "...", x = 1}]
+
+Unless a run says otherwise, teachers train with ``TEACHER_TRAINING`` and students with ``STUDENT_TRAINING``
+(:mod:`snapflow.training.recipes`), distilled with the paper's ``DistillSettings``.
+"""
+
+from snapflow.jobs.sweep.planning import CollectJob, EvalJob, TrainJob, jobs, plan, run_sweeps
+from snapflow.jobs.sweep.results import SweepRow, TableResult, replace_block, table_results, write_results
+from snapflow.jobs.sweep.schema import SweepConfig, load_sweep
+
+__all__ = [
+    "SweepConfig",
+    "load_sweep",
+    "CollectJob",
+    "TrainJob",
+    "EvalJob",
+    "jobs",
+    "plan",
+    "run_sweeps",
+    "SweepRow",
+    "TableResult",
+    "table_results",
+    "write_results",
+    "replace_block",
+]

@@ -1,0 +1,223 @@
+"""A sweep's work as typed jobs for :mod:`snapflow.jobs.runner`: collect -> train teachers -> distill students ->
+evaluate, each keyed by its full resolved settings and those of the jobs it reads."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any, ClassVar
+
+from snapflow.data.collect import collect
+from snapflow.envs.factory import make_benchmark
+from snapflow.evaluation.pipeline import OFFLINE_SAMPLES, evaluate
+from snapflow.flow.solver import SamplingMode
+from snapflow.jobs.runner import Job, is_done, run_jobs
+from snapflow.jobs.sweep.schema import DataSpec, RowSpec, SweepConfig, TableSpec
+from snapflow.policies.checkpoint import load_policy
+from snapflow.policies.configuration import PolicyConfig
+from snapflow.policies.factory import policy_type_of
+from snapflow.training.distill import DistillSettings
+from snapflow.training.recipes import VAL_FRACTION, distill, train_teacher
+from snapflow.training.trainer import TrainConfig
+
+RECORD = "job.json"  # a collect or train job's record, inside the folder it fills
+
+
+@dataclass(frozen=True)
+class CollectJob(Job):
+    """The sweep's expert demonstrations, in ``directory``."""
+
+    kind: ClassVar[str] = "collect"
+    sweep: str
+    directory: Path
+    data: DataSpec
+
+    def settings(self) -> dict[str, Any]:
+        return asdict(self.data)
+
+    @property
+    def record_path(self) -> Path:
+        return self.directory / RECORD
+
+    @property
+    def outputs(self) -> tuple[Path, ...]:
+        return (self.directory,)
+
+    def run(self) -> dict[str, Any]:
+        data = self.data
+        collect(
+            make_benchmark(data.env),
+            list(data.tasks),
+            data.episodes_per_task,
+            self.directory,
+            data.image_size,
+            progress=False,
+        )
+        return {}
+
+    def describe(self) -> str:
+        return f"{self.sweep}: collect demonstrations"
+
+
+@dataclass(frozen=True)
+class TrainJob(Job):
+    """A teacher (``policy``: flow matching on the data) or a student (``teacher`` and ``distill``), in ``directory``.
+
+    Both resume an interrupted run of the same settings; the runner clears the folder of one made with others.
+    """
+
+    kind: ClassVar[str] = "train"
+    sweep: str
+    run_name: str
+    directory: Path
+    data: CollectJob
+    train: TrainConfig  # its seed is the run's
+    policy: PolicyConfig | None = None
+    teacher: TrainJob | None = None
+    distill: DistillSettings | None = None
+
+    @property
+    def seed(self) -> int:
+        return self.train.seed
+
+    def settings(self) -> dict[str, Any]:
+        if self.teacher is None:
+            policy = {"type": policy_type_of(self.policy).name, **self.policy.to_dict()}
+            return {"policy": policy, "train": asdict(self.train), "val_fraction": VAL_FRACTION}
+        return {"distill": asdict(self.distill), "train": asdict(self.train)}  # held-out episodes: the teacher's
+
+    @property
+    def dependencies(self) -> tuple[Job, ...]:
+        return (self.data,) if self.teacher is None else (self.data, self.teacher)
+
+    @property
+    def record_path(self) -> Path:
+        return self.directory / RECORD
+
+    @property
+    def outputs(self) -> tuple[Path, ...]:
+        return (self.directory,)
+
+    def run(self) -> dict[str, Any]:
+        if self.teacher is None:
+            train_teacher(
+                self.data.directory, self.directory, self.policy, self.train, VAL_FRACTION, resume=True, progress=False
+            )
+        else:
+            distill(
+                self.teacher.directory,
+                self.data.directory,
+                self.directory,
+                self.train,
+                self.distill,
+                resume=True,
+                progress=False,
+            )
+        return {}
+
+    def describe(self) -> str:
+        return f"{self.sweep}: train {self.run_name} seed {self.seed}"
+
+
+@dataclass(frozen=True)
+class EvalJob(Job):
+    """One (policy, sampling mode, actions per chunk, episodes per task): closed-loop success and offline metrics on
+    the held-out demonstrations; its record, at ``path``, holds the evaluation row."""
+
+    kind: ClassVar[str] = "eval"
+    policy: TrainJob
+    mode: SamplingMode
+    n_act: int
+    episodes_per_task: int
+    path: Path
+
+    def settings(self) -> dict[str, Any]:
+        return {
+            "mode": asdict(self.mode),
+            "n_act": self.n_act,
+            "episodes_per_task": self.episodes_per_task,
+            "seed": self.policy.seed,
+            "offline_samples": OFFLINE_SAMPLES,
+        }
+
+    @property
+    def dependencies(self) -> tuple[Job, ...]:
+        return (self.policy, self.policy.data)
+
+    @property
+    def record_path(self) -> Path:
+        return self.path
+
+    def run(self) -> dict[str, Any]:
+        collected = self.policy.data
+        loaded = load_policy(self.policy.directory)
+        report = evaluate(
+            [(self.mode.name, loaded, self.mode)],
+            make_benchmark(collected.data.env),
+            list(collected.data.tasks),
+            self.episodes_per_task,
+            self.n_act,
+            collected.directory,
+            seed=self.policy.seed,
+            progress=False,
+            timing=False,
+        )
+        return report.rows[self.mode.name].to_dict()
+
+    def describe(self) -> str:
+        policy = self.policy
+        return f"{policy.sweep}: evaluate {policy.run_name} seed {policy.seed} ({self.mode.name}; n_act {self.n_act})"
+
+
+def collect_job(config: SweepConfig) -> CollectJob:
+    return CollectJob(config.name, config.data_dir, config.data)
+
+
+def train_job(config: SweepConfig, run: str, seed: int) -> TrainJob:
+    """Run ``run`` of the sweep on ``seed``, a student with its teacher's job of the same seed."""
+    spec = config.runs[run]
+    teacher = train_job(config, spec.teacher, seed) if spec.teacher is not None else None
+    train = replace(spec.train, seed=seed)
+    return TrainJob(
+        config.name, run, config.run_dir(run, seed), collect_job(config), train, spec.policy, teacher, spec.distill
+    )
+
+
+def eval_job(config: SweepConfig, table: TableSpec, row: RowSpec, seed: int) -> EvalJob:
+    """The evaluation behind one cell (row, seed) of a table."""
+    path = config.eval_path(row.run, seed, row.mode, row.n_act, table.episodes_per_task)
+    return EvalJob(train_job(config, row.run, seed), row.mode, row.n_act, table.episodes_per_task, path)
+
+
+def jobs(config: SweepConfig) -> list[Job]:
+    """Every job the sweep's tables need, done or not: collect, the runs (each teacher before its students), evals."""
+    evals = [
+        eval_job(config, table, row, seed) for table in config.tables for row in table.rows for seed in table.seeds
+    ]
+    trains = [train for job in evals for train in (job.policy.teacher, job.policy) if train is not None]
+    return list(dict.fromkeys([collect_job(config), *trains, *evals]))
+
+
+def plan(config: SweepConfig) -> list[Job]:
+    """The sweep's jobs that are not done (missing, or made with other settings: see :func:`snapflow.jobs.runner.is_done`)."""
+    return [job for job in jobs(config) if not is_done(job)]
+
+
+def run_sweeps(configs: list[SweepConfig], workers: int = 1, progress: bool = True) -> dict[str, float]:
+    """Run every job of the sweeps that is not done on ``workers`` processes, earlier pipeline stages first across
+    the sweeps (their jobs are the longest and unblock the others); returns each job's wall time (s)."""
+    return run_jobs([job for config in configs for job in plan(config)], workers, progress, description="sweep")
+
+
+__all__ = [
+    "RECORD",
+    "CollectJob",
+    "TrainJob",
+    "EvalJob",
+    "collect_job",
+    "train_job",
+    "eval_job",
+    "jobs",
+    "plan",
+    "run_sweeps",
+]

@@ -1,0 +1,268 @@
+"""A sweep's TOML file read into a typed, checked :class:`SweepConfig`; every mistake is a ValueError naming its
+section and key."""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+from typing import Any
+
+from snapflow.data.collect import EPISODES_PER_TASK
+from snapflow.envs.factory import DEFAULT_BENCHMARK, make_benchmark
+from snapflow.evaluation.pipeline import N_ACT
+from snapflow.flow.solver import SamplingMode
+from snapflow.jobs.demo import EVAL_EPISODES
+from snapflow.policies.configuration import PolicyConfig
+from snapflow.policies.factory import default_config, policy_type
+from snapflow.training.distill import DistillSettings
+from snapflow.training.recipes import STUDENT_TRAINING, TEACHER_TRAINING
+from snapflow.training.trainer import TrainConfig
+
+DEFAULT_POLICY = "minivla"
+
+
+@dataclass(frozen=True)
+class DataSpec:
+    """The demonstrations every run of the sweep trains on; ``tasks``: all of the benchmark's unless given."""
+
+    env: str = DEFAULT_BENCHMARK
+    tasks: tuple[str, ...] = ()
+    episodes_per_task: int = EPISODES_PER_TASK
+    image_size: int | None = None
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """A teacher (``teacher is None``: flow matching on the data, ``policy`` resolved) or a student distilled from
+    one; ``train.seed`` is replaced by each of ``seeds``."""
+
+    name: str
+    seeds: tuple[int, ...]
+    train: TrainConfig
+    policy: PolicyConfig | None = None
+    teacher: str | None = None
+    distill: DistillSettings | None = None
+
+
+@dataclass(frozen=True)
+class RowSpec:
+    label: str
+    run: str
+    mode: SamplingMode
+    n_act: int
+    series: str | None = None
+    x: float | None = None
+
+
+@dataclass(frozen=True)
+class TableSpec:
+    name: str
+    title: str
+    rows: tuple[RowSpec, ...]
+    seeds: tuple[int, ...]
+    episodes_per_task: int
+    per_task: bool = False
+    x_label: str | None = None
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    name: str
+    title: str
+    source: Path
+    output_dir: Path
+    results_dir: Path
+    data: DataSpec
+    runs: dict[str, RunSpec]
+    tables: tuple[TableSpec, ...]
+
+    def run_dir(self, run: str, seed: int) -> Path:
+        return self.output_dir / run / f"seed-{seed}"
+
+    @property
+    def data_dir(self) -> Path:
+        return self.output_dir / "data"
+
+    def eval_path(self, run: str, seed: int, mode: SamplingMode, n_act: int, episodes_per_task: int) -> Path:
+        return self.output_dir / "evals" / run / f"seed-{seed}" / f"{mode.name}_nact{n_act}_eps{episodes_per_task}.json"
+
+
+def _checked(section: str, table: Any, allowed: set[str], required: frozenset[str] = frozenset()) -> dict[str, Any]:
+    if not isinstance(table, dict):
+        raise ValueError(f"{section}: expected a table of keys, got {table!r}")
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        raise ValueError(f"{section}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+    missing = sorted(required - set(table))
+    if missing:
+        raise ValueError(f"{section}: missing key(s) {missing}")
+    return table
+
+
+def _field_names(cls: type) -> set[str]:
+    return {field.name for field in fields(cls)}
+
+
+def _dataclass_from(section: str, base: Any, overrides: Any) -> Any:
+    _checked(section, overrides, _field_names(type(base)))
+    try:
+        return replace(base, **overrides)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{section}: {error}") from None
+
+
+def _seeds(section: str, value: Any) -> tuple[int, ...]:
+    if (
+        not isinstance(value, list)
+        or not value
+        or not all(isinstance(seed, int) and not isinstance(seed, bool) for seed in value)
+    ):
+        raise ValueError(f"{section}: seeds must be a non-empty list of integers, got {value!r}")
+    return tuple(value)
+
+
+def _data(raw: Any) -> DataSpec:
+    entry = dict(_checked("[data]", raw, _field_names(DataSpec)))
+    try:
+        benchmark = make_benchmark(entry.get("env", DEFAULT_BENCHMARK))
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"[data] env: {error}") from None
+    tasks = entry.get("tasks", "all")
+    try:
+        entry["tasks"] = benchmark.tasks if tasks == "all" else tuple(benchmark.check_tasks(list(tasks)))
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"[data] tasks: {error}") from None
+    return _dataclass_from("[data]", DataSpec(), entry)
+
+
+def _policy(section: str, raw: Any, data: DataSpec) -> PolicyConfig:
+    """The built-in policy ``type`` (default MiniVLA) sized for the data, with the table's other keys applied."""
+    name = raw.get("type", DEFAULT_POLICY) if isinstance(raw, dict) else DEFAULT_POLICY
+    try:
+        config_class = policy_type(name).config_class
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{section}: {error}") from None
+    overrides = dict(_checked(section, raw, {"type"} | _field_names(config_class)))
+    overrides.pop("type", None)
+    benchmark = make_benchmark(data.env)
+    # a policy field that is also a parameter of default_config (a camera policy's state_dim) goes in its place
+    state_dim, action_dim = (
+        overrides.pop("state_dim", benchmark.state_dim),
+        overrides.pop("action_dim", benchmark.action_dim),
+    )
+    instructions = [benchmark.instruction(task) for task in data.tasks]
+    try:
+        return default_config(name, state_dim, action_dim, instructions, **overrides)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{section}: {error}") from None
+
+
+def _runs(raw: Any, seeds: tuple[int, ...], data: DataSpec) -> dict[str, RunSpec]:
+    if not isinstance(raw, dict):
+        raise ValueError(f"[runs]: expected a table of keys, got {raw!r}")
+    runs: dict[str, RunSpec] = {}
+    for name, entry in raw.items():
+        section = f"[runs.{name}]"
+        _checked(section, entry, {"teacher", "policy", "train", "distill", "seeds"})
+        run_seeds = _seeds(section, entry.get("seeds", list(seeds)))
+        if "teacher" in entry:
+            if "policy" in entry:
+                raise ValueError(f"{section}: a student takes its policy from its teacher; remove 'policy'")
+            train = _dataclass_from(f"{section} train", STUDENT_TRAINING, entry.get("train", {}))
+            settings = _dataclass_from(f"{section} distill", DistillSettings(), entry.get("distill", {}))
+            runs[name] = RunSpec(name, run_seeds, train, teacher=entry["teacher"], distill=settings)
+        else:
+            if "distill" in entry:
+                raise ValueError(f"{section}: 'distill' needs a 'teacher' to distill from")
+            train = _dataclass_from(f"{section} train", TEACHER_TRAINING, entry.get("train", {}))
+            runs[name] = RunSpec(name, run_seeds, train, _policy(f"{section} policy", entry.get("policy", {}), data))
+    for run in runs.values():
+        if run.teacher is not None:
+            teacher = runs.get(run.teacher)
+            if teacher is None or teacher.teacher is not None:
+                raise ValueError(f"[runs.{run.name}]: teacher {run.teacher!r} is not a teacher run of this sweep")
+            if missing := sorted(set(run.seeds) - set(teacher.seeds)):
+                raise ValueError(f"[runs.{run.name}]: seeds {missing} have no {run.teacher!r} teacher")
+    return runs
+
+
+def _tables(path: Path, raw: Any, seeds: tuple[int, ...], runs: dict[str, RunSpec]) -> tuple[TableSpec, ...]:
+    if not isinstance(raw, list):
+        raise ValueError(f"{path}: tables must be a list of [[tables]] entries")
+    tables = []
+    allowed = {"name", "title", "rows", "seeds", "episodes_per_task", "n_act", "per_task", "x_label"}
+    for index, entry in enumerate(raw):
+        section = f"[[tables]] #{index + 1}"
+        _checked(section, entry, allowed, frozenset({"name", "rows"}))
+        table_seeds = _seeds(section, entry.get("seeds", list(seeds)))
+        if not isinstance(entry["rows"], list):
+            raise ValueError(f"{section}: rows must be a list of {{ label, run, mode }} entries")
+        rows = []
+        for row in entry["rows"]:
+            _checked(
+                f"{section} row",
+                row,
+                {"label", "run", "mode", "n_act", "series", "x"},
+                frozenset({"label", "run", "mode"}),
+            )
+            run = runs.get(row["run"])
+            if run is None:
+                raise ValueError(
+                    f"{section}: row {row['label']!r} names unknown run {row['run']!r}; runs: {sorted(runs)}"
+                )
+            if missing := sorted(set(table_seeds) - set(run.seeds)):
+                raise ValueError(
+                    f"{section}: row {row['label']!r} needs seeds {missing} of run {run.name!r}, which has {list(run.seeds)}"
+                )
+            try:
+                mode = SamplingMode.parse(row["mode"])
+            except ValueError as error:
+                raise ValueError(f"{section}: row {row['label']!r}: {error}") from None
+            n_act = row.get("n_act", entry.get("n_act", N_ACT))
+            rows.append(RowSpec(row["label"], row["run"], mode, n_act, row.get("series"), row.get("x")))
+        tables.append(
+            TableSpec(
+                entry["name"],
+                entry.get("title", entry["name"]),
+                tuple(rows),
+                table_seeds,
+                entry.get("episodes_per_task", EVAL_EPISODES),
+                entry.get("per_task", False),
+                entry.get("x_label"),
+            )
+        )
+    return tuple(tables)
+
+
+def load_sweep(path: str | Path) -> SweepConfig:
+    """Read and check a sweep config; every mistake is a ValueError naming its section and key."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no sweep config at {path}")
+    try:
+        raw = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as error:
+        raise ValueError(f"{path}: not valid TOML: {error}") from None
+    allowed = {"name", "title", "seeds", "output_dir", "results_dir", "data", "runs", "tables"}
+    _checked(str(path), raw, allowed, frozenset({"name", "runs", "tables"}))
+    name = raw["name"]
+    if not isinstance(name, str) or not re.fullmatch(r"[a-z0-9][a-z0-9._-]*", name):
+        raise ValueError(f"{path}: name must be lower-case letters, digits, '.', '_' or '-', got {name!r}")
+    seeds = _seeds(f"{path}", raw.get("seeds", [0]))
+    data = _data(raw.get("data", {}))
+    runs = _runs(raw["runs"], seeds, data)
+    return SweepConfig(
+        name,
+        raw.get("title", name),
+        path,
+        Path(raw.get("output_dir", f"outputs/sweeps/{name}")),
+        Path(raw.get("results_dir", f"docs/results/sweeps/{name}")),
+        data,
+        runs,
+        _tables(path, raw["tables"], seeds, runs),
+    )
+
+
+__all__ = ["DataSpec", "RunSpec", "RowSpec", "TableSpec", "SweepConfig", "load_sweep"]
