@@ -28,6 +28,8 @@ PAPER_A800 = {
     "pi05": {"teacher_10_ms": 274.0, "snapflow_1_ms": 83.0, "denoising_share_10": 241.0 / 274.0, "per_step_ms": 23.0},
     "smolvla": {"teacher_10_ms": 178.0, "snapflow_1_ms": 50.0},
 }
+
+
 @torch.inference_mode()
 def profile_one_step(subject: BenchSubject, calls: int = 20) -> tuple[str, dict[str, float]]:
     """torch.profiler table of ``calls`` one-step generations, and how the wall time splits: the operators'
@@ -44,22 +46,39 @@ def profile_one_step(subject: BenchSubject, calls: int = 20) -> tuple[str, dict[
             torch.cuda.synchronize()
         wall_ms = (time.perf_counter() - began) * 1e3 / calls
     averages = profiler.key_averages()
-    table = averages.table(sort_by="self_cuda_time_total" if device.type == "cuda" else "self_cpu_time_total", row_limit=25)
+    table = averages.table(
+        sort_by="self_cuda_time_total" if device.type == "cuda" else "self_cpu_time_total", row_limit=25
+    )
     # leaf operators (aten::*) do the arithmetic; their self time against the wall time bounds the overhead
     operator_ms = sum(event.self_cpu_time_total for event in averages if event.key.startswith("aten::")) / 1e3 / calls
-    return table, {"calls": calls, "wall_ms_per_call": wall_ms, "aten_self_cpu_ms_per_call": operator_ms,
-                   "outside_aten_share": max(0.0, 1 - operator_ms / wall_ms)}
+    return table, {
+        "calls": calls,
+        "wall_ms_per_call": wall_ms,
+        "aten_self_cpu_ms_per_call": operator_ms,
+        "outside_aten_share": max(0.0, 1 - operator_ms / wall_ms),
+    }
 
 
-def run_bench(subject: BenchSubject, warmup: int = 10, repeats: int = 50, compile_mode: str | None = None,
-              profile: bool = True, modes: tuple[SamplingMode, ...] = BENCH_MODES) -> dict[str, Any]:
+def run_bench(
+    subject: BenchSubject,
+    warmup: int = 10,
+    repeats: int = 50,
+    compile_mode: str | None = None,
+    profile: bool = True,
+    modes: tuple[SamplingMode, ...] = BENCH_MODES,
+) -> dict[str, Any]:
     """Time ``subject`` at every mode (the first is the reference of the speedups) and, optionally, profile 1-NFE."""
     if compile_mode:
         compile_policy(subject.policy, compile_mode)
     report: dict[str, Any] = {
-        "subject": subject.name, "details": subject.details, "machine": machine(), "dtype": str(subject.noise.dtype).removeprefix("torch."),
+        "subject": subject.name,
+        "details": subject.details,
+        "machine": machine(),
+        "dtype": str(subject.noise.dtype).removeprefix("torch."),
         "compile": compile_mode,
-        "latency": measure_latency(subject.policy, subject.observation, subject.noise, list(modes), warmup, repeats).to_dict(),
+        "latency": measure_latency(
+            subject.policy, subject.observation, subject.noise, list(modes), warmup, repeats
+        ).to_dict(),
     }
     paper = PAPER_A800.get(subject.details.get("policy_type", ""))
     if paper:
@@ -74,23 +93,55 @@ def run_bench(subject: BenchSubject, warmup: int = 10, repeats: int = 50, compil
 def markdown_bench(report: dict[str, Any]) -> str:
     latency, host = report["latency"], report["machine"]
     device = host["gpu"] or f"{host['cpu']} ({host['threads']} threads)"
-    lines = [f"# Latency: {report['subject']}", "",
-             f"Batch 1 on {device}, {report['dtype']}, torch {host['torch']}, compile: {report['compile'] or 'off'}; medians (P90) of "
-             f"{latency['repeats']} round-robin repeats after {latency['warmup']} warm-up calls of each.", "",
-             f"Prefix (VLM) encoding: {latency['prefix']['median_ms']:.2f} ms (P90 {latency['prefix']['p90_ms']:.2f}).", "",
-             markdown_table(["mode", "NFE", "denoising ms", "per pass ms", "end-to-end ms", "denoising share", "denoising speedup", "end-to-end speedup"],
-                            [[name, entry["nfe"], f"{entry['denoising']['median_ms']:.2f} ({entry['denoising']['p90_ms']:.2f})", f"{entry['per_pass_ms']:.2f}",
-                              f"{entry['end_to_end']['median_ms']:.2f} ({entry['end_to_end']['p90_ms']:.2f})", f"{entry['denoising_share']:.0%}",
-                              f"{entry['denoising_speedup']:.2f}x", f"{entry['end_to_end_speedup']:.2f}x"] for name, entry in latency["modes"].items()])]
+    lines = [
+        f"# Latency: {report['subject']}",
+        "",
+        f"Batch 1 on {device}, {report['dtype']}, torch {host['torch']}, compile: {report['compile'] or 'off'}; medians (P90) of "
+        f"{latency['repeats']} round-robin repeats after {latency['warmup']} warm-up calls of each.",
+        "",
+        f"Prefix (VLM) encoding: {latency['prefix']['median_ms']:.2f} ms (P90 {latency['prefix']['p90_ms']:.2f}).",
+        "",
+        markdown_table(
+            [
+                "mode",
+                "NFE",
+                "denoising ms",
+                "per pass ms",
+                "end-to-end ms",
+                "denoising share",
+                "denoising speedup",
+                "end-to-end speedup",
+            ],
+            [
+                [
+                    name,
+                    entry["nfe"],
+                    f"{entry['denoising']['median_ms']:.2f} ({entry['denoising']['p90_ms']:.2f})",
+                    f"{entry['per_pass_ms']:.2f}",
+                    f"{entry['end_to_end']['median_ms']:.2f} ({entry['end_to_end']['p90_ms']:.2f})",
+                    f"{entry['denoising_share']:.0%}",
+                    f"{entry['denoising_speedup']:.2f}x",
+                    f"{entry['end_to_end_speedup']:.2f}x",
+                ]
+                for name, entry in latency["modes"].items()
+            ],
+        ),
+    ]
     if "paper_a800" in report:
         paper = report["paper_a800"]
-        lines += ["", f"The paper on an A800: {paper['teacher_10_ms']:.0f} ms (10-step teacher) -> {paper['snapflow_1_ms']:.0f} ms "
-                      f"(SnapFlow 1-step) end-to-end, {paper['end_to_end_speedup']:.1f}x."]
+        lines += [
+            "",
+            f"The paper on an A800: {paper['teacher_10_ms']:.0f} ms (10-step teacher) -> {paper['snapflow_1_ms']:.0f} ms "
+            f"(SnapFlow 1-step) end-to-end, {paper['end_to_end_speedup']:.1f}x.",
+        ]
     if "profile_one_step" in report:
         summary = report["profile_one_step"]
-        lines += ["", f"Profile of the 1-NFE path ({summary['calls']} calls, `profile.txt`): {summary['wall_ms_per_call']:.2f} ms a call "
-                      f"under the profiler, of which operators' own time {summary['aten_self_cpu_ms_per_call']:.2f} ms; "
-                      f"{summary['outside_aten_share']:.0%} outside them (Python, dispatch, profiler)."]
+        lines += [
+            "",
+            f"Profile of the 1-NFE path ({summary['calls']} calls, `profile.txt`): {summary['wall_ms_per_call']:.2f} ms a call "
+            f"under the profiler, of which operators' own time {summary['aten_self_cpu_ms_per_call']:.2f} ms; "
+            f"{summary['outside_aten_share']:.0%} outside them (Python, dispatch, profiler).",
+        ]
     return "\n".join(lines)
 
 
@@ -100,15 +151,27 @@ def plot_bench(report: dict[str, Any], path: Path) -> None:
     labels = list(latency["modes"])
     prefix = [latency["prefix"]["median_ms"]] * len(labels)
     denoise = [latency["modes"][label]["denoising"]["median_ms"] for label in labels]
-    other = [max(0.0, latency["modes"][label]["end_to_end"]["median_ms"] - p - d) for label, p, d in zip(labels, prefix, denoise, strict=True)]
+    other = [
+        max(0.0, latency["modes"][label]["end_to_end"]["median_ms"] - p - d)
+        for label, p, d in zip(labels, prefix, denoise, strict=True)
+    ]
     figure, axis = plt.subplots(figsize=(6.5, 3.8))
     axis.bar(labels, prefix, label="prefix (VLM)")
     axis.bar(labels, denoise, bottom=prefix, label="denoising")
-    axis.bar(labels, other, bottom=[p + d for p, d in zip(prefix, denoise, strict=True)], label="other", color="lightgray")
+    axis.bar(
+        labels, other, bottom=[p + d for p, d in zip(prefix, denoise, strict=True)], label="other", color="lightgray"
+    )
     for index, label in enumerate(labels):
-        axis.annotate(f"{latency['modes'][label]['end_to_end_speedup']:.1f}x", (index, prefix[index] + denoise[index] + other[index]),
-                      ha="center", va="bottom", fontsize=8)
-    axis.set_ylim(top=1.12 * max(p + d + o for p, d, o in zip(prefix, denoise, other, strict=True)))  # room for the labels
+        axis.annotate(
+            f"{latency['modes'][label]['end_to_end_speedup']:.1f}x",
+            (index, prefix[index] + denoise[index] + other[index]),
+            ha="center",
+            va="bottom",
+            fontsize=8,
+        )
+    axis.set_ylim(
+        top=1.12 * max(p + d + o for p, d, o in zip(prefix, denoise, other, strict=True))
+    )  # room for the labels
     axis.set_ylabel("ms per chunk (median, batch 1)")
     axis.legend(fontsize=8)
     host = report["machine"]
@@ -128,5 +191,4 @@ def write_bench(report: dict[str, Any], directory: str | Path) -> Path:
     return directory
 
 
-__all__ = ["BENCH_MODES", "PAPER_A800", "profile_one_step", "run_bench",
-           "markdown_bench", "plot_bench", "write_bench"]
+__all__ = ["BENCH_MODES", "PAPER_A800", "profile_one_step", "run_bench", "markdown_bench", "plot_bench", "write_bench"]

@@ -69,8 +69,16 @@ class LatencyRow:
 
     def to_dict(self) -> dict[str, Any]:
         row = {"prefix": asdict(self.prefix)} if self.prefix is not None else {}
-        return {**row, "nfe": self.nfe, "denoising": asdict(self.denoising), "per_pass_ms": self.per_pass_ms, "end_to_end": asdict(self.end_to_end),
-                "denoising_share": self.denoising_share, "denoising_speedup": self.denoising_speedup, "end_to_end_speedup": self.end_to_end_speedup}
+        return {
+            **row,
+            "nfe": self.nfe,
+            "denoising": asdict(self.denoising),
+            "per_pass_ms": self.per_pass_ms,
+            "end_to_end": asdict(self.end_to_end),
+            "denoising_share": self.denoising_share,
+            "denoising_speedup": self.denoising_speedup,
+            "end_to_end_speedup": self.end_to_end_speedup,
+        }
 
 
 @dataclass
@@ -84,11 +92,18 @@ class LatencyReport:
     device: str
 
     def to_dict(self) -> dict[str, Any]:
-        return {"prefix": asdict(self.prefix), "modes": {name: row.to_dict() for name, row in self.modes.items()}, "warmup": self.warmup,
-                "repeats": self.repeats, "device": self.device}
+        return {
+            "prefix": asdict(self.prefix),
+            "modes": {name: row.to_dict() for name, row in self.modes.items()},
+            "warmup": self.warmup,
+            "repeats": self.repeats,
+            "device": self.device,
+        }
 
 
-def time_round_robin(functions: dict[str, Callable[[], Any]], device: torch.device, warmup: int, repeats: int) -> dict[str, Timing]:
+def time_round_robin(
+    functions: dict[str, Callable[[], Any]], device: torch.device, warmup: int, repeats: int
+) -> dict[str, Timing]:
     """Median / P90 milliseconds of each function, timed in rotating order after ``warmup`` calls of each."""
     if repeats < 1 or warmup < 0:
         raise ValueError(f"need repeats >= 1 and warmup >= 0, got {repeats} and {warmup}")
@@ -106,7 +121,12 @@ def time_round_robin(functions: dict[str, Callable[[], Any]], device: torch.devi
 
 @torch.inference_mode()
 def measure_latency(
-    policy: FlowPolicy, observation: Any, noise: torch.Tensor, modes: list[SamplingMode], warmup: int = 10, repeats: int = 50,
+    policy: FlowPolicy,
+    observation: Any,
+    noise: torch.Tensor,
+    modes: list[SamplingMode],
+    warmup: int = 10,
+    repeats: int = 50,
 ) -> LatencyReport:
     """Prefix, denoising-only (and per pass) and end-to-end time per chunk for each mode, the denoising share of
     end-to-end time, and every speedup over the first mode (the reference, normally the 10-step teacher)."""
@@ -121,7 +141,10 @@ def measure_latency(
         functions[f"{mode.name}/denoising"] = lambda mode=mode: euler_sample(velocity, noise, mode)
         functions[f"{mode.name}/end_to_end"] = lambda mode=mode: sample_actions(policy, observation, noise, mode)
     timed = time_round_robin(functions, device, warmup, repeats)
-    rows = {mode.name: LatencyRow(mode.num_steps, timed[f"{mode.name}/denoising"], timed[f"{mode.name}/end_to_end"]) for mode in modes}
+    rows = {
+        mode.name: LatencyRow(mode.num_steps, timed[f"{mode.name}/denoising"], timed[f"{mode.name}/end_to_end"])
+        for mode in modes
+    }
     return LatencyReport(timed["prefix"], add_speedups(rows), warmup, repeats, str(device))
 
 

@@ -40,18 +40,35 @@ def _parameter_count(module: nn.Module) -> int:
     return sum(parameter.numel() for parameter in module.parameters())
 
 
-def builtin_subject(loaded: LoadedPolicy, name: str, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32) -> BenchSubject:
+def builtin_subject(
+    loaded: LoadedPolicy, name: str, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32
+) -> BenchSubject:
     """A built-in policy with a batch-1 observation made by its own processor (a zero state, the first instruction it
     knows, a black image where it reads one) and fixed noise: the values do not change the timing."""
     processor = loaded.processor
     torch.manual_seed(0)
-    images = np.zeros((1, processor.image_size, processor.image_size, 3), dtype=np.uint8) if processor.image_size else None
+    images = (
+        np.zeros((1, processor.image_size, processor.image_size, 3), dtype=np.uint8) if processor.image_size else None
+    )
     instruction = processor.instructions[0] if processor.instructions else "push the puck to the goal"
-    observation = _cast(processor.observation(np.zeros((1, processor.state_dim), dtype=np.float32), [instruction], images), device, dtype)
+    observation = _cast(
+        processor.observation(np.zeros((1, processor.state_dim), dtype=np.float32), [instruction], images),
+        device,
+        dtype,
+    )
     noise = torch.randn(1, processor.chunk_length, processor.action_dim).to(device=device, dtype=dtype)
     policy = loaded.policy.to(device=device, dtype=dtype).eval()
-    return BenchSubject(name, policy, observation, noise, {"parameters": _parameter_count(policy), "policy_type": loaded.metadata["policy"],
-                                                          "config": processor.config.to_dict()})
+    return BenchSubject(
+        name,
+        policy,
+        observation,
+        noise,
+        {
+            "parameters": _parameter_count(policy),
+            "policy_type": loaded.metadata["policy"],
+            "config": processor.config.to_dict(),
+        },
+    )
 
 
 def random_builtin_policy(name: str) -> LoadedPolicy:
@@ -62,14 +79,21 @@ def random_builtin_policy(name: str) -> LoadedPolicy:
     instructions = list(MT10_INSTRUCTIONS.values())
     config = default_config(name, STATE_DIM, ACTION_DIM, instructions)
     state_dim = policy_type(name).processor_class.state_entries(config, instructions)
-    processor = make_processor(config, NormalizationStats([0.0] * state_dim, [1.0] * state_dim, [0.0] * ACTION_DIM, [1.0] * ACTION_DIM), instructions)
+    processor = make_processor(
+        config,
+        NormalizationStats([0.0] * state_dim, [1.0] * state_dim, [0.0] * ACTION_DIM, [1.0] * ACTION_DIM),
+        instructions,
+    )
     policy = SnapFlowPolicy(make_model(config))
     return LoadedPolicy(policy, processor, policy_metadata(policy, processor), Path(f"<random {name}>"))
 
 
 def _cast(observation: Any, device: torch.device, dtype: torch.dtype) -> Any:
     """Floating-point tensors of an observation to ``dtype`` and every tensor to ``device``."""
-    return map_tensors(observation, lambda tensor: tensor.to(device=device, dtype=dtype if tensor.is_floating_point() else tensor.dtype))
+    return map_tensors(
+        observation,
+        lambda tensor: tensor.to(device=device, dtype=dtype if tensor.is_floating_point() else tensor.dtype),
+    )
 
 
 def lerobot_observation(policy: nn.Module, device: torch.device) -> dict[str, Tensor]:
@@ -80,7 +104,9 @@ def lerobot_observation(policy: nn.Module, device: torch.device) -> dict[str, Te
     if config.robot_state_feature is not None:
         observation["observation.state"] = torch.randn(1, *config.robot_state_feature.shape, device=device)
     length = config.tokenizer_max_length
-    observation["observation.language.tokens"] = torch.zeros(1, length, dtype=torch.long, device=device)  # id 0: in every vocabulary
+    observation["observation.language.tokens"] = torch.zeros(
+        1, length, dtype=torch.long, device=device
+    )  # id 0: in every vocabulary
     observation["observation.language.attention_mask"] = torch.ones(1, length, dtype=torch.bool, device=device)
     return observation
 
@@ -95,17 +121,29 @@ def lerobot_subject(policy: nn.Module, name: str, device: torch.device, dtype: t
     adapter.to(device)
     if dtype != torch.float32:
         if adapter.policy_type == "smolvla" or dtype != torch.bfloat16:
-            raise ValueError(f"LeRobot runs {adapter.policy_type} in {dtype} only through autocast; time it in float32, or pi0 / pi0.5 in bfloat16")
+            raise ValueError(
+                f"LeRobot runs {adapter.policy_type} in {dtype} only through autocast; time it in float32, or pi0 / pi0.5 in bfloat16"
+            )
         # LeRobot's own mixed precision: the VLM and expert in bfloat16, the layers it keeps in float32 kept
         inner.model.paligemma_with_expert.to_bfloat16_for_selected_params("bfloat16")
     adapter.eval()
     config = inner.config
     noise = torch.randn(1, config.chunk_size, config.max_action_dim, device=device)
     expert = _parameter_count(nn.ModuleList(adapter.expert_modules()))
-    return BenchSubject(name, adapter, lerobot_observation(inner, device), noise,
-                        {"parameters": _parameter_count(adapter), "expert_parameters": expert, "policy_type": adapter.policy_type,
-                         "chunk_size": config.chunk_size, "tokens": config.tokenizer_max_length,
-                         "cameras": list(config.image_features)})
+    return BenchSubject(
+        name,
+        adapter,
+        lerobot_observation(inner, device),
+        noise,
+        {
+            "parameters": _parameter_count(adapter),
+            "expert_parameters": expert,
+            "policy_type": adapter.policy_type,
+            "chunk_size": config.chunk_size,
+            "tokens": config.tokenizer_max_length,
+            "cameras": list(config.image_features),
+        },
+    )
 
 
 def lerobot_architecture(policy_type: str, device: torch.device, vlm: str | None = None) -> nn.Module:
@@ -127,7 +165,9 @@ def lerobot_architecture(policy_type: str, device: torch.device, vlm: str | None
         },
         "output_features": {"action": PolicyFeature(type=FeatureType.ACTION, shape=(LIBERO_ACTION_DIM,))},
     }
-    extra: dict[str, Any] = {"load_vlm_weights": False, **({"vlm_model_name": vlm} if vlm else {})} if policy_type == "smolvla" else {}
+    extra: dict[str, Any] = (
+        {"load_vlm_weights": False, **({"vlm_model_name": vlm} if vlm else {})} if policy_type == "smolvla" else {}
+    )
     config = make_policy_config(policy_type, device=str(device), push_to_hub=False, **features, **extra)
     return get_policy_class(policy_type)(config)
 
@@ -137,7 +177,9 @@ def architectures() -> tuple[str, ...]:
     return (*POLICIES, *LEROBOT_ARCHITECTURES)
 
 
-def make_subject(policy: str | None, architecture: str | None, device: torch.device, dtype: torch.dtype, vlm: str | None = None) -> BenchSubject:
+def make_subject(
+    policy: str | None, architecture: str | None, device: torch.device, dtype: torch.dtype, vlm: str | None = None
+) -> BenchSubject:
     """The subject the CLI names: ``--policy`` (a built-in checkpoint, a distilled LeRobot folder, or a LeRobot hub id
     or folder) or ``--architecture`` (random weights at full size; ``minivla`` is the demo's policy)."""
     if (policy is None) == (architecture is None):
@@ -146,8 +188,15 @@ def make_subject(policy: str | None, architecture: str | None, device: torch.dev
         if architecture not in architectures():
             raise ValueError(f"unknown architecture {architecture!r}; choose one of {', '.join(architectures())}")
         if architecture in POLICIES:
-            return builtin_subject(random_builtin_policy(architecture), f"{architecture} (random weights)", device, dtype)
-        return lerobot_subject(lerobot_architecture(architecture, device, vlm), f"{architecture} (full size, random weights)", device, dtype)
+            return builtin_subject(
+                random_builtin_policy(architecture), f"{architecture} (random weights)", device, dtype
+            )
+        return lerobot_subject(
+            lerobot_architecture(architecture, device, vlm),
+            f"{architecture} (full size, random weights)",
+            device,
+            dtype,
+        )
     local = Path(policy)
     if (local / POLICY_CONFIG).is_file() or (local / LATEST).is_file():  # what resolve_checkpoint accepts
         loaded = load_policy(policy)
@@ -159,4 +208,14 @@ def make_subject(policy: str | None, architecture: str | None, device: torch.dev
     return lerobot_subject(loaded, policy, device, dtype)
 
 
-__all__ = ["LEROBOT_ARCHITECTURES", "architectures", "BenchSubject", "builtin_subject", "random_builtin_policy", "lerobot_observation", "lerobot_subject", "lerobot_architecture", "make_subject"]
+__all__ = [
+    "LEROBOT_ARCHITECTURES",
+    "architectures",
+    "BenchSubject",
+    "builtin_subject",
+    "random_builtin_policy",
+    "lerobot_observation",
+    "lerobot_subject",
+    "lerobot_architecture",
+    "make_subject",
+]

@@ -30,8 +30,15 @@ from snapflow.training.trainer import ObjectiveModule, train_step
 
 
 def time_training_steps(
-    student: SnapFlowPolicy, observation: Any, actions: torch.Tensor, options: list[TargetOption], time_sampler: TimeSampler,
-    freeze_prefix: bool = True, warmup: int = 5, repeats: int = 30, learning_rate: float = STUDENT_TRAINING.learning_rate,
+    student: SnapFlowPolicy,
+    observation: Any,
+    actions: torch.Tensor,
+    options: list[TargetOption],
+    time_sampler: TimeSampler,
+    freeze_prefix: bool = True,
+    warmup: int = 5,
+    repeats: int = 30,
+    learning_rate: float = STUDENT_TRAINING.learning_rate,
 ) -> dict[str, Any]:
     """Median and P90 seconds of one training step (:func:`snapflow.training.trainer.train_step`) per option; with
     ``freeze_prefix`` the optimiser updates the student's ``expert_parameters()``, as ``snapflow distill`` does.
@@ -53,28 +60,57 @@ def time_training_steps(
         for option, module, optimizer in runners:
             progress = (repeat % stages[option] + 0.5) / stages[option]
             started = time.perf_counter()
-            train_step(module, optimizer, observation, actions, learning_rate=learning_rate, generator=generator, progress=progress)
+            train_step(
+                module,
+                optimizer,
+                observation,
+                actions,
+                learning_rate=learning_rate,
+                generator=generator,
+                progress=progress,
+            )
             elapsed = time.perf_counter() - started
             if repeat >= warmup:
                 times[option].append(elapsed)
     reference = float(np.median(times[options[0]]))
-    rows = [{
-        "option": option.name, "label": option.label, "teacher_passes_per_row": option.teacher_passes,
-        "step_ms_median": 1000 * float(np.median(times[option])), "step_ms_p90": 1000 * float(np.percentile(times[option], 90)),
-        "relative_to_first": float(np.median(times[option])) / reference,
-    } for option in options]
-    return {"batch_size": int(actions.shape[0]), "warmup": warmup, "repeats": repeats, "machine": machine(), "rows": rows}
+    rows = [
+        {
+            "option": option.name,
+            "label": option.label,
+            "teacher_passes_per_row": option.teacher_passes,
+            "step_ms_median": 1000 * float(np.median(times[option])),
+            "step_ms_p90": 1000 * float(np.percentile(times[option], 90)),
+            "relative_to_first": float(np.median(times[option])) / reference,
+        }
+        for option in options
+    ]
+    return {
+        "batch_size": int(actions.shape[0]),
+        "warmup": warmup,
+        "repeats": repeats,
+        "machine": machine(),
+        "rows": rows,
+    }
 
 
 def checkpoint_training_cost(
-    teacher: str | Path, data: str | Path, options: list[TargetOption], batch_size: int = 64, warmup: int = 5, repeats: int = 30,
+    teacher: str | Path,
+    data: str | Path,
+    options: list[TargetOption],
+    batch_size: int = 64,
+    warmup: int = 5,
+    repeats: int = 30,
 ) -> dict[str, Any]:
     """:func:`time_training_steps` for the student of a built-in ``teacher`` checkpoint (phi_s added, prefix frozen, as
     ``snapflow distill`` trains it) on one batch of its training demonstrations."""
     loaded = load_policy(teacher, target_time=True)
     train_data, _ = split_chunk_data(Demonstrations.load(data), loaded.processor, loaded.val_fraction)
-    observation, actions = train_data.batch(torch.randint(len(train_data), (batch_size,), generator=torch.Generator().manual_seed(0)))
-    return time_training_steps(loaded.policy, observation, actions, options, TIME_SAMPLER, warmup=warmup, repeats=repeats)
+    observation, actions = train_data.batch(
+        torch.randint(len(train_data), (batch_size,), generator=torch.Generator().manual_seed(0))
+    )
+    return time_training_steps(
+        loaded.policy, observation, actions, options, TIME_SAMPLER, warmup=warmup, repeats=repeats
+    )
 
 
 def markdown_training_cost(result: dict[str, Any]) -> str:
@@ -84,9 +120,19 @@ def markdown_training_cost(result: dict[str, Any]) -> str:
         f"round-robin repeats after {result['warmup']} warm-up steps; {result['machine']['cpu']}, {result['machine']['threads']} thread(s), "
         f"torch {result['machine']['torch']}.",
         "",
-        markdown_table(["target", "no-grad passes per one-step row", "ms per step (median)", "P90", f"/ {first}"],
-                       [[row["label"], f"{row['teacher_passes_per_row']:.3g} + 1", f"{row['step_ms_median']:.1f}", f"{row['step_ms_p90']:.1f}",
-                         f"{row['relative_to_first']:.2f}x"] for row in result["rows"]]),
+        markdown_table(
+            ["target", "no-grad passes per one-step row", "ms per step (median)", "P90", f"/ {first}"],
+            [
+                [
+                    row["label"],
+                    f"{row['teacher_passes_per_row']:.3g} + 1",
+                    f"{row['step_ms_median']:.1f}",
+                    f"{row['step_ms_p90']:.1f}",
+                    f"{row['relative_to_first']:.2f}x",
+                ]
+                for row in result["rows"]
+            ],
+        ),
     ]
     return "\n".join(lines)
 

@@ -20,7 +20,10 @@ class ChunkData:
     def __init__(self, demonstrations: Demonstrations, episodes: list[int], processor: Processor) -> None:
         if not episodes:
             raise ValueError("no episodes selected")
-        if demonstrations.states.shape[1] < processor.state_dim or demonstrations.actions.shape[1] != processor.action_dim:
+        if (
+            demonstrations.states.shape[1] < processor.state_dim
+            or demonstrations.actions.shape[1] != processor.action_dim
+        ):
             raise ValueError(
                 f"demonstrations have state/action dims {demonstrations.states.shape[1]}/{demonstrations.actions.shape[1]}, "
                 f"the policy reads {processor.state_dim} state entries and writes {processor.action_dim} action dims"
@@ -29,13 +32,25 @@ class ChunkData:
         if size and demonstrations.images is None:
             raise ValueError("the policy uses images but the demonstrations hold none; collect with --image-size")
         if size and demonstrations.images.shape[1:3] != (size, size):
-            raise ValueError(f"the demonstrations' images are {demonstrations.images.shape[1]}x{demonstrations.images.shape[2]}, "
-                             f"the policy expects {size}x{size}")
+            raise ValueError(
+                f"the demonstrations' images are {demonstrations.images.shape[1]}x{demonstrations.images.shape[2]}, "
+                f"the policy expects {size}x{size}"
+            )
         rows = demonstrations.rows(episodes)
-        ends = np.concatenate([np.full(demonstrations.episodes[e].length, demonstrations.episodes[e].start + demonstrations.episodes[e].length) for e in episodes])
+        ends = np.concatenate(
+            [
+                np.full(
+                    demonstrations.episodes[e].length,
+                    demonstrations.episodes[e].start + demonstrations.episodes[e].length,
+                )
+                for e in episodes
+            ]
+        )
         chunk_rows = np.minimum(rows[:, None] + np.arange(processor.chunk_length)[None, :], ends[:, None] - 1)
         self.actions = processor.normalize_actions(torch.from_numpy(demonstrations.actions[chunk_rows]))
-        instructions = [demonstrations.instructions[demonstrations.episodes[e].task] for e in demonstrations.episode_index[rows]]
+        instructions = [
+            demonstrations.instructions[demonstrations.episodes[e].task] for e in demonstrations.episode_index[rows]
+        ]
         images = demonstrations.images[rows] if size else None
         self.observation = processor.observation(demonstrations.states[rows], instructions, images)
 
@@ -46,10 +61,14 @@ class ChunkData:
         return index_batch(self.observation, indices), self.actions[indices]
 
 
-def split_chunk_data(demonstrations: Demonstrations, processor: Processor, val_fraction: float) -> tuple[ChunkData, ChunkData | None]:
+def split_chunk_data(
+    demonstrations: Demonstrations, processor: Processor, val_fraction: float
+) -> tuple[ChunkData, ChunkData | None]:
     """Training and held-out chunks: the last ``val_fraction`` of each task's episodes are held out."""
     train_episodes, val_episodes = demonstrations.split(val_fraction)
-    return ChunkData(demonstrations, train_episodes, processor), ChunkData(demonstrations, val_episodes, processor) if val_episodes else None
+    return ChunkData(demonstrations, train_episodes, processor), ChunkData(
+        demonstrations, val_episodes, processor
+    ) if val_episodes else None
 
 
 __all__ = ["ChunkData", "split_chunk_data"]

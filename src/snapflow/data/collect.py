@@ -15,17 +15,25 @@ EPISODES_PER_TASK = 30  # successful expert episodes per task (Meta-World has 50
 
 
 def collect_demonstrations(
-    benchmark: Benchmark, tasks: list[str], episodes_per_task: int, image_size: int | None = None, progress: bool = True,
+    benchmark: Benchmark,
+    tasks: list[str],
+    episodes_per_task: int,
+    image_size: int | None = None,
+    progress: bool = True,
 ) -> Demonstrations:
     """Run each task's expert on successive training variations until ``episodes_per_task`` succeed."""
     benchmark.check_tasks(tasks)
     available = benchmark.num_variations("train")
     if not 1 <= episodes_per_task <= available:
-        raise ValueError(f"episodes_per_task must be in [1, {available}] ({benchmark.name}'s training variations), got {episodes_per_task}")
+        raise ValueError(
+            f"episodes_per_task must be in [1, {available}] ({benchmark.name}'s training variations), got {episodes_per_task}"
+        )
     states, actions, images, episodes = [], [], [], []
     bar = tqdm(total=len(tasks) * episodes_per_task, desc="collecting expert demonstrations", disable=not progress)
     with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="Constant.*may be too high")  # Meta-World's experts' own clipping notice
+        warnings.filterwarnings(
+            "ignore", message="Constant.*may be too high"
+        )  # Meta-World's experts' own clipping notice
         for task in tasks:
             env, expert = benchmark.make_env(task, "train", image_size), benchmark.make_expert(task)
             kept = 0
@@ -56,13 +64,22 @@ def collect_demonstrations(
     bar.close()
     episode_index = np.concatenate([np.full(e.length, i, dtype=np.int64) for i, e in enumerate(episodes)])
     return Demonstrations(
-        np.stack(states), np.stack(actions), episode_index, episodes,
-        {task: benchmark.instruction(task) for task in tasks}, np.stack(images) if images else None, benchmark.name,
+        np.stack(states),
+        np.stack(actions),
+        episode_index,
+        episodes,
+        {task: benchmark.instruction(task) for task in tasks},
+        np.stack(images) if images else None,
+        benchmark.name,
     )
 
 
 def collect(
-    benchmark: Benchmark, tasks: list[str], episodes_per_task: int = EPISODES_PER_TASK, output: str | Path = "outputs/data", image_size: int | None = None,
+    benchmark: Benchmark,
+    tasks: list[str],
+    episodes_per_task: int = EPISODES_PER_TASK,
+    output: str | Path = "outputs/data",
+    image_size: int | None = None,
     progress: bool = True,
 ) -> Demonstrations:
     """:func:`collect_demonstrations`, saved to ``output``."""

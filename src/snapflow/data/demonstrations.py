@@ -61,7 +61,9 @@ class Demonstrations:
     def validate(self) -> None:
         """Reject what would silently corrupt training: bad shapes, dtypes, non-finite values, empty episodes."""
         if self.states.ndim != 2 or self.actions.ndim != 2 or len(self.states) != len(self.actions):
-            raise DemonstrationError(f"states {self.states.shape} and actions {self.actions.shape} must be (N, dim) with one N")
+            raise DemonstrationError(
+                f"states {self.states.shape} and actions {self.actions.shape} must be (N, dim) with one N"
+            )
         for name in ("states", "actions"):
             array = getattr(self, name)
             if not np.issubdtype(array.dtype, np.floating):
@@ -83,7 +85,9 @@ class Demonstrations:
         if position != len(self.states) or len(self.episode_index) != position:
             raise DemonstrationError(f"episodes cover {position} steps but the arrays hold {len(self.states)}")
         if self.images is not None and (self.images.shape[0] != position or self.images.dtype != np.uint8):
-            raise DemonstrationError(f"images must be uint8 (N, H, W, 3) with N = {position}, got {self.images.dtype} {self.images.shape}")
+            raise DemonstrationError(
+                f"images must be uint8 (N, H, W, 3) with N = {position}, got {self.images.dtype} {self.images.shape}"
+            )
 
     def stats(self, episodes: list[int] | None = None, state_dim: int | None = None) -> NormalizationStats:
         """Normalisation of the given episodes (default all); ``state_dim``: of the leading state entries only."""
@@ -91,14 +95,18 @@ class Demonstrations:
         return NormalizationStats.from_arrays(self.states[rows, :state_dim], self.actions[rows])
 
     def rows(self, episodes: list[int]) -> np.ndarray:
-        return np.concatenate([np.arange(self.episodes[e].start, self.episodes[e].start + self.episodes[e].length) for e in episodes])
+        return np.concatenate(
+            [np.arange(self.episodes[e].start, self.episodes[e].start + self.episodes[e].length) for e in episodes]
+        )
 
     def split(self, val_fraction: float) -> tuple[list[int], list[int]]:
         """Hold out the last ``val_fraction`` of each task's episodes (at least one when a task has two)."""
         train, val = [], []
         for task in self.tasks:
             ids = [i for i, episode in enumerate(self.episodes) if episode.task == task]
-            held_out = min(max(round(val_fraction * len(ids)), 1 if val_fraction > 0 and len(ids) > 1 else 0), len(ids) - 1)
+            held_out = min(
+                max(round(val_fraction * len(ids)), 1 if val_fraction > 0 and len(ids) > 1 else 0), len(ids) - 1
+            )
             train += ids[: len(ids) - held_out]
             val += ids[len(ids) - held_out :]
         return train, val
@@ -109,13 +117,21 @@ class Demonstrations:
         if self.images is not None:
             arrays["images"] = self.images
         atomic_write(directory / ARRAYS_FILE, lambda path: np.savez_compressed(open(path, "wb"), **arrays))
-        write_json(directory / META_FILE, {
-            "format": FORMAT, "version": VERSION, "env": self.env,
-            "state_dim": int(self.states.shape[1]), "action_dim": int(self.actions.shape[1]),
-            "num_steps": int(len(self.states)), "has_images": self.images is not None,
-            "instructions": self.instructions, "episodes": [asdict(e) for e in self.episodes],
-            "stats": asdict(self.stats()),
-        })
+        write_json(
+            directory / META_FILE,
+            {
+                "format": FORMAT,
+                "version": VERSION,
+                "env": self.env,
+                "state_dim": int(self.states.shape[1]),
+                "action_dim": int(self.actions.shape[1]),
+                "num_steps": int(len(self.states)),
+                "has_images": self.images is not None,
+                "instructions": self.instructions,
+                "episodes": [asdict(e) for e in self.episodes],
+                "stats": asdict(self.stats()),
+            },
+        )
         return directory
 
     @classmethod
@@ -130,7 +146,9 @@ class Demonstrations:
         except json.JSONDecodeError as error:
             raise DemonstrationError(f"{meta_path} is not valid JSON: {error}") from None
         if meta.get("format") != FORMAT or meta.get("version") != VERSION:
-            raise DemonstrationError(f"{meta_path}: expected format {FORMAT!r} version {VERSION}, got {meta.get('format')!r} {meta.get('version')!r}")
+            raise DemonstrationError(
+                f"{meta_path}: expected format {FORMAT!r} version {VERSION}, got {meta.get('format')!r} {meta.get('version')!r}"
+            )
         missing = [key for key in ("episodes", "instructions") if key not in meta]
         if missing:
             raise DemonstrationError(f"{meta_path} lacks {missing}")
@@ -142,8 +160,15 @@ class Demonstrations:
         missing = [key for key in ("states", "actions", "episode_index") if key not in loaded]
         if missing:
             raise DemonstrationError(f"{arrays_path} lacks arrays {missing}")
-        return cls(loaded["states"], loaded["actions"], loaded["episode_index"], _episodes(meta["episodes"], meta_path),
-                   _instructions(meta["instructions"], meta_path), loaded.get("images"), _env(meta.get("env", DEFAULT_BENCHMARK), meta_path))
+        return cls(
+            loaded["states"],
+            loaded["actions"],
+            loaded["episode_index"],
+            _episodes(meta["episodes"], meta_path),
+            _instructions(meta["instructions"], meta_path),
+            loaded.get("images"),
+            _env(meta.get("env", DEFAULT_BENCHMARK), meta_path),
+        )
 
 
 def _episodes(entries: Any, source: Path) -> list[Episode]:
@@ -154,11 +179,15 @@ def _episodes(entries: Any, source: Path) -> list[Episode]:
     episodes = []
     for number, entry in enumerate(entries):
         if not isinstance(entry, dict) or set(entry) != set(types):
-            raise DemonstrationError(f"{source}: episode {number} must have exactly the fields {sorted(types)}, got {entry!r}")
+            raise DemonstrationError(
+                f"{source}: episode {number} must have exactly the fields {sorted(types)}, got {entry!r}"
+            )
         for name, kind in types.items():
             expected = {"str": str, "int": int}[kind]
             if not isinstance(entry[name], expected) or isinstance(entry[name], bool):
-                raise DemonstrationError(f"{source}: episode {number} field {name!r} must be {kind}, got {entry[name]!r}")
+                raise DemonstrationError(
+                    f"{source}: episode {number} field {name!r} must be {kind}, got {entry[name]!r}"
+                )
         episodes.append(Episode(**entry))
     return episodes
 
@@ -170,7 +199,9 @@ def _env(name: Any, source: Path) -> str:
 
 
 def _instructions(instructions: Any, source: Path) -> dict[str, str]:
-    if not isinstance(instructions, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in instructions.items()):
+    if not isinstance(instructions, dict) or not all(
+        isinstance(k, str) and isinstance(v, str) for k, v in instructions.items()
+    ):
         raise DemonstrationError(f"{source}: 'instructions' must map task names to instruction strings")
     return instructions
 

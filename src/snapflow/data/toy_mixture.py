@@ -19,14 +19,21 @@ class ConditionalGaussianMixture:
     """
 
     def __init__(
-        self, num_modes: int = 6, context_dim: int = 4, radius: float = 2.0, mode_std: float = 0.12,
-        weight_gain: float = 2.0, seed: int = 0,
+        self,
+        num_modes: int = 6,
+        context_dim: int = 4,
+        radius: float = 2.0,
+        mode_std: float = 0.12,
+        weight_gain: float = 2.0,
+        seed: int = 0,
     ) -> None:
         angles = torch.arange(num_modes, dtype=torch.float32) * (2 * math.pi / num_modes)
         self.means = radius * torch.stack([angles.cos(), angles.sin()], dim=1)
         self.mode_std = mode_std
         self.context_dim = context_dim
-        self.logit_map = weight_gain * torch.randn(num_modes, context_dim, generator=torch.Generator().manual_seed(seed))
+        self.logit_map = weight_gain * torch.randn(
+            num_modes, context_dim, generator=torch.Generator().manual_seed(seed)
+        )
 
     def mode_weights(self, context: Tensor) -> Tensor:
         return torch.softmax(context @ self.logit_map.T, dim=1)

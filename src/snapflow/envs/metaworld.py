@@ -73,7 +73,9 @@ class MetaWorldEnv(Environment):
     passed a via-point before (see :mod:`snapflow.envs.via_points`).
     """
 
-    def __init__(self, task: str, split: str = "train", image_size: int | None = None, via_points: bool = False) -> None:
+    def __init__(
+        self, task: str, split: str = "train", image_size: int | None = None, via_points: bool = False
+    ) -> None:
         benchmark = MetaWorld(via_points)
         benchmark.check_tasks([task])
         benchmark.check_split(split)
@@ -86,7 +88,9 @@ class MetaWorldEnv(Environment):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             if image_size:
-                self._env = suite.train_classes[task](render_mode="rgb_array", camera_name="corner", width=image_size, height=image_size)
+                self._env = suite.train_classes[task](
+                    render_mode="rgb_array", camera_name="corner", width=image_size, height=image_size
+                )
                 # Shadows and multisampling cost most of a CPU-rendered frame and add nothing at this size.
                 self._env.model.vis.quality.shadowsize = 0
                 self._env.model.vis.quality.offsamples = 0
@@ -176,5 +180,13 @@ class MetaWorld(Benchmark):
         return expert
 
 
-__all__ = ["MT10_TASKS", "MT10_INSTRUCTIONS", "STATE_DIM", "ACTION_DIM", "MAX_EPISODE_STEPS", "MetaWorld", "MetaWorldEnv",
-           "ScriptedExpert"]
+__all__ = [
+    "MT10_TASKS",
+    "MT10_INSTRUCTIONS",
+    "STATE_DIM",
+    "ACTION_DIM",
+    "MAX_EPISODE_STEPS",
+    "MetaWorld",
+    "MetaWorldEnv",
+    "ScriptedExpert",
+]

@@ -19,17 +19,27 @@ from snapflow.protocol import FlowPolicy
 class ClosedLoopEvaluator:
     """Holds one environment per (task, episode) on the benchmark's evaluation split, reused across policies and modes."""
 
-    def __init__(self, benchmark: Benchmark, tasks: list[str], episodes_per_task: int, image_size: int | None = None) -> None:
+    def __init__(
+        self, benchmark: Benchmark, tasks: list[str], episodes_per_task: int, image_size: int | None = None
+    ) -> None:
         benchmark.check_tasks(tasks)
         available = benchmark.num_variations("eval")
         if not 1 <= episodes_per_task <= available:
-            raise ValueError(f"episodes per task must be in [1, {available}] ({benchmark.name}'s evaluation variations), got {episodes_per_task}")
+            raise ValueError(
+                f"episodes per task must be in [1, {available}] ({benchmark.name}'s evaluation variations), got {episodes_per_task}"
+            )
         self.slots = [(task, variation) for task in tasks for variation in range(episodes_per_task)]
         self.envs = [benchmark.make_env(task, "eval", image_size) for task, _ in self.slots]
 
     @torch.no_grad()
     def run(
-        self, policy: FlowPolicy, processor: Processor, mode: SamplingMode, n_act: int, seed: int = 0, progress: bool = True,
+        self,
+        policy: FlowPolicy,
+        processor: Processor,
+        mode: SamplingMode,
+        n_act: int,
+        seed: int = 0,
+        progress: bool = True,
     ) -> list[EpisodeResult]:
         """Roll out every slot to success or the step limit, re-planning a chunk every ``n_act`` actions."""
         chunk_length = processor.chunk_length
@@ -45,7 +55,8 @@ class ClosedLoopEvaluator:
             replan = [i for i in range(len(self.envs)) if i not in results and not queues[i]]
             if replan:
                 batch = processor.observation(
-                    np.stack([observations[i].state for i in replan]), [observations[i].instruction for i in replan],
+                    np.stack([observations[i].state for i in replan]),
+                    [observations[i].instruction for i in replan],
                     np.stack([observations[i].image for i in replan]) if processor.image_size else None,
                 )
                 noise = torch.randn(len(replan), chunk_length, processor.action_dim, generator=generator)

@@ -28,9 +28,17 @@ def make_lerobot_env_config(env_type: str, task: str | None = None) -> Any:
 
 
 def evaluate_in_lerobot_env(
-    policy_directory: str | Path, env_type: str, modes: list[SamplingMode], episodes: int, task: str | None = None,
-    n_action_steps: int | None = None, n_envs: int = 1, seed: int = 1000, max_episode_steps: int | None = None,
-    device: str | None = None, compile_mode: CompileMode | None = None,
+    policy_directory: str | Path,
+    env_type: str,
+    modes: list[SamplingMode],
+    episodes: int,
+    task: str | None = None,
+    n_action_steps: int | None = None,
+    n_envs: int = 1,
+    seed: int = 1000,
+    max_episode_steps: int | None = None,
+    device: str | None = None,
+    compile_mode: CompileMode | None = None,
 ) -> dict[str, Any]:
     """Run ``episodes`` rollouts per mode and return ``{"modes": {name: LeRobot's eval info + NFE}, ...}``.
 
@@ -61,7 +69,9 @@ def evaluate_in_lerobot_env(
 
     env_config = make_lerobot_env_config(env_type, task)
     preprocessor, postprocessor = make_pre_post_processors(
-        policy.config, pretrained_path=str(policy_directory), preprocessor_overrides={"device_processor": {"device": device}}
+        policy.config,
+        pretrained_path=str(policy_directory),
+        preprocessor_overrides={"device_processor": {"device": device}},
     )
     env_preprocessor, env_postprocessor = make_env_pre_post_processors(env_config, policy.config)
     environments = make_env(env_config, n_envs=n_envs)
@@ -74,25 +84,58 @@ def evaluate_in_lerobot_env(
         for mode in modes:
             adapter.use_sampling_mode(mode)
             with torch.no_grad():
-                info = eval_policy_all(environments, policy, env_preprocessor, env_postprocessor, preprocessor, postprocessor,
-                                       n_episodes=episodes, start_seed=seed)
+                info = eval_policy_all(
+                    environments,
+                    policy,
+                    env_preprocessor,
+                    env_postprocessor,
+                    preprocessor,
+                    postprocessor,
+                    n_episodes=episodes,
+                    start_seed=seed,
+                )
             results[mode.name] = {"nfe": mode.num_steps, **info}
     finally:
         close_envs(environments)
     return {
-        "policy": str(policy_directory), "policy_type": adapter.policy_type, "env": env_type, "task": env_config.task,
-        "episodes_per_task": episodes, "n_action_steps": n_action_steps, "chunk_size": chunk, "n_envs": n_envs,
-        "start_seed": seed, "max_episode_steps": max_episode_steps, "device": device, "modes": results,
+        "policy": str(policy_directory),
+        "policy_type": adapter.policy_type,
+        "env": env_type,
+        "task": env_config.task,
+        "episodes_per_task": episodes,
+        "n_action_steps": n_action_steps,
+        "chunk_size": chunk,
+        "n_envs": n_envs,
+        "start_seed": seed,
+        "max_episode_steps": max_episode_steps,
+        "device": device,
+        "modes": results,
     }
 
 
 def lerobot_eval_table(report: dict[str, Any]) -> str:
     """Markdown summary: success rate with its episode count, rewards and wall time per sampling mode."""
-    title = (f"{report['policy_type']} in LeRobot's {report['env']} ({report['task']}), {report['n_action_steps']} of "
-             f"{report['chunk_size']} actions executed per chunk")
-    rows = [(name, info["nfe"], f"{info['overall']['pc_success']:.1f}%", info["overall"]["n_episodes"], f"{info['overall']['avg_max_reward']:.3f}",
-             f"{info['overall']['avg_sum_reward']:.3f}", f"{info['overall']['eval_s']:.1f}") for name, info in report["modes"].items()]
-    return title + "\n\n" + markdown_table(["mode", "NFE", "success", "episodes", "avg max reward", "avg sum reward", "eval s"], rows)
+    title = (
+        f"{report['policy_type']} in LeRobot's {report['env']} ({report['task']}), {report['n_action_steps']} of "
+        f"{report['chunk_size']} actions executed per chunk"
+    )
+    rows = [
+        (
+            name,
+            info["nfe"],
+            f"{info['overall']['pc_success']:.1f}%",
+            info["overall"]["n_episodes"],
+            f"{info['overall']['avg_max_reward']:.3f}",
+            f"{info['overall']['avg_sum_reward']:.3f}",
+            f"{info['overall']['eval_s']:.1f}",
+        )
+        for name, info in report["modes"].items()
+    ]
+    return (
+        title
+        + "\n\n"
+        + markdown_table(["mode", "NFE", "success", "episodes", "avg max reward", "avg sum reward", "eval s"], rows)
+    )
 
 
 def write_lerobot_eval(report: dict[str, Any], output_dir: str | Path) -> Path:

@@ -12,7 +12,12 @@ from snapflow.protocol import FlowPolicy
 
 @torch.no_grad()
 def offline_metrics(
-    policy: FlowPolicy, data: ChunkData, mode: SamplingMode, max_samples: int = 500, seed: int = 0, batch_size: int = 250,
+    policy: FlowPolicy,
+    data: ChunkData,
+    mode: SamplingMode,
+    max_samples: int = 500,
+    seed: int = 0,
+    batch_size: int = 250,
 ) -> OfflineMetrics:
     """Per-sample MSE of the predicted chunk (normalised action space) summarised by mean, median, std,
     P90 and P95, and the mean cosine similarity of flattened chunks. Sample subset and noise are fixed by
@@ -28,8 +33,15 @@ def offline_metrics(
         errors.append((prediction - target).pow(2).flatten(1).mean(1))
         cosines.append(torch.nn.functional.cosine_similarity(prediction.flatten(1), target.flatten(1), dim=1))
     mse, cosine = torch.cat(errors).double(), torch.cat(cosines).double()
-    return OfflineMetrics(len(mse), mse.mean().item(), mse.median().item(), mse.std().item(), torch.quantile(mse, 0.90).item(),
-                          torch.quantile(mse, 0.95).item(), cosine.mean().item())
+    return OfflineMetrics(
+        len(mse),
+        mse.mean().item(),
+        mse.median().item(),
+        mse.std().item(),
+        torch.quantile(mse, 0.90).item(),
+        torch.quantile(mse, 0.95).item(),
+        cosine.mean().item(),
+    )
 
 
 __all__ = ["offline_metrics"]

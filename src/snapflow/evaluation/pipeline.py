@@ -23,8 +23,16 @@ OFFLINE_SAMPLES = 500  # held-out chunks scored offline, as the paper's Table 2
 
 
 def evaluate(
-    runs: list[Run], benchmark: Benchmark, tasks: list[str], episodes_per_task: int, n_act: int = N_ACT, data: str | Path | None = None,
-    offline_samples: int = OFFLINE_SAMPLES, seed: int = 0, progress: bool = True, timing: bool = True,
+    runs: list[Run],
+    benchmark: Benchmark,
+    tasks: list[str],
+    episodes_per_task: int,
+    n_act: int = N_ACT,
+    data: str | Path | None = None,
+    offline_samples: int = OFFLINE_SAMPLES,
+    seed: int = 0,
+    progress: bool = True,
+    timing: bool = True,
 ) -> EvaluationReport:
     """Closed-loop success, offline metrics (when ``data`` is given) and, with ``timing``, batch-1 latency for each
     (label, policy, mode); latency speedups are relative to the first entry."""
@@ -36,11 +44,15 @@ def evaluate(
         for label, loaded, mode in runs:
             started = time.perf_counter()
             episodes = evaluator.run(loaded.policy, loaded.processor, mode, n_act, seed, progress)
-            row = EvaluationRow(str(loaded.path), mode.name, mode.num_steps, success_by_task(episodes), time.perf_counter() - started)
+            row = EvaluationRow(
+                str(loaded.path), mode.name, mode.num_steps, success_by_task(episodes), time.perf_counter() - started
+            )
             if demonstrations is not None:
                 if loaded.path not in held_out:
                     _, val_episodes = demonstrations.split(loaded.val_fraction)
-                    held_out[loaded.path] = ChunkData(demonstrations, val_episodes, loaded.processor) if val_episodes else None
+                    held_out[loaded.path] = (
+                        ChunkData(demonstrations, val_episodes, loaded.processor) if val_episodes else None
+                    )
                 if held_out[loaded.path] is not None:
                     row.offline = offline_metrics(loaded.policy, held_out[loaded.path], mode, offline_samples, seed)
             report.rows[label] = row

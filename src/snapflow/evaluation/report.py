@@ -16,7 +16,10 @@ def markdown_report(report: EvaluationReport) -> str:
     labels = list(report.rows)
     success_rows = []
     for task in [*report.tasks, "mean"]:
-        cells = [f"{100 * entry.success_rate:.1f}% ({entry.successes}/{entry.episodes})" for entry in (report.rows[label].success[task] for label in labels)]
+        cells = [
+            f"{100 * entry.success_rate:.1f}% ({entry.successes}/{entry.episodes})"
+            for entry in (report.rows[label].success[task] for label in labels)
+        ]
         success_rows.append(["**mean**" if task == "mean" else task, *cells])
     sections = [
         f"# SnapFlow on {make_benchmark(report.env).title}",
@@ -28,20 +31,56 @@ def markdown_report(report: EvaluationReport) -> str:
     offline = {label: row.offline for label, row in report.rows.items() if row.offline is not None}
     if offline:
         samples = next(iter(offline.values())).samples
-        sections += [f"## Offline action error ({samples} held-out demonstration chunks, normalised actions)",
-                     markdown_table(["sampler", "MSE", "median", "std", "P90", "P95", "cosine"],
-                                    [[label, *(f"{value:.4f}" for value in (m.mse, m.mse_median, m.mse_std, m.mse_p90, m.mse_p95, m.cosine))]
-                                     for label, m in offline.items()])]
+        sections += [
+            f"## Offline action error ({samples} held-out demonstration chunks, normalised actions)",
+            markdown_table(
+                ["sampler", "MSE", "median", "std", "P90", "P95", "cosine"],
+                [
+                    [
+                        label,
+                        *(f"{value:.4f}" for value in (m.mse, m.mse_median, m.mse_std, m.mse_p90, m.mse_p95, m.cosine)),
+                    ]
+                    for label, m in offline.items()
+                ],
+            ),
+        ]
     if report.latency:
-        sections += [f"## Latency per chunk, batch 1 ({report.machine or machine_description()}; medians after warm-up)",
-                     markdown_table(["sampler", "NFE", "prefix ms", "denoising ms", "end-to-end ms", "denoising share", "denoising speedup",
-                                     "end-to-end speedup"],
-                                    [[label, m.nfe, f"{m.prefix.median_ms:.2f}", f"{m.denoising.median_ms:.2f}", f"{m.end_to_end.median_ms:.2f}",
-                                      f"{100 * m.denoising_share:.0f}%", f"{m.denoising_speedup:.1f}x", f"{m.end_to_end_speedup:.2f}x"]
-                                     for label, m in report.latency.items()])]
+        sections += [
+            f"## Latency per chunk, batch 1 ({report.machine or machine_description()}; medians after warm-up)",
+            markdown_table(
+                [
+                    "sampler",
+                    "NFE",
+                    "prefix ms",
+                    "denoising ms",
+                    "end-to-end ms",
+                    "denoising share",
+                    "denoising speedup",
+                    "end-to-end speedup",
+                ],
+                [
+                    [
+                        label,
+                        m.nfe,
+                        f"{m.prefix.median_ms:.2f}",
+                        f"{m.denoising.median_ms:.2f}",
+                        f"{m.end_to_end.median_ms:.2f}",
+                        f"{100 * m.denoising_share:.0f}%",
+                        f"{m.denoising_speedup:.1f}x",
+                        f"{m.end_to_end_speedup:.2f}x",
+                    ]
+                    for label, m in report.latency.items()
+                ],
+            ),
+        ]
     if report.timings:
-        sections += ["## Wall time", markdown_table(["stage", "seconds"],
-                                                     [[stage.removesuffix("_s"), f"{seconds:.0f}"] for stage, seconds in report.timings.items()])]
+        sections += [
+            "## Wall time",
+            markdown_table(
+                ["stage", "seconds"],
+                [[stage.removesuffix("_s"), f"{seconds:.0f}"] for stage, seconds in report.timings.items()],
+            ),
+        ]
     return "\n\n".join(sections) + "\n"
 
 

@@ -32,9 +32,13 @@ def success_by_task(results: list[EpisodeResult]) -> dict[str, SuccessCount]:
         entry = counts.setdefault(result.task, [0, 0])
         entry[0] += int(result.success)
         entry[1] += 1
-    table = {task: SuccessCount(successes, episodes, successes / episodes) for task, (successes, episodes) in counts.items()}
+    table = {
+        task: SuccessCount(successes, episodes, successes / episodes) for task, (successes, episodes) in counts.items()
+    }
     rates = [entry.success_rate for entry in table.values()]
-    table["mean"] = SuccessCount(sum(e.successes for e in table.values()), sum(e.episodes for e in table.values()), float(np.mean(rates)))
+    table["mean"] = SuccessCount(
+        sum(e.successes for e in table.values()), sum(e.episodes for e in table.values()), float(np.mean(rates))
+    )
     return table
 
 
@@ -70,8 +74,14 @@ class EvaluationRow:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> EvaluationRow:
-        return cls(data["policy"], data["mode"], data["nfe"], {task: SuccessCount(**entry) for task, entry in data["success"].items()},
-                   data["closed_loop_s"], OfflineMetrics(**data["offline"]) if "offline" in data else None)
+        return cls(
+            data["policy"],
+            data["mode"],
+            data["nfe"],
+            {task: SuccessCount(**entry) for task, entry in data["success"].items()},
+            data["closed_loop_s"],
+            OfflineMetrics(**data["offline"]) if "offline" in data else None,
+        )
 
 
 @dataclass
@@ -89,8 +99,13 @@ class EvaluationReport:
     machine: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        report: dict[str, Any] = {"env": self.env, "tasks": self.tasks, "episodes_per_task": self.episodes_per_task, "n_act": self.n_act,
-                                  "rows": {label: row.to_dict() for label, row in self.rows.items()}}
+        report: dict[str, Any] = {
+            "env": self.env,
+            "tasks": self.tasks,
+            "episodes_per_task": self.episodes_per_task,
+            "n_act": self.n_act,
+            "rows": {label: row.to_dict() for label, row in self.rows.items()},
+        }
         if self.latency:
             report["latency"] = {label: row.to_dict() for label, row in self.latency.items()}
         if self.timings:

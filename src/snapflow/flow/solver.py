@@ -71,7 +71,9 @@ SNAPFLOW_1 = SamplingMode(1, jump=True)
 def euler_sample(velocity: VelocityFn, noise: Tensor, mode: SamplingMode) -> Tensor:
     """Integrate from x_1 = ``noise`` at t = 1 to t = 0 with ``mode.num_steps`` Euler steps."""
     # one (steps + 1, B) grid of times; each step reads two rows of it (views, no new tensors per step)
-    grid = torch.linspace(1.0, 0.0, mode.num_steps + 1, device=noise.device, dtype=torch.float32)[:, None].expand(-1, noise.shape[0])
+    grid = torch.linspace(1.0, 0.0, mode.num_steps + 1, device=noise.device, dtype=torch.float32)[:, None].expand(
+        -1, noise.shape[0]
+    )
     x = noise
     for step in range(mode.num_steps):
         t, t_to = grid[step], grid[step + 1]

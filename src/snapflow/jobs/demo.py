@@ -60,12 +60,27 @@ def run_demo(preset: DemoPreset, output: str | Path, progress: bool = True, resu
     if not (resume and (data / META_FILE).is_file()):
         collect(benchmark, list(preset.tasks), preset.episodes_per_task, data, progress=progress)
     timings["collect_s"] = time.perf_counter() - started
-    train_teacher(data, teacher_dir, preset.policy, preset.teacher, preset.val_fraction, resume=resume, progress=progress)
+    train_teacher(
+        data, teacher_dir, preset.policy, preset.teacher, preset.val_fraction, resume=resume, progress=progress
+    )
     timings["teacher_s"] = time.perf_counter() - started - sum(timings.values())
-    distill(teacher_dir, data, student_dir, preset.student, preset.distill, preset.val_fraction, resume=resume, progress=progress)
+    distill(
+        teacher_dir,
+        data,
+        student_dir,
+        preset.student,
+        preset.distill,
+        preset.val_fraction,
+        resume=resume,
+        progress=progress,
+    )
     timings["distill_s"] = time.perf_counter() - started - sum(timings.values())
     teacher, student = load_policy(teacher_dir), load_policy(student_dir)
-    runs = [("teacher 10-NFE", teacher, TEACHER_10), ("naive 1-NFE", teacher, NAIVE_1), ("SnapFlow 1-NFE", student, SNAPFLOW_1)]
+    runs = [
+        ("teacher 10-NFE", teacher, TEACHER_10),
+        ("naive 1-NFE", teacher, NAIVE_1),
+        ("SnapFlow 1-NFE", student, SNAPFLOW_1),
+    ]
     report = evaluate(runs, benchmark, list(preset.tasks), preset.eval_episodes, preset.n_act, data, progress=progress)
     timings["evaluate_s"] = time.perf_counter() - started - sum(timings.values())
     timings["total_s"] = time.perf_counter() - started

@@ -70,8 +70,13 @@ MODES: tuple[SamplingMode, ...] = (TEACHER_10, NAIVE_1, SNAPFLOW_1)
 
 
 def _fit(
-    policy: SnapFlowPolicy, objective: TwoBranchObjective, mixture: ConditionalGaussianMixture, config: TrainConfig,
-    generator: torch.Generator, description: str, progress: bool,
+    policy: SnapFlowPolicy,
+    objective: TwoBranchObjective,
+    mixture: ConditionalGaussianMixture,
+    config: TrainConfig,
+    generator: torch.Generator,
+    description: str,
+    progress: bool,
 ) -> float:
     """The trainer's step (AdamW, cosine-decayed learning rate) on fresh exact samples at every step; returns seconds
     per step."""
@@ -82,8 +87,16 @@ def _fit(
     for step in bar:
         context = mixture.sample_contexts(config.batch_size, generator)
         actions = mixture.sample(context, generator)[:, None, :]
-        losses = train_step(module, optimizer, context, actions, learning_rate=config.learning_rate_at(step), grad_clip=config.grad_clip,
-                            generator=generator, progress=step / config.steps)
+        losses = train_step(
+            module,
+            optimizer,
+            context,
+            actions,
+            learning_rate=config.learning_rate_at(step),
+            grad_clip=config.grad_clip,
+            generator=generator,
+            progress=step / config.steps,
+        )
         if step % 50 == 0:
             bar.set_postfix(fm=f"{losses[1].item():.3f}", sc=f"{losses[2].item():.4f}", refresh=False)
     return (time.perf_counter() - started) / config.steps
@@ -91,8 +104,14 @@ def _fit(
 
 def _schedule(steps: int, learning_rate: float, batch_size: int) -> TrainConfig:
     """The toy's optimisation: cosine decay to zero from the first step, no warm-up, no gradient clipping."""
-    return TrainConfig(steps=steps, batch_size=batch_size, learning_rate=learning_rate, warmup_steps=0, min_learning_rate_ratio=0.0,
-                       grad_clip=0.0)
+    return TrainConfig(
+        steps=steps,
+        batch_size=batch_size,
+        learning_rate=learning_rate,
+        warmup_steps=0,
+        min_learning_rate_ratio=0.0,
+        grad_clip=0.0,
+    )
 
 
 def run_toy_experiment(config: ToyConfig = ToyConfig(), progress: bool = True) -> ToyResult:
@@ -101,16 +120,38 @@ def run_toy_experiment(config: ToyConfig = ToyConfig(), progress: bool = True) -
     torch.manual_seed(config.seed)
     generator = torch.Generator().manual_seed(config.seed)
     mixture = ConditionalGaussianMixture(num_modes=config.num_modes, radius=config.mode_radius)
-    model = MLPFlowModel(MLPPolicyConfig(observation_dim=mixture.context_dim, action_dim=2, hidden_dim=config.hidden_dim))
+    model = MLPFlowModel(
+        MLPPolicyConfig(observation_dim=mixture.context_dim, action_dim=2, hidden_dim=config.hidden_dim)
+    )
     teacher = SnapFlowPolicy(model, target_time=False)
     time_sampler = UniformTimeSampler()
-    _fit(teacher, SnapFlowObjective(alpha=1.0, time_sampler=time_sampler), mixture, _schedule(config.teacher_steps, config.teacher_lr, config.batch_size),
-         generator, "teacher (flow matching)", progress)
+    _fit(
+        teacher,
+        SnapFlowObjective(alpha=1.0, time_sampler=time_sampler),
+        mixture,
+        _schedule(config.teacher_steps, config.teacher_lr, config.batch_size),
+        generator,
+        "teacher (flow matching)",
+        progress,
+    )
 
     student = SnapFlowPolicy(copy.deepcopy(model), target_time=True)
-    settings = DistillSettings(config.alpha, config.consistency_weight, method=config.method, target=config.target, target_steps=config.target_steps)
-    step_s = _fit(student, settings.objective(time_sampler), mixture, _schedule(config.distill_steps, config.distill_lr, config.batch_size),
-                  generator, f"{config.method} distillation", progress)
+    settings = DistillSettings(
+        config.alpha,
+        config.consistency_weight,
+        method=config.method,
+        target=config.target,
+        target_steps=config.target_steps,
+    )
+    step_s = _fit(
+        student,
+        settings.objective(time_sampler),
+        mixture,
+        _schedule(config.distill_steps, config.distill_lr, config.batch_size),
+        generator,
+        f"{config.method} distillation",
+        progress,
+    )
 
     eval_generator = torch.Generator().manual_seed(config.seed + 1)
     contexts = mixture.sample_contexts(config.eval_contexts, eval_generator)
@@ -122,9 +163,11 @@ def run_toy_experiment(config: ToyConfig = ToyConfig(), progress: bool = True) -
         policy = student if mode.jump else teacher
         chunk = sample_actions(policy, repeated, noise, mode)
         samples[mode.name] = chunk.view(config.eval_contexts, config.samples_per_context, 2)
-        distances[mode.name] = torch.stack(
-            [energy_distance(samples[mode.name][i], data[i]) for i in range(config.eval_contexts)]
-        ).mean().item()
+        distances[mode.name] = (
+            torch.stack([energy_distance(samples[mode.name][i], data[i]) for i in range(config.eval_contexts)])
+            .mean()
+            .item()
+        )
     return ToyResult(config, distances, step_s, contexts, data, samples)
 
 

@@ -20,7 +20,11 @@ class SnapFlowPolicy(nn.Module):
 
     def __init__(self, model: nn.Module, target_time: bool = True) -> None:
         super().__init__()
-        missing = [name for name in ("encode", "embed_time", "velocity_from_time_embedding") if not callable(getattr(model, name, None))]
+        missing = [
+            name
+            for name in ("encode", "embed_time", "velocity_from_time_embedding")
+            if not callable(getattr(model, name, None))
+        ]
         if missing:
             raise TypeError(
                 f"{type(model).__name__} lacks {', '.join(missing)}(); see snapflow.protocol.TimeEmbeddingModel"

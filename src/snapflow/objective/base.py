@@ -86,13 +86,21 @@ class TwoBranchObjective(ABC):
         if self.alpha in (0.0, 1.0):
             return int(self.alpha) * batch_size
         if batch_size < 2:
-            raise ValueError(f"0 < alpha < 1 needs batches of at least 2 samples to fill both branches, got {batch_size}")
+            raise ValueError(
+                f"0 < alpha < 1 needs batches of at least 2 samples to fill both branches, got {batch_size}"
+            )
         return min(max(math.floor(self.alpha * batch_size + 0.5), 1), batch_size - 1)
 
     @abstractmethod
     def one_step_rows(
-        self, policy: FlowPolicy, observation: Any, context: Context, actions: Tensor, noise: Tensor,
-        generator: torch.Generator | None, progress: float,
+        self,
+        policy: FlowPolicy,
+        observation: Any,
+        context: Context,
+        actions: Tensor,
+        noise: Tensor,
+        generator: torch.Generator | None,
+        progress: float,
     ) -> OneStepRows:
         """Inputs and target of the one-step rows, given their observation, context, actions and noise, at
         ``progress`` (the fraction of training done, for objectives with a schedule)."""
@@ -123,22 +131,41 @@ class TwoBranchObjective(ABC):
         n_fm = self.num_flow_matching(batch)
         n_sc = batch - n_fm
         if noise is None:
-            noise = torch.randn(actions.shape, generator=generator, device=draw_device(generator, actions.device), dtype=actions.dtype).to(actions.device)
+            noise = torch.randn(
+                actions.shape, generator=generator, device=draw_device(generator, actions.device), dtype=actions.dtype
+            ).to(actions.device)
         elif noise.shape != actions.shape:
             raise ValueError(f"noise {tuple(noise.shape)} must match actions {tuple(actions.shape)}")
         if time is None:
-            time = self.time_sampler(n_fm, device=draw_device(generator, actions.device), generator=generator).to(actions.device)
+            time = self.time_sampler(n_fm, device=draw_device(generator, actions.device), generator=generator).to(
+                actions.device
+            )
         elif time.shape != (n_fm,):
             raise ValueError(f"time must have shape ({n_fm},) for the FM samples, got {tuple(time.shape)}")
         fm_rows, sc_rows = slice(0, n_fm), slice(n_fm, batch)
 
         context = policy.encode(observation)
-        x_in, t_in, s_in = interpolate(actions[fm_rows], noise[fm_rows], time), time.to(actions.dtype), time.to(actions.dtype)
+        x_in, t_in, s_in = (
+            interpolate(actions[fm_rows], noise[fm_rows], time),
+            time.to(actions.dtype),
+            time.to(actions.dtype),
+        )
         rows = None
         if n_sc:
-            rows = self.one_step_rows(policy, index_batch(observation, sc_rows), index_batch(context, sc_rows),
-                                      actions[sc_rows], noise[sc_rows], generator, progress)
-            x_in, t_in, s_in = torch.cat([x_in, rows.x]), torch.cat([t_in, rows.t.to(t_in.dtype)]), torch.cat([s_in, rows.s.to(s_in.dtype)])
+            rows = self.one_step_rows(
+                policy,
+                index_batch(observation, sc_rows),
+                index_batch(context, sc_rows),
+                actions[sc_rows],
+                noise[sc_rows],
+                generator,
+                progress,
+            )
+            x_in, t_in, s_in = (
+                torch.cat([x_in, rows.x]),
+                torch.cat([t_in, rows.t.to(t_in.dtype)]),
+                torch.cat([s_in, rows.s.to(s_in.dtype)]),
+            )
         prediction = policy.velocity(x_in, t_in, s_in, context)  # one gradient pass over both kinds of rows
 
         zero = prediction.new_zeros(())

@@ -44,7 +44,11 @@ class BootstrappedSnapFlowObjective(TwoBranchObjective):
 
     def __post_init__(self) -> None:
         self._check_weights()
-        if not isinstance(self.target_steps, int) or self.target_steps < 2 or self.target_steps & (self.target_steps - 1):
+        if (
+            not isinstance(self.target_steps, int)
+            or self.target_steps < 2
+            or self.target_steps & (self.target_steps - 1)
+        ):
             raise ValueError(f"a bootstrapped target needs target_steps a power of two >= 2, got {self.target_steps!r}")
 
     @property
@@ -53,8 +57,14 @@ class BootstrappedSnapFlowObjective(TwoBranchObjective):
         return int(math.log2(self.target_steps))
 
     def one_step_rows(
-        self, policy: FlowPolicy, observation: Any, context: Context, actions: Tensor, noise: Tensor,
-        generator: torch.Generator | None, progress: float,
+        self,
+        policy: FlowPolicy,
+        observation: Any,
+        context: Context,
+        actions: Tensor,
+        noise: Tensor,
+        generator: torch.Generator | None,
+        progress: float,
     ) -> OneStepRows:
         rows = noise.shape[0]
         level = (uniform(rows, generator, noise) * self.levels).floor().clamp(max=self.levels - 1)

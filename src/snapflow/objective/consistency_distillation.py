@@ -65,8 +65,14 @@ class ConsistencyDistillationObjective(TwoBranchObjective):
         return self._target.train(policy.training)
 
     def one_step_rows(
-        self, policy: FlowPolicy, observation: Any, context: Context, actions: Tensor, noise: Tensor,
-        generator: torch.Generator | None, progress: float,
+        self,
+        policy: FlowPolicy,
+        observation: Any,
+        context: Context,
+        actions: Tensor,
+        noise: Tensor,
+        generator: torch.Generator | None,
+        progress: float,
     ) -> OneStepRows:
         target_network = self._target_network(policy)
         rows = noise.shape[0]
@@ -76,7 +82,9 @@ class ConsistencyDistillationObjective(TwoBranchObjective):
         with torch.no_grad():
             x_lo = euler_step(x_hi, policy.velocity(x_hi, t_hi, t_hi, context), t_hi, t_lo)
             target_context = target_network.encode(observation)
-            consistent = x_lo - broadcast_time(t_lo, x_lo) * target_network.velocity(x_lo, t_lo, torch.zeros_like(t_lo), target_context)
+            consistent = x_lo - broadcast_time(t_lo, x_lo) * target_network.velocity(
+                x_lo, t_lo, torch.zeros_like(t_lo), target_context
+            )
             target = (x_hi - consistent) / broadcast_time(t_hi, x_hi)
         return OneStepRows(x_hi, t_hi, torch.zeros_like(t_hi), target, weight=t_hi.pow(2))
 

@@ -48,8 +48,14 @@ class MeanFlowObjective(TwoBranchObjective):
             raise ValueError(f"adaptive_power must be non-negative, got {self.adaptive_power}")
 
     def one_step_rows(
-        self, policy: FlowPolicy, observation: Any, context: Context, actions: Tensor, noise: Tensor,
-        generator: torch.Generator | None, progress: float,
+        self,
+        policy: FlowPolicy,
+        observation: Any,
+        context: Context,
+        actions: Tensor,
+        noise: Tensor,
+        generator: torch.Generator | None,
+        progress: float,
     ) -> OneStepRows:
         rows = noise.shape[0]
         first, second = uniform(rows, generator, noise), uniform(rows, generator, noise)
@@ -59,7 +65,9 @@ class MeanFlowObjective(TwoBranchObjective):
             velocity = policy.velocity(x_t, t, t, context)
         # Fused attention kernels have no forward-mode derivative; the reference (math) kernel does.
         with torch.no_grad(), sdpa_kernel(SDPBackend.MATH):
-            _, total_derivative = torch.func.jvp(lambda x, time: policy.velocity(x, time, s, context), (x_t, t), (velocity, torch.ones_like(t)))
+            _, total_derivative = torch.func.jvp(
+                lambda x, time: policy.velocity(x, time, s, context), (x_t, t), (velocity, torch.ones_like(t))
+            )
             target = velocity - broadcast_time(t - s, x_t) * total_derivative
         return OneStepRows(x_t, t, s, target, adaptive_power=self.adaptive_power)
 

@@ -37,7 +37,9 @@ def make_objective(name: str, **options: Any) -> TwoBranchObjective:
     objective checks its values itself."""
     unknown = sorted(set(options) - objective_options(name))
     if unknown:
-        raise ValueError(f"the {name} objective takes no option {', '.join(unknown)}; its options are {sorted(objective_options(name))}")
+        raise ValueError(
+            f"the {name} objective takes no option {', '.join(unknown)}; its options are {sorted(objective_options(name))}"
+        )
     return OBJECTIVES[name](**options)
 
 

@@ -86,7 +86,9 @@ class SnapFlowObjective(TwoBranchObjective):
             raise ValueError(f"teacher_velocity must be one of {TEACHER_VELOCITIES}, got {self.teacher_velocity!r}")
         stages = target_stages(self.target_steps)
         if not stages or not all(isinstance(k, int) and k >= 1 for k in stages):
-            raise ValueError(f"target_steps must be a positive integer or a non-empty list of them, got {self.target_steps!r}")
+            raise ValueError(
+                f"target_steps must be a positive integer or a non-empty list of them, got {self.target_steps!r}"
+            )
         object.__setattr__(self, "target_steps", stages[0] if len(stages) == 1 else stages)
 
     def schedule(self, progress: float) -> dict[str, int]:
@@ -94,17 +96,32 @@ class SnapFlowObjective(TwoBranchObjective):
         return {"target_steps": stage_at(target_stages(self.target_steps), progress)}
 
     def one_step_rows(
-        self, policy: FlowPolicy, observation: Any, context: Context, actions: Tensor, noise: Tensor,
-        generator: torch.Generator | None, progress: float,
+        self,
+        policy: FlowPolicy,
+        observation: Any,
+        context: Context,
+        actions: Tensor,
+        noise: Tensor,
+        generator: torch.Generator | None,
+        progress: float,
     ) -> OneStepRows:
         """The jump t = 1 -> s = 0 from x_1 = eps onto the K-step Euler shortcut of the teacher velocities."""
         if self.teacher_velocity == "conditional":
             target = conditional_velocity(actions, noise)
         else:
             steps = self.schedule(progress)["target_steps"]
-            target = euler_shortcut_target(lambda x, t, s: policy.velocity(x, t, s, context), noise, steps, self.teacher_velocity_clamp)
+            target = euler_shortcut_target(
+                lambda x, t, s: policy.velocity(x, t, s, context), noise, steps, self.teacher_velocity_clamp
+            )
         ones = torch.ones(noise.shape[0], device=noise.device)
         return OneStepRows(noise, ones, torch.zeros_like(ones), target)
 
 
-__all__ = ["SnapFlowObjective", "TEACHER_VELOCITIES", "TeacherVelocity", "euler_shortcut_target", "stage_at", "target_stages"]
+__all__ = [
+    "SnapFlowObjective",
+    "TEACHER_VELOCITIES",
+    "TeacherVelocity",
+    "euler_shortcut_target",
+    "stage_at",
+    "target_stages",
+]

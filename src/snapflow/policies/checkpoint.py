@@ -48,9 +48,14 @@ class LoadedPolicy:
 def policy_metadata(policy: SnapFlowPolicy, processor: Processor, **extra: Any) -> dict[str, Any]:
     """What ``policy.json`` records of a built-in policy, plus ``extra`` (stage, data, settings)."""
     return {
-        "format": FORMAT, "version": VERSION, "policy": policy_type_of(processor.config).name,
-        "config": processor.config.to_dict(), "target_time": policy.target_time_embedding is not None,
-        "stats": vars(processor.stats), "instructions": list(processor.instructions), **extra,
+        "format": FORMAT,
+        "version": VERSION,
+        "policy": policy_type_of(processor.config).name,
+        "config": processor.config.to_dict(),
+        "target_time": policy.target_time_embedding is not None,
+        "stats": vars(processor.stats),
+        "instructions": list(processor.instructions),
+        **extra,
     }
 
 
@@ -77,20 +82,32 @@ def load_state_strict(module: nn.Module, tensors: dict[str, torch.Tensor], sourc
     expected = module.state_dict()
     missing = sorted(set(expected) - set(tensors))
     unexpected = sorted(set(tensors) - set(expected))
-    shapes = [f"{k}: checkpoint {tuple(tensors[k].shape)} vs model {tuple(v.shape)}" for k, v in expected.items() if k in tensors and tensors[k].shape != v.shape]
+    shapes = [
+        f"{k}: checkpoint {tuple(tensors[k].shape)} vs model {tuple(v.shape)}"
+        for k, v in expected.items()
+        if k in tensors and tensors[k].shape != v.shape
+    ]
     if missing or unexpected or shapes:
-        details = "; ".join(filter(None, [
-            f"missing {missing[:5]}{'...' if len(missing) > 5 else ''}" if missing else "",
-            f"unexpected {unexpected[:5]}{'...' if len(unexpected) > 5 else ''}" if unexpected else "",
-            f"shape mismatch {shapes[:5]}" if shapes else "",
-        ]))
+        details = "; ".join(
+            filter(
+                None,
+                [
+                    f"missing {missing[:5]}{'...' if len(missing) > 5 else ''}" if missing else "",
+                    f"unexpected {unexpected[:5]}{'...' if len(unexpected) > 5 else ''}" if unexpected else "",
+                    f"shape mismatch {shapes[:5]}" if shapes else "",
+                ],
+            )
+        )
         raise CheckpointError(f"{source} does not match the policy: {details}")
     module.load_state_dict(tensors, strict=True)
 
 
 def write_policy(directory: Path, policy: nn.Module, metadata: dict[str, Any]) -> None:
     """``policy.safetensors`` and ``policy.json`` into ``directory`` (callers make the folder appear atomically)."""
-    save_file({key: value.detach().cpu().contiguous() for key, value in policy.state_dict().items()}, directory / POLICY_WEIGHTS)
+    save_file(
+        {key: value.detach().cpu().contiguous() for key, value in policy.state_dict().items()},
+        directory / POLICY_WEIGHTS,
+    )
     write_json(directory / POLICY_CONFIG, metadata)
 
 
@@ -115,7 +132,9 @@ def load_policy(path: str | Path, target_time: bool | None = None) -> LoadedPoli
     directory = resolve_checkpoint(path)
     metadata = read_json(directory / POLICY_CONFIG)
     if metadata.get("format") != FORMAT:
-        raise CheckpointError(f"{directory / POLICY_CONFIG} is not a snapflow policy (format {metadata.get('format')!r})")
+        raise CheckpointError(
+            f"{directory / POLICY_CONFIG} is not a snapflow policy (format {metadata.get('format')!r})"
+        )
     for field in ("policy", "config", "stats", "target_time"):
         if field not in metadata:
             raise CheckpointError(f"{directory / POLICY_CONFIG} lacks the field {field!r}")
@@ -134,9 +153,23 @@ def load_policy(path: str | Path, target_time: bool | None = None) -> LoadedPoli
     if target_time and not saved_target_time:
         policy = SnapFlowPolicy(policy.model, target_time=True)
     elif target_time is False and saved_target_time:
-        raise CheckpointError(f"{directory} is a SnapFlow student; it cannot be loaded without its target-time embedding")
+        raise CheckpointError(
+            f"{directory} is a SnapFlow student; it cannot be loaded without its target-time embedding"
+        )
     return LoadedPolicy(policy, processor, metadata, directory)
 
 
-__all__ = ["CheckpointError", "LoadedPolicy", "LATEST", "POLICY_CONFIG", "POLICY_WEIGHTS", "load_policy", "load_state_strict",
-           "policy_metadata", "read_json", "read_tensors", "resolve_checkpoint", "write_policy"]
+__all__ = [
+    "CheckpointError",
+    "LoadedPolicy",
+    "LATEST",
+    "POLICY_CONFIG",
+    "POLICY_WEIGHTS",
+    "load_policy",
+    "load_state_strict",
+    "policy_metadata",
+    "read_json",
+    "read_tensors",
+    "resolve_checkpoint",
+    "write_policy",
+]

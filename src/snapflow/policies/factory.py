@@ -32,7 +32,9 @@ class PolicyType:
 POLICIES: dict[str, PolicyType] = {}
 
 
-def register_policy(name: str, config_class: type[PolicyConfig], model_class: type[nn.Module], processor_class: type[Processor]) -> None:
+def register_policy(
+    name: str, config_class: type[PolicyConfig], model_class: type[nn.Module], processor_class: type[Processor]
+) -> None:
     if name in POLICIES:
         raise ValueError(f"a policy named {name!r} is registered already")
     POLICIES[name] = PolicyType(name, config_class, model_class, processor_class)
@@ -57,7 +59,9 @@ def policy_type_of(config: PolicyConfig) -> PolicyType:
     raise ValueError(f"{type(config).__name__} is not the configuration of a registered policy")
 
 
-def default_config(name: str, state_dim: int, action_dim: int, instructions: Sequence[str], **overrides: Any) -> PolicyConfig:
+def default_config(
+    name: str, state_dim: int, action_dim: int, instructions: Sequence[str], **overrides: Any
+) -> PolicyConfig:
     """Policy ``name`` configured for data of these dimensions and instructions, with ``overrides`` applied."""
     entry = policy_type(name)
     unknown = sorted(set(overrides) - {field.name for field in fields(entry.config_class)})
@@ -79,4 +83,14 @@ def fit_processor(config: PolicyConfig, demonstrations: Any, episodes: list[int]
     return policy_type_of(config).processor_class.fit(config, demonstrations, episodes)
 
 
-__all__ = ["POLICIES", "PolicyType", "register_policy", "policy_type", "policy_type_of", "default_config", "make_model", "make_processor", "fit_processor"]
+__all__ = [
+    "POLICIES",
+    "PolicyType",
+    "register_policy",
+    "policy_type",
+    "policy_type_of",
+    "default_config",
+    "make_model",
+    "make_processor",
+    "fit_processor",
+]

@@ -28,8 +28,10 @@ class NormalizationStats:
     @classmethod
     def from_arrays(cls, states: np.ndarray, actions: np.ndarray, min_std: float = 1e-2) -> NormalizationStats:
         return cls(
-            states.mean(0).tolist(), np.maximum(states.std(0), min_std).tolist(),
-            actions.mean(0).tolist(), np.maximum(actions.std(0), min_std).tolist(),
+            states.mean(0).tolist(),
+            np.maximum(states.std(0), min_std).tolist(),
+            actions.mean(0).tolist(),
+            np.maximum(actions.std(0), min_std).tolist(),
         )
 
 
@@ -45,7 +47,10 @@ class Processor(ABC):
         self.config = config
         self.stats = stats
         self.instructions = tuple(instructions)
-        for name, values, size in (("state", stats.state_mean, self.state_dim), ("action", stats.action_mean, config.action_dim)):
+        for name, values, size in (
+            ("state", stats.state_mean, self.state_dim),
+            ("action", stats.action_mean, config.action_dim),
+        ):
             if len(values) != size:
                 raise ValueError(f"normalisation stats have {len(values)} {name} dimensions, the policy expects {size}")
         self.state_mean, self.state_std = torch.tensor(stats.state_mean), torch.tensor(stats.state_std)
@@ -92,7 +97,9 @@ class Processor(ABC):
         return (states[:, : self.state_dim] - self.state_mean) / self.state_std
 
     @abstractmethod
-    def observation(self, states: np.ndarray | Tensor, instructions: list[str], images: np.ndarray | Tensor | None = None) -> Any:
+    def observation(
+        self, states: np.ndarray | Tensor, instructions: list[str], images: np.ndarray | Tensor | None = None
+    ) -> Any:
         """Model input for a batch of raw states (B, >= state_dim), instructions and optional uint8 images (B, S, S, 3)."""
 
     def normalize_actions(self, actions: Tensor) -> Tensor:

@@ -7,5 +7,14 @@ from snapflow.reporting.machine import machine, machine_description
 from snapflow.reporting.statistics import mean_std
 from snapflow.reporting.tables import markdown_table
 
-__all__ = ["atomic_write", "write_json", "write_text", "markdown_table", "pyplot", "save_figure", "machine",
-           "machine_description", "mean_std"]
+__all__ = [
+    "atomic_write",
+    "write_json",
+    "write_text",
+    "markdown_table",
+    "pyplot",
+    "save_figure",
+    "machine",
+    "machine_description",
+    "mean_std",
+]

@@ -34,8 +34,18 @@ OPTIMIZER_STATE, TRAINER_STATE = "optimizer.safetensors", "trainer_state.json"
 def optimizer_tensors(optimizer: torch.optim.Optimizer) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
     """Split an optimizer state into tensors (for safetensors) and JSON-able metadata."""
     state = optimizer.state_dict()
-    tensors = {f"{index}.{key}": value.contiguous() for index, entry in state["state"].items() for key, value in entry.items() if torch.is_tensor(value)}
-    scalars = {f"{index}.{key}": value for index, entry in state["state"].items() for key, value in entry.items() if not torch.is_tensor(value)}
+    tensors = {
+        f"{index}.{key}": value.contiguous()
+        for index, entry in state["state"].items()
+        for key, value in entry.items()
+        if torch.is_tensor(value)
+    }
+    scalars = {
+        f"{index}.{key}": value
+        for index, entry in state["state"].items()
+        for key, value in entry.items()
+        if not torch.is_tensor(value)
+    }
     return tensors, {"param_groups": state["param_groups"], "scalars": scalars}
 
 
@@ -49,7 +59,9 @@ def restore_optimizer(optimizer: torch.optim.Optimizer, directory: Path) -> None
     try:
         optimizer.load_state_dict({"state": state, "param_groups": meta["param_groups"]})
     except (ValueError, KeyError) as error:
-        raise CheckpointError(f"{directory}: optimizer state does not match the trainable parameters ({error})") from None
+        raise CheckpointError(
+            f"{directory}: optimizer state does not match the trainable parameters ({error})"
+        ) from None
 
 
 def restore_training(run_directory: Path, policy: nn.Module, optimizer: torch.optim.Optimizer) -> dict[str, Any]:
@@ -61,8 +73,11 @@ def restore_training(run_directory: Path, policy: nn.Module, optimizer: torch.op
 
 
 def save_checkpoint(
-    directory: Path, policy: nn.Module, metadata: dict[str, Any],
-    optimizer: torch.optim.Optimizer | None = None, trainer_state: dict[str, Any] | None = None,
+    directory: Path,
+    policy: nn.Module,
+    metadata: dict[str, Any],
+    optimizer: torch.optim.Optimizer | None = None,
+    trainer_state: dict[str, Any] | None = None,
 ) -> Path:
     """Write a checkpoint directory atomically (temporary sibling, then rename)."""
     directory = Path(directory)

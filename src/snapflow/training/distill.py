@@ -69,8 +69,13 @@ class DistillSettings:
                 options[name] = value
             elif value != defaults[name]:
                 raise ValueError(f"{name} is not an option of the {self.objective_name} objective")
-        return make_objective(self.objective_name, alpha=self.alpha, consistency_weight=self.consistency_weight,
-                              time_sampler=time_sampler, **options)
+        return make_objective(
+            self.objective_name,
+            alpha=self.alpha,
+            consistency_weight=self.consistency_weight,
+            time_sampler=time_sampler,
+            **options,
+        )
 
 
 def parse_target_steps(text: str) -> int | tuple[int, ...]:
@@ -94,7 +99,9 @@ class TargetOption:
         """``euler:8``, ``euler:2,4,8`` (a schedule) or ``bootstrap:8``."""
         target, _, steps = text.partition(":")
         if target not in TARGETS or not steps:
-            raise ValueError(f"a target option reads TARGET:STEPS with TARGET in {list(TARGETS)}, e.g. euler:8, euler:2,4,8 or bootstrap:8; got {text!r}")
+            raise ValueError(
+                f"a target option reads TARGET:STEPS with TARGET in {list(TARGETS)}, e.g. euler:8, euler:2,4,8 or bootstrap:8; got {text!r}"
+            )
         return cls(target, parse_target_steps(steps))
 
     @property

@@ -20,13 +20,24 @@ from snapflow.training.trainer import TrainConfig, train
 def paper_training() -> TrainConfig:
     """The paper's settings: AdamW at 2.5e-5 after 500 warm-up steps, batch 4, ~30k steps, bf16 where the GPU has it
     (asked of the machine when called, not at import)."""
-    return TrainConfig(steps=30000, batch_size=4, learning_rate=2.5e-5, warmup_steps=500, min_learning_rate_ratio=1.0, checkpoint_every=1000,
-                       mixed_precision="bf16" if torch.cuda.is_available() and torch.cuda.is_bf16_supported() else "no")
+    return TrainConfig(
+        steps=30000,
+        batch_size=4,
+        learning_rate=2.5e-5,
+        warmup_steps=500,
+        min_learning_rate_ratio=1.0,
+        checkpoint_every=1000,
+        mixed_precision="bf16" if torch.cuda.is_available() and torch.cuda.is_bf16_supported() else "no",
+    )
+
+
 EXPORT_DIRECTORY = "lerobot_policy"
 PREPROCESSOR_FILE = "policy_preprocessor.json"
 
 
-def policy_processors(policy: torch.nn.Module, policy_path: str, dataset_stats: dict[str, Any], overrides: dict[str, Any] | None = None) -> tuple[Any, Any]:
+def policy_processors(
+    policy: torch.nn.Module, policy_path: str, dataset_stats: dict[str, Any], overrides: dict[str, Any] | None = None
+) -> tuple[Any, Any]:
     """The teacher's own pre/post-processors (its normalisation statistics and tokenizer) when its folder or hub
     repo carries them; processors built from the dataset's statistics for a local folder that has none."""
     from lerobot.policies.factory import make_pre_post_processors
@@ -35,8 +46,9 @@ def policy_processors(policy: torch.nn.Module, policy_path: str, dataset_stats: 
     local = Path(policy_path)
     if local.is_dir() and not (local / PREPROCESSOR_FILE).is_file():
         return make_pre_post_processors(policy.config, dataset_stats=dataset_stats)
-    return make_pre_post_processors(policy.config, pretrained_path=policy_path,
-                                    preprocessor_overrides={**device, **(overrides or {})})
+    return make_pre_post_processors(
+        policy.config, pretrained_path=policy_path, preprocessor_overrides={**device, **(overrides or {})}
+    )
 
 
 def check_dataset_features(config: Any, features: dict[str, Any], repo_id: str) -> None:
@@ -52,7 +64,9 @@ def check_dataset_features(config: Any, features: dict[str, Any], repo_id: str) 
         if feature.type.name == "VISUAL":
             channels = shape[-1] if (features[key].get("names") or [None])[-1] == "channels" else shape[0]
             if channels != feature.shape[0]:
-                raise ValueError(f"{key}: the dataset's images have {channels} channels, the policy expects {feature.shape[0]}")
+                raise ValueError(
+                    f"{key}: the dataset's images have {channels} channels, the policy expects {feature.shape[0]}"
+                )
         elif shape != tuple(feature.shape):
             raise ValueError(f"{key}: the dataset has shape {shape}, the policy expects {tuple(feature.shape)}")
 
@@ -71,8 +85,14 @@ def check_finite(dataset: Any, keys: list[str]) -> None:
 
 
 def distill_lerobot(
-    policy_path: str, dataset_root: str | Path | None, repo_id: str, output: str | Path, config: TrainConfig | None = None,
-    settings: DistillSettings | None = None, resume: bool = False, progress: bool = True,
+    policy_path: str,
+    dataset_root: str | Path | None,
+    repo_id: str,
+    output: str | Path,
+    config: TrainConfig | None = None,
+    settings: DistillSettings | None = None,
+    resume: bool = False,
+    progress: bool = True,
     preprocessor_overrides: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Distill a LeRobot pi0, pi0.5 or SmolVLA (hub id or local pretrained directory) on the LeRobotDataset
@@ -85,8 +105,10 @@ def distill_lerobot(
     if not settings.freeze_prefix:
         raise ValueError("LeRobot policies are distilled with their VLM frozen, as in the paper")
     if settings.method != "snapflow" or not settings.target_time:
-        raise ValueError("LeRobot policies are distilled with SnapFlow and its target-time embedding; "
-                         "the baselines and the no-phi_s ablation run on the built-in MiniVLA")
+        raise ValueError(
+            "LeRobot policies are distilled with SnapFlow and its target-time embedding; "
+            "the baselines and the no-phi_s ablation run on the built-in MiniVLA"
+        )
     policy = load_pretrained_policy(policy_path)
     metadata = LeRobotDatasetMetadata(repo_id, root=dataset_root)
     check_dataset_features(policy.config, metadata.features, repo_id)
@@ -97,14 +119,37 @@ def distill_lerobot(
     preprocessor, postprocessor = policy_processors(policy, policy_path, metadata.stats, preprocessor_overrides)
     adapter = wrap_policy(policy)
     objective = settings.objective(BetaTimeSampler())  # LeRobot's policies train on Beta(1.5, 1) times
-    run_metadata = {"format": "snapflow-lerobot-run", "policy": adapter.policy_type, "source": str(policy_path),
-                    "dataset": {"repo_id": repo_id, "root": dataset_root and str(dataset_root)}, "distill": asdict(settings), "stage": "snapflow"}
-    state = train(adapter, objective, LeRobotChunkData(dataset, preprocessor, policy), None, config, output, run_metadata,
-                  resume=resume, trainable=adapter.expert_parameters(), progress=progress)
+    run_metadata = {
+        "format": "snapflow-lerobot-run",
+        "policy": adapter.policy_type,
+        "source": str(policy_path),
+        "dataset": {"repo_id": repo_id, "root": dataset_root and str(dataset_root)},
+        "distill": asdict(settings),
+        "stage": "snapflow",
+    }
+    state = train(
+        adapter,
+        objective,
+        LeRobotChunkData(dataset, preprocessor, policy),
+        None,
+        config,
+        output,
+        run_metadata,
+        resume=resume,
+        trainable=adapter.expert_parameters(),
+        progress=progress,
+    )
     export = save_distilled(adapter, Path(output) / EXPORT_DIRECTORY)
     preprocessor.save_pretrained(export)
     postprocessor.save_pretrained(export)
     return state
 
 
-__all__ = ["paper_training", "EXPORT_DIRECTORY", "check_dataset_features", "check_finite", "policy_processors", "distill_lerobot"]
+__all__ = [
+    "paper_training",
+    "EXPORT_DIRECTORY",
+    "check_dataset_features",
+    "check_finite",
+    "policy_processors",
+    "distill_lerobot",
+]

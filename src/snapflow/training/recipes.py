@@ -33,8 +33,13 @@ TIME_SAMPLER = UniformTimeSampler()
 
 
 def train_teacher(
-    data: str | Path, output: str | Path, policy_config: PolicyConfig, config: TrainConfig = TEACHER_TRAINING,
-    val_fraction: float = VAL_FRACTION, resume: bool = False, progress: bool = True,
+    data: str | Path,
+    output: str | Path,
+    policy_config: PolicyConfig,
+    config: TrainConfig = TEACHER_TRAINING,
+    val_fraction: float = VAL_FRACTION,
+    resume: bool = False,
+    progress: bool = True,
 ) -> dict[str, Any]:
     """Plain flow matching (alpha = 1) of the registered policy ``policy_config`` configures, on the demonstrations;
     normalisation from the training episodes."""
@@ -46,15 +51,25 @@ def train_teacher(
     torch.manual_seed(config.seed)
     policy = SnapFlowPolicy(make_model(policy_config), target_time=False)
     train_data, val_data = split_chunk_data(demonstrations, processor, val_fraction)
-    metadata = policy_metadata(policy, processor, stage="teacher",
-                               data={"path": str(data), "val_fraction": val_fraction, "env": demonstrations.env})
+    metadata = policy_metadata(
+        policy,
+        processor,
+        stage="teacher",
+        data={"path": str(data), "val_fraction": val_fraction, "env": demonstrations.env},
+    )
     objective = SnapFlowObjective(alpha=1.0, time_sampler=TIME_SAMPLER)
     return train(policy, objective, train_data, val_data, config, output, metadata, resume=resume, progress=progress)
 
 
 def distill(
-    teacher: str | Path, data: str | Path, output: str | Path, config: TrainConfig = STUDENT_TRAINING,
-    settings: DistillSettings | None = None, val_fraction: float | None = None, resume: bool = False, progress: bool = True,
+    teacher: str | Path,
+    data: str | Path,
+    output: str | Path,
+    config: TrainConfig = STUDENT_TRAINING,
+    settings: DistillSettings | None = None,
+    val_fraction: float | None = None,
+    resume: bool = False,
+    progress: bool = True,
 ) -> dict[str, Any]:
     """SnapFlow (or a baseline, see ``DistillSettings``): the student starts as the teacher plus a zero-initialised
     phi_s; prefix frozen by default."""
@@ -65,11 +80,27 @@ def distill(
         val_fraction = loaded.val_fraction
     train_data, val_data = split_chunk_data(demonstrations, loaded.processor, val_fraction)
     policy = loaded.policy
-    metadata = policy_metadata(policy, loaded.processor, stage="snapflow", teacher=str(loaded.path), distill=asdict(settings),
-                               data={"path": str(data), "val_fraction": val_fraction, "env": demonstrations.env})
+    metadata = policy_metadata(
+        policy,
+        loaded.processor,
+        stage="snapflow",
+        teacher=str(loaded.path),
+        distill=asdict(settings),
+        data={"path": str(data), "val_fraction": val_fraction, "env": demonstrations.env},
+    )
     trainable = policy.expert_parameters() if settings.freeze_prefix else None
-    return train(policy, settings.objective(TIME_SAMPLER), train_data, val_data, config, output, metadata, resume=resume,
-                 trainable=trainable, progress=progress)
+    return train(
+        policy,
+        settings.objective(TIME_SAMPLER),
+        train_data,
+        val_data,
+        config,
+        output,
+        metadata,
+        resume=resume,
+        trainable=trainable,
+        progress=progress,
+    )
 
 
 __all__ = ["VAL_FRACTION", "TEACHER_TRAINING", "STUDENT_TRAINING", "TIME_SAMPLER", "train_teacher", "distill"]

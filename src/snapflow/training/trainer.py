@@ -68,10 +68,17 @@ class ObjectiveModule(nn.Module):
         self.objective = objective
 
     def forward(
-        self, observation: Any, actions: Tensor, noise: Tensor | None = None, time: Tensor | None = None,
-        generator: torch.Generator | None = None, progress: float = 1.0,
+        self,
+        observation: Any,
+        actions: Tensor,
+        noise: Tensor | None = None,
+        time: Tensor | None = None,
+        generator: torch.Generator | None = None,
+        progress: float = 1.0,
     ) -> tuple[Tensor, Tensor, Tensor]:
-        output = self.objective(self.policy, observation, actions, noise=noise, time=time, generator=generator, progress=progress)
+        output = self.objective(
+            self.policy, observation, actions, noise=noise, time=time, generator=generator, progress=progress
+        )
         return output.loss, output.flow_matching_loss, output.consistency_loss
 
 
@@ -84,9 +91,18 @@ class ChunkSource(Protocol):
 
 
 def train_step(
-    module: nn.Module, optimizer: torch.optim.Optimizer, observation: Any, actions: Tensor, *, learning_rate: float,
-    grad_clip: float = 0.0, noise: Tensor | None = None, time: Tensor | None = None, generator: torch.Generator | None = None,
-    progress: float = 1.0, accelerator: Accelerator | None = None,
+    module: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    observation: Any,
+    actions: Tensor,
+    *,
+    learning_rate: float,
+    grad_clip: float = 0.0,
+    noise: Tensor | None = None,
+    time: Tensor | None = None,
+    generator: torch.Generator | None = None,
+    progress: float = 1.0,
+    accelerator: Accelerator | None = None,
 ) -> Tensor:
     """One optimisation step of an :class:`ObjectiveModule` (or its data-parallel wrapper): the objective, backward,
     gradient clipping (``grad_clip`` > 0) and the optimizer at ``learning_rate``. Returns [loss, FM loss, one-step
@@ -133,7 +149,12 @@ def _to(device: torch.device, observation: Any, *tensors: Tensor):
 
 @torch.no_grad()
 def validation_loss(
-    module: ObjectiveModule, data: ChunkSource, batch_size: int, device: torch.device, batches: int = 8, progress: float = 1.0,
+    module: ObjectiveModule,
+    data: ChunkSource,
+    batch_size: int,
+    device: torch.device,
+    batches: int = 8,
+    progress: float = 1.0,
 ) -> dict[str, float]:
     """Objective on held-out chunks with fixed draws, so values are comparable across steps and runs (with a
     scheduled objective, across runs at the same ``progress``)."""
@@ -141,15 +162,24 @@ def validation_loss(
     totals = torch.zeros(3)
     for _ in range(batches):
         observation, actions, noise, time = _to(device, *_draw(module.objective, data, batch_size, generator))
-        totals += torch.stack([value.float().cpu() for value in module(observation, actions, noise, time, generator, progress)])
+        totals += torch.stack(
+            [value.float().cpu() for value in module(observation, actions, noise, time, generator, progress)]
+        )
     loss, fm, sc = (totals / batches).tolist()
     return {"loss": loss, "flow_matching": fm, "consistency": sc}
 
 
 def train(
-    policy: nn.Module, objective: TwoBranchObjective, train_data: ChunkSource, val_data: ChunkSource | None,
-    config: TrainConfig, run_directory: str | Path, metadata: dict[str, Any], resume: bool = False,
-    trainable: list[nn.Parameter] | None = None, progress: bool = True,
+    policy: nn.Module,
+    objective: TwoBranchObjective,
+    train_data: ChunkSource,
+    val_data: ChunkSource | None,
+    config: TrainConfig,
+    run_directory: str | Path,
+    metadata: dict[str, Any],
+    resume: bool = False,
+    trainable: list[nn.Parameter] | None = None,
+    progress: bool = True,
 ) -> dict[str, Any]:
     """Optimise ``objective`` on ``policy`` (any module implementing FlowPolicy); checkpoints under
     ``run_directory/checkpoints``. The data needs ``len()`` and ``batch(indices) -> (observation, actions)``.
@@ -167,17 +197,27 @@ def train(
         parameter.requires_grad_(id(parameter) in trainable_ids)
     optimizer = torch.optim.AdamW(parameters, lr=config.learning_rate, weight_decay=config.weight_decay)
 
-    state: dict[str, Any] = {"step": 0, "history": [], "validation": [], "train_config": asdict(config), "wall_time_s": 0.0}
+    state: dict[str, Any] = {
+        "step": 0,
+        "history": [],
+        "validation": [],
+        "train_config": asdict(config),
+        "wall_time_s": 0.0,
+    }
     if resume and (run_directory / LATEST).is_file():
         state = restore_training(run_directory, policy, optimizer)
         if state["train_config"] != asdict(config):
             changed = sorted(k for k in asdict(config) if state["train_config"].get(k) != asdict(config)[k])
-            raise CheckpointError(f"cannot resume {run_directory}: training settings differ from the checkpoint's in {changed}")
+            raise CheckpointError(
+                f"cannot resume {run_directory}: training settings differ from the checkpoint's in {changed}"
+            )
         accelerator.print(f"resuming {run_directory} at step {state['step']}")
     elif resume:
         accelerator.print(f"nothing to resume in {run_directory}; starting at step 0")
     elif (run_directory / LATEST).is_file():
-        raise FileExistsError(f"{run_directory} already holds a run; pass --resume to continue it or choose another --output")
+        raise FileExistsError(
+            f"{run_directory} already holds a run; pass --resume to continue it or choose another --output"
+        )
 
     module = ObjectiveModule(policy, objective)
     module, optimizer = accelerator.prepare(module, optimizer)
@@ -187,31 +227,74 @@ def train(
     def checkpoint_now(step: int) -> None:
         if accelerator.is_main_process:
             state.update(step=step, wall_time_s=time.perf_counter() - started)
-            path = save_checkpoint(run_directory / "checkpoints" / f"step_{step:07d}", accelerator.unwrap_model(module).policy,
-                                   metadata, optimizer.optimizer, state)
+            path = save_checkpoint(
+                run_directory / "checkpoints" / f"step_{step:07d}",
+                accelerator.unwrap_model(module).policy,
+                metadata,
+                optimizer.optimizer,
+                state,
+            )
             mark_latest(run_directory, path, config.keep_checkpoints)
         accelerator.wait_for_everyone()
 
-    bar = tqdm(range(state["step"], config.steps), initial=state["step"], total=config.steps, desc=metadata.get("stage", "training"),
-               disable=not progress or not accelerator.is_main_process, dynamic_ncols=True)
+    bar = tqdm(
+        range(state["step"], config.steps),
+        initial=state["step"],
+        total=config.steps,
+        desc=metadata.get("stage", "training"),
+        disable=not progress or not accelerator.is_main_process,
+        dynamic_ncols=True,
+    )
     running = []
     for step in bar:
         generator = _step_generator(config.seed, accelerator.process_index, step)
         observation, actions, noise, time_ = _to(device, *_draw(objective, train_data, config.batch_size, generator))
         fraction_done = step / config.steps  # what scheduled objectives read
-        running.append(train_step(module, optimizer, observation, actions, learning_rate=config.learning_rate_at(step), grad_clip=config.grad_clip,
-                                  noise=noise, time=time_, generator=generator, progress=fraction_done, accelerator=accelerator))
+        running.append(
+            train_step(
+                module,
+                optimizer,
+                observation,
+                actions,
+                learning_rate=config.learning_rate_at(step),
+                grad_clip=config.grad_clip,
+                noise=noise,
+                time=time_,
+                generator=generator,
+                progress=fraction_done,
+                accelerator=accelerator,
+            )
+        )
         done = step + 1
         if done % config.log_every == 0 or done == config.steps:
             mean = torch.stack(running).float().mean(0).tolist()
-            state["history"].append({"step": done, "loss": mean[0], "flow_matching": mean[1], "consistency": mean[2], "lr": config.learning_rate_at(step),
-                                     **objective.schedule(fraction_done)})
+            state["history"].append(
+                {
+                    "step": done,
+                    "loss": mean[0],
+                    "flow_matching": mean[1],
+                    "consistency": mean[2],
+                    "lr": config.learning_rate_at(step),
+                    **objective.schedule(fraction_done),
+                }
+            )
             bar.set_postfix(loss=f"{mean[0]:.4f}", refresh=False)
             running = []
         if val_data is not None and (done % config.validate_every == 0 or done == config.steps):
             module.eval()
-            state["validation"].append({"step": done, **validation_loss(accelerator.unwrap_model(module), val_data, config.batch_size, device, progress=fraction_done)})
-            bar.set_postfix(loss=f"{state['history'][-1]['loss']:.4f}" if state["history"] else "", val=f"{state['validation'][-1]['loss']:.4f}", refresh=False)
+            state["validation"].append(
+                {
+                    "step": done,
+                    **validation_loss(
+                        accelerator.unwrap_model(module), val_data, config.batch_size, device, progress=fraction_done
+                    ),
+                }
+            )
+            bar.set_postfix(
+                loss=f"{state['history'][-1]['loss']:.4f}" if state["history"] else "",
+                val=f"{state['validation'][-1]['loss']:.4f}",
+                refresh=False,
+            )
         if done % config.checkpoint_every == 0 or done == config.steps:
             checkpoint_now(done)
     bar.close()

@@ -15,5 +15,14 @@ from snapflow.adapters.lerobot.pi0 import PI0FlowPolicy, PI05FlowPolicy
 from snapflow.adapters.lerobot.registry import ADAPTERS, load_pretrained_policy, wrap_policy
 from snapflow.adapters.lerobot.smolvla import SmolVLAFlowPolicy
 
-__all__ = ["ADAPTERS", "LeRobotFlowPolicy", "PI0FlowPolicy", "PI05FlowPolicy", "SmolVLAFlowPolicy", "wrap_policy",
-           "load_pretrained_policy", "save_distilled", "load_distilled"]
+__all__ = [
+    "ADAPTERS",
+    "LeRobotFlowPolicy",
+    "PI0FlowPolicy",
+    "PI05FlowPolicy",
+    "SmolVLAFlowPolicy",
+    "wrap_policy",
+    "load_pretrained_policy",
+    "save_distilled",
+    "load_distilled",
+]

@@ -99,7 +99,9 @@ class LeRobotFlowPolicy(nn.Module, ABC):
         model = policy.model
         if not hasattr(model, "target_time_embedding"):
             fusion = getattr(model, self.time_fusion_layer)
-            embedding = TargetTimeEmbedding(fusion.out_features, min_period=model.config.min_period, max_period=model.config.max_period)
+            embedding = TargetTimeEmbedding(
+                fusion.out_features, min_period=model.config.min_period, max_period=model.config.max_period
+            )
             model.target_time_embedding = embedding.to(fusion.weight.device)
             model.embed_suffix = types.MethodType(type(self).embed_suffix_with_target_time, model)
 
@@ -147,7 +149,9 @@ class LeRobotFlowPolicy(nn.Module, ABC):
             context = adapter.encode_inputs(*inputs)
             if noise is None:
                 masks = context["prefix_pad_masks"]
-                noise = model.sample_noise((masks.shape[0], model.config.chunk_size, model.config.max_action_dim), masks.device)
+                noise = model.sample_noise(
+                    (masks.shape[0], model.config.chunk_size, model.config.max_action_dim), masks.device
+                )
             return euler_sample(lambda x, t, s: adapter.velocity(x, t, s, context), noise, mode)
 
         self.policy.model.sample_actions = types.MethodType(sample_actions, self.policy.model)

@@ -18,7 +18,9 @@ SNAPFLOW_MARKER = "snapflow.json"
 def save_distilled(adapter: LeRobotFlowPolicy, directory: str | Path) -> Path:
     directory = Path(directory)
     adapter.policy.save_pretrained(directory)
-    write_json(directory / SNAPFLOW_MARKER, {"format": "snapflow-lerobot", "policy": adapter.policy_type, "target_time": True})
+    write_json(
+        directory / SNAPFLOW_MARKER, {"format": "snapflow-lerobot", "policy": adapter.policy_type, "target_time": True}
+    )
     return directory
 
 

@@ -34,15 +34,25 @@ def _suffix_attention_masks(self: nn.Module, state_tokens: int, like: Tensor) ->
     return torch.tensor(pattern, dtype=like.dtype, device=like.device)[None, :].expand(like.shape[0], len(pattern))
 
 
-def _pi0_embed_suffix_with_target_time(self: nn.Module, state: Tensor, noisy_actions: Tensor, timestep: Tensor) -> tuple[Tensor, Tensor, Tensor, None]:
+def _pi0_embed_suffix_with_target_time(
+    self: nn.Module, state: Tensor, noisy_actions: Tensor, timestep: Tensor
+) -> tuple[Tensor, Tensor, Tensor, None]:
     """pi0's ``PI0Pytorch.embed_suffix`` with phi_s(s) added after ``action_time_mlp_in``."""
     t, s = split_timestep(timestep)
     if self.state_proj.weight.dtype == torch.float32:
         state = state.to(torch.float32)
     state_embedding = self._apply_checkpoint(self.state_proj, state)[:, None, :]
-    time_embedding = modeling_module(self).create_sinusoidal_pos_embedding(
-        t, self.action_in_proj.out_features, min_period=self.config.min_period, max_period=self.config.max_period, device=t.device
-    ).type(t.dtype)
+    time_embedding = (
+        modeling_module(self)
+        .create_sinusoidal_pos_embedding(
+            t,
+            self.action_in_proj.out_features,
+            min_period=self.config.min_period,
+            max_period=self.config.max_period,
+            device=t.device,
+        )
+        .type(t.dtype)
+    )
     action_embedding = self._apply_checkpoint(self.action_in_proj, noisy_actions)
     fusion_input = torch.cat([action_embedding, time_embedding[:, None, :].expand_as(action_embedding)], dim=2)
 
@@ -56,12 +66,22 @@ def _pi0_embed_suffix_with_target_time(self: nn.Module, state: Tensor, noisy_act
     return embeddings, pad_masks, _suffix_attention_masks(self, 1, embeddings), None
 
 
-def _pi05_embed_suffix_with_target_time(self: nn.Module, noisy_actions: Tensor, timestep: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+def _pi05_embed_suffix_with_target_time(
+    self: nn.Module, noisy_actions: Tensor, timestep: Tensor
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """pi0.5's ``PI05Pytorch.embed_suffix`` with phi_s(s) added after ``time_mlp_in`` (the adaRMS condition)."""
     t, s = split_timestep(timestep)
-    time_embedding = modeling_module(self).create_sinusoidal_pos_embedding(
-        t, self.action_in_proj.out_features, min_period=self.config.min_period, max_period=self.config.max_period, device=t.device
-    ).type(t.dtype)
+    time_embedding = (
+        modeling_module(self)
+        .create_sinusoidal_pos_embedding(
+            t,
+            self.action_in_proj.out_features,
+            min_period=self.config.min_period,
+            max_period=self.config.max_period,
+            device=t.device,
+        )
+        .type(t.dtype)
+    )
     action_embedding = self._apply_checkpoint(self.action_in_proj, noisy_actions)
 
     def condition(time_embedding: Tensor, target: Tensor) -> Tensor:
@@ -83,33 +103,56 @@ class PI0FlowPolicy(LeRobotFlowPolicy):
 
     def expert_modules(self) -> list[nn.Module]:
         model = self.policy.model
-        return [model.paligemma_with_expert.gemma_expert.model, model.action_in_proj, model.action_out_proj, model.state_proj,
-                model.action_time_mlp_in, model.action_time_mlp_out]
+        return [
+            model.paligemma_with_expert.gemma_expert.model,
+            model.action_in_proj,
+            model.action_out_proj,
+            model.state_proj,
+            model.action_time_mlp_in,
+            model.action_time_mlp_out,
+        ]
 
     def model_inputs(self, batch: dict[str, Tensor]) -> tuple[Any, ...]:
         images, image_masks = self.policy._preprocess_images(batch)
-        return images, image_masks, batch[OBS_LANGUAGE_TOKENS], batch[OBS_LANGUAGE_ATTENTION_MASK], self.policy.prepare_state(batch)
+        return (
+            images,
+            image_masks,
+            batch[OBS_LANGUAGE_TOKENS],
+            batch[OBS_LANGUAGE_ATTENTION_MASK],
+            self.policy.prepare_state(batch),
+        )
 
-    def encode_inputs(self, images: list[Tensor], image_masks: list[Tensor], tokens: Tensor, token_masks: Tensor, state: Tensor) -> dict[str, Any]:
+    def encode_inputs(
+        self, images: list[Tensor], image_masks: list[Tensor], tokens: Tensor, token_masks: Tensor, state: Tensor
+    ) -> dict[str, Any]:
         # pi0 re-embeds the state as a suffix token in every denoising step
         return {**self.prefix_cache(images, image_masks, tokens, token_masks), "state": state}
 
-    def prefix_cache(self, images: list[Tensor], image_masks: list[Tensor], tokens: Tensor, token_masks: Tensor) -> dict[str, Any]:
+    def prefix_cache(
+        self, images: list[Tensor], image_masks: list[Tensor], tokens: Tensor, token_masks: Tensor
+    ) -> dict[str, Any]:
         """PaliGemma over images and prompt once, as LeRobot's ``sample_actions`` runs it."""
         model = self.policy.model
         helpers = modeling_module(model)
         paligemma = model.paligemma_with_expert.paligemma
-        paligemma.model.language_model.config._attn_implementation = "eager"  # as LeRobot's sampler sets it for 4-D masks
+        paligemma.model.language_model.config._attn_implementation = (
+            "eager"  # as LeRobot's sampler sets it for 4-D masks
+        )
         with frozen_prefix_pass(paligemma):
             prefix, pad_masks, att_masks = model.embed_prefix(images, image_masks, tokens, token_masks)
             _, cache = model.paligemma_with_expert.forward(
                 attention_mask=helpers.prepare_attention_masks_4d(helpers.make_att_2d_masks(pad_masks, att_masks)),
-                position_ids=torch.cumsum(pad_masks, dim=1) - 1, past_key_values=None, inputs_embeds=[prefix, None], use_cache=True,
+                position_ids=torch.cumsum(pad_masks, dim=1) - 1,
+                past_key_values=None,
+                inputs_embeds=[prefix, None],
+                use_cache=True,
             )
         return {"cache": cache_tensors(cache), "prefix_pad_masks": pad_masks}
 
     def denoise(self, context: dict[str, Any], x_t: Tensor, timestep: Tensor) -> Tensor:
-        return self.policy.model.denoise_step(context["state"], context["prefix_pad_masks"], cache_for_one_pass(context["cache"]), x_t, timestep)
+        return self.policy.model.denoise_step(
+            context["state"], context["prefix_pad_masks"], cache_for_one_pass(context["cache"]), x_t, timestep
+        )
 
 
 class PI05FlowPolicy(PI0FlowPolicy):
@@ -121,18 +164,27 @@ class PI05FlowPolicy(PI0FlowPolicy):
 
     def expert_modules(self) -> list[nn.Module]:
         model = self.policy.model
-        return [model.paligemma_with_expert.gemma_expert.model, model.action_in_proj, model.action_out_proj,
-                model.time_mlp_in, model.time_mlp_out]
+        return [
+            model.paligemma_with_expert.gemma_expert.model,
+            model.action_in_proj,
+            model.action_out_proj,
+            model.time_mlp_in,
+            model.time_mlp_out,
+        ]
 
     def model_inputs(self, batch: dict[str, Tensor]) -> tuple[Any, ...]:
         images, image_masks = self.policy._preprocess_images(batch)
         return images, image_masks, batch[OBS_LANGUAGE_TOKENS], batch[OBS_LANGUAGE_ATTENTION_MASK]
 
-    def encode_inputs(self, images: list[Tensor], image_masks: list[Tensor], tokens: Tensor, token_masks: Tensor) -> dict[str, Any]:
+    def encode_inputs(
+        self, images: list[Tensor], image_masks: list[Tensor], tokens: Tensor, token_masks: Tensor
+    ) -> dict[str, Any]:
         return self.prefix_cache(images, image_masks, tokens, token_masks)
 
     def denoise(self, context: dict[str, Any], x_t: Tensor, timestep: Tensor) -> Tensor:
-        return self.policy.model.denoise_step(context["prefix_pad_masks"], cache_for_one_pass(context["cache"]), x_t, timestep)
+        return self.policy.model.denoise_step(
+            context["prefix_pad_masks"], cache_for_one_pass(context["cache"]), x_t, timestep
+        )
 
 
 __all__ = ["PI0FlowPolicy", "PI05FlowPolicy"]

@@ -22,8 +22,10 @@ def adapter_class(policy_type: str) -> type[LeRobotFlowPolicy]:
         raise ValueError(f"snapflow distills LeRobot's {', '.join(sorted(ADAPTERS))} policies, not {policy_type!r}")
     adapter, installed = ADAPTERS[policy_type], version("lerobot")
     if Version(installed) < Version(adapter.minimum_lerobot):
-        raise ValueError(f"snapflow's {policy_type} adapter needs lerobot >= {adapter.minimum_lerobot} (Python >= 3.12 for "
-                         f"lerobot >= 0.5); lerobot {installed} is installed")
+        raise ValueError(
+            f"snapflow's {policy_type} adapter needs lerobot >= {adapter.minimum_lerobot} (Python >= 3.12 for "
+            f"lerobot >= 0.5); lerobot {installed} is installed"
+        )
     return adapter
 
 

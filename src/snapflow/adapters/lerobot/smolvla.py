@@ -26,15 +26,23 @@ from snapflow.adapters.lerobot.base import (
 )
 
 
-def _embed_suffix_with_target_time(self: nn.Module, noisy_actions: Tensor, timestep: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+def _embed_suffix_with_target_time(
+    self: nn.Module, noisy_actions: Tensor, timestep: Tensor
+) -> tuple[Tensor, Tensor, Tensor]:
     """SmolVLA's ``VLAFlowMatching.embed_suffix`` with phi_s(s) added after ``action_time_mlp_in``."""
     t, s = split_timestep(timestep)
     action_embedding = self.action_in_proj(noisy_actions)
     batch, chunk, width = action_embedding.shape
-    time_embedding = modeling_module(self).create_sinusoidal_pos_embedding(
-        t, width, self.config.min_period, self.config.max_period, device=action_embedding.device
-    ).to(action_embedding.dtype)
-    fused = self.action_time_mlp_in(torch.cat([action_embedding, time_embedding[:, None, :].expand_as(action_embedding)], dim=2))
+    time_embedding = (
+        modeling_module(self)
+        .create_sinusoidal_pos_embedding(
+            t, width, self.config.min_period, self.config.max_period, device=action_embedding.device
+        )
+        .to(action_embedding.dtype)
+    )
+    fused = self.action_time_mlp_in(
+        torch.cat([action_embedding, time_embedding[:, None, :].expand_as(action_embedding)], dim=2)
+    )
     fused = fused + self.target_time_embedding(s).to(fused.dtype)[:, None, :]
     embeddings = self.action_time_mlp_out(F.silu(fused))
     pad_masks = torch.ones(batch, chunk, dtype=torch.bool, device=embeddings.device)
@@ -53,14 +61,27 @@ class SmolVLAFlowPolicy(LeRobotFlowPolicy):
     def expert_modules(self) -> list[nn.Module]:
         # the state projection feeds the VLM prefix, so it stays frozen with the VLM
         model = self.policy.model
-        return [model.vlm_with_expert.lm_expert, model.action_in_proj, model.action_out_proj,
-                model.action_time_mlp_in, model.action_time_mlp_out]
+        return [
+            model.vlm_with_expert.lm_expert,
+            model.action_in_proj,
+            model.action_out_proj,
+            model.action_time_mlp_in,
+            model.action_time_mlp_out,
+        ]
 
     def model_inputs(self, batch: dict[str, Tensor]) -> tuple[Any, ...]:
         images, image_masks = self.policy.prepare_images(batch)
-        return images, image_masks, batch[OBS_LANGUAGE_TOKENS], batch[OBS_LANGUAGE_ATTENTION_MASK], self.policy.prepare_state(batch)
+        return (
+            images,
+            image_masks,
+            batch[OBS_LANGUAGE_TOKENS],
+            batch[OBS_LANGUAGE_ATTENTION_MASK],
+            self.policy.prepare_state(batch),
+        )
 
-    def encode_inputs(self, images: list[Tensor], image_masks: list[Tensor], tokens: Tensor, token_masks: Tensor, state: Tensor) -> dict[str, Any]:
+    def encode_inputs(
+        self, images: list[Tensor], image_masks: list[Tensor], tokens: Tensor, token_masks: Tensor, state: Tensor
+    ) -> dict[str, Any]:
         model = self.policy.model
         vlm = model.vlm_with_expert
         # LeRobot 0.4.4 fills its dict cache only when asked; newer versions return a DynamicCache
@@ -69,13 +90,18 @@ class SmolVLAFlowPolicy(LeRobotFlowPolicy):
             prefix, pad_masks, att_masks = model.embed_prefix(images, image_masks, tokens, token_masks, state=state)
             _, cache = vlm.forward(
                 attention_mask=modeling_module(model).make_att_2d_masks(pad_masks, att_masks),
-                position_ids=torch.cumsum(pad_masks, dim=1) - 1, past_key_values=None, inputs_embeds=[prefix, None],
-                use_cache=True, **extra,
+                position_ids=torch.cumsum(pad_masks, dim=1) - 1,
+                past_key_values=None,
+                inputs_embeds=[prefix, None],
+                use_cache=True,
+                **extra,
             )
         return {"cache": cache_tensors(cache), "prefix_pad_masks": pad_masks}
 
     def denoise(self, context: dict[str, Any], x_t: Tensor, timestep: Tensor) -> Tensor:
-        return self.policy.model.denoise_step(context["prefix_pad_masks"], cache_for_one_pass(context["cache"]), x_t, timestep)
+        return self.policy.model.denoise_step(
+            context["prefix_pad_masks"], cache_for_one_pass(context["cache"]), x_t, timestep
+        )
 
 
 __all__ = ["SmolVLAFlowPolicy"]

@@ -37,7 +37,9 @@ class MiniVLAConfig(PolicyConfig):
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.use_image and self.image_size % self.patch_size:
-            raise ValueError(f"MiniVLAConfig.image_size ({self.image_size}) must be a multiple of patch_size ({self.patch_size})")
+            raise ValueError(
+                f"MiniVLAConfig.image_size ({self.image_size}) must be a multiple of patch_size ({self.patch_size})"
+            )
 
     @property
     def num_patches(self) -> int:

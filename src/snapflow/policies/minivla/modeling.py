@@ -132,14 +132,18 @@ class MiniVLA(nn.Module):
         if state.shape != (batch, config.state_dim):
             raise ValueError(f"state must have shape (B, {config.state_dim}), got {tuple(state.shape)}")
         if tokens.shape != (batch, config.max_instruction_tokens) or token_mask.shape != tokens.shape:
-            raise ValueError(f"tokens and token_mask must have shape (B, {config.max_instruction_tokens}), got {tuple(tokens.shape)} and {tuple(token_mask.shape)}")
+            raise ValueError(
+                f"tokens and token_mask must have shape (B, {config.max_instruction_tokens}), got {tuple(tokens.shape)} and {tuple(token_mask.shape)}"
+            )
         parts = [self.token_embedding(tokens), self.state_projection(state)[:, None]]
         masks = [token_mask, token_mask.new_ones(batch, 1)]
         if config.use_image:
             image = observation.get("image")
             expected = (batch, 3, config.image_size, config.image_size)
             if image is None or tuple(image.shape) != expected:
-                raise ValueError(f"image must have shape {expected}, got {None if image is None else tuple(image.shape)}")
+                raise ValueError(
+                    f"image must have shape {expected}, got {None if image is None else tuple(image.shape)}"
+                )
             parts.append(self.patch_embedding(image).flatten(2).transpose(1, 2))
             masks.append(token_mask.new_ones(batch, config.num_patches))
         x = torch.cat(parts, dim=1) + self.prefix_position

@@ -25,7 +25,9 @@ class MiniVLAProcessor(Processor):
         return config.state_dim
 
     @classmethod
-    def default_config(cls, state_dim: int, action_dim: int, instructions: Sequence[str], **overrides: Any) -> MiniVLAConfig:
+    def default_config(
+        cls, state_dim: int, action_dim: int, instructions: Sequence[str], **overrides: Any
+    ) -> MiniVLAConfig:
         """MiniVLA's default sizes, reading ``state_dim`` state entries and writing ``action_dim`` actions."""
         return MiniVLAConfig(**{"state_dim": state_dim, "action_dim": action_dim, **overrides})
 
@@ -42,7 +44,9 @@ class MiniVLAProcessor(Processor):
             tokens[row, : len(ids)] = torch.tensor(ids, dtype=torch.long)
         return tokens, tokens != 0
 
-    def observation(self, states: np.ndarray | Tensor, instructions: list[str], images: np.ndarray | Tensor | None = None) -> dict[str, Tensor]:
+    def observation(
+        self, states: np.ndarray | Tensor, instructions: list[str], images: np.ndarray | Tensor | None = None
+    ) -> dict[str, Tensor]:
         tokens, token_mask = self.tokenize(instructions)
         batch = {"state": self.normalized_state(states), "tokens": tokens, "token_mask": token_mask}
         if self.config.use_image:
