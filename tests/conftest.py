@@ -23,10 +23,12 @@ from tests.helpers import ACTION_DIM, CHUNK, OBSERVATION_DIM, make_model, random
 
 @pytest.fixture
 def student() -> SnapFlowPolicy:
+    """A small MLP student whose phi_s is non-zero, so its velocity depends on the target time s."""
     return randomise_target_time(SnapFlowPolicy(make_model()))
 
 
 @pytest.fixture
 def batch() -> tuple[Tensor, Tensor]:
+    """Six observations (6, OBSERVATION_DIM) and their action chunks (6, CHUNK, ACTION_DIM)."""
     generator = torch.Generator().manual_seed(7)
     return torch.randn(6, OBSERVATION_DIM, generator=generator), torch.randn(6, CHUNK, ACTION_DIM, generator=generator)

@@ -2,22 +2,24 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import copy
+from dataclasses import dataclass
+from typing import Any
 
 import torch
 from torch import Tensor, nn
 
 from snapflow.nn import SnapFlowPolicy
 from snapflow.policies.mlp import MLPFlowModel, MLPPolicyConfig
+from snapflow.protocol import Context
 
 OBSERVATION_DIM, CHUNK, ACTION_DIM = 5, 3, 2
 
 
 def make_model(seed: int = 0) -> MLPFlowModel:
     torch.manual_seed(seed)
-    return MLPFlowModel(
-        MLPPolicyConfig(observation_dim=OBSERVATION_DIM, action_dim=ACTION_DIM, chunk_length=CHUNK, hidden_dim=32, time_embedding_dim=16)
-    )
+    return MLPFlowModel(MLPPolicyConfig(observation_dim=OBSERVATION_DIM, action_dim=ACTION_DIM, chunk_length=CHUNK,
+                                        hidden_dim=32, time_embedding_dim=16))
 
 
 def randomise_target_time(policy: SnapFlowPolicy, seed: int = 1) -> SnapFlowPolicy:
@@ -38,19 +40,28 @@ class Call:
     grad_enabled: bool
 
 
-@dataclass
-class RecordingPolicy:
-    """Forwards to a real FlowPolicy and records each encode and velocity call."""
+class RecordingPolicy(nn.Module):
+    """Forwards to a real FlowPolicy and records each encode and velocity call.
 
-    policy: nn.Module
-    encodes: int = 0
-    calls: list[Call] = field(default_factory=list)
+    It is a module over the policy, so an objective may read ``training`` and ``parameters()`` through it; a deep copy
+    (consistency distillation's EMA target network) is a copy of the policy alone, whose passes are not recorded.
+    """
 
-    def encode(self, observation):
+    def __init__(self, policy: nn.Module) -> None:
+        super().__init__()
+        self.policy = policy
+        self.encodes = 0
+        self.calls: list[Call] = []
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> nn.Module:
+        return copy.deepcopy(self.policy, memo)
+
+    def encode(self, observation: Any) -> Context:
         self.encodes += 1
         return self.policy.encode(observation)
 
-    def velocity(self, x_t, t, s, context):
+    def velocity(self, x_t: Tensor, t: Tensor, s: Tensor, context: Context) -> Tensor:
         output = self.policy.velocity(x_t, t, s, context)
-        self.calls.append(Call(x_t.detach().clone(), t.clone(), s.clone(), output, torch.is_grad_enabled()))
+        inputs = (tensor.detach().clone() for tensor in (x_t, t, s))
+        self.calls.append(Call(*inputs, output, torch.is_grad_enabled()))
         return output

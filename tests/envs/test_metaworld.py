@@ -1,94 +1,102 @@
-"""The Meta-World wrapper and the demonstration format, against the real simulator."""
+"""Meta-World MT10 behind the Benchmark interface, against the real simulator.
+
+Building MT10 (its task variations) takes tens of seconds, so everything that needs the simulator is marked slow; the
+interface's names, instructions and errors are checked without it.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from snapflow.data import Demonstrations, DemonstrationError
-from snapflow.data.collect import collect_demonstrations
-from snapflow.envs.metaworld import MAX_EPISODE_STEPS, MT10_TASKS, STATE_DIM, MetaWorldEnv, make_expert
+from snapflow.envs.base import Benchmark, Environment
+from snapflow.envs.metaworld import (
+    ACTION_DIM,
+    MAX_EPISODE_STEPS,
+    MT10_INSTRUCTIONS,
+    MT10_TASKS,
+    STATE_DIM,
+    MetaWorld,
+    MetaWorldEnv,
+    ScriptedExpert,
+)
+from snapflow.envs.via_points import ViaPointExpert
 
 
-def test_expert_episode_succeeds_and_episode_stops_at_success():
-    env, expert = MetaWorldEnv("drawer-close-v3", "train"), make_expert("drawer-close-v3")
-    observation = env.reset(0)
-    assert observation.state.shape == (STATE_DIM,) and observation.instruction == "push the drawer closed"
+def test_metaworld_implements_the_benchmark_interface():
+    """MT10's ten tasks in order, each with its own instruction, and the dimensions and step limit of Meta-World 3."""
+    for benchmark, name in ((MetaWorld(), "metaworld"), (MetaWorld(via_points=True), "metaworld-via-points")):
+        assert isinstance(benchmark, Benchmark) and benchmark.name == name
+        assert benchmark.title.startswith("Meta-World MT10")
+        assert (benchmark.state_dim, benchmark.action_dim, benchmark.max_episode_steps) == (39, 4, 500)
+        assert benchmark.tasks == MT10_TASKS and len(set(benchmark.tasks)) == 10
+        assert [benchmark.instruction(task) for task in MT10_TASKS] == list(MT10_INSTRUCTIONS.values())
+    assert len(set(MT10_INSTRUCTIONS.values())) == 10, "the MLP's one-hot tells the tasks apart by instruction"
+    assert MetaWorld().instruction("drawer-close-v3") == "push the drawer closed"
+    assert MetaWorld().check_tasks(("reach-v3", "push-v3")) == ["reach-v3", "push-v3"]
+
+
+def test_unknown_task_empty_task_list_and_unknown_split_are_named():
+    """Every entry point names the unknown task and lists the benchmark's, before the simulator is built."""
+    benchmark = MetaWorld()
+    message = r"unknown metaworld task\(s\) \['fly-to-the-moon-v3'\]; it has \['reach-v3', 'push-v3'"
+    for call in (lambda: benchmark.check_tasks(["reach-v3", "fly-to-the-moon-v3"]),
+                 lambda: benchmark.instruction("fly-to-the-moon-v3"),
+                 lambda: benchmark.make_expert("fly-to-the-moon-v3"),
+                 lambda: benchmark.make_env("fly-to-the-moon-v3", "train"),
+                 lambda: MetaWorldEnv("fly-to-the-moon-v3")):
+        with pytest.raises(ValueError, match=message):
+            call()
+    with pytest.raises(ValueError, match=r"unknown metaworld-via-points task\(s\) \['fly'\]"):
+        MetaWorld(via_points=True).check_tasks(["fly"])
+    with pytest.raises(ValueError, match="no task given"):
+        benchmark.check_tasks([])
+    for call in (lambda: benchmark.num_variations("test"), lambda: MetaWorldEnv("reach-v3", "test")):
+        with pytest.raises(ValueError, match=r"split must be one of \['train', 'eval'\], got 'test'"):
+            call()
+
+
+def test_experts_are_meta_worlds_scripted_policies_routed_through_a_via_point_in_the_variant():
+    """make_expert gives the task's own scripted policy; the via-point variant wraps it in a ViaPointExpert."""
+    plain = MetaWorld().make_expert("peg-insert-side-v3")
+    assert isinstance(plain, ScriptedExpert) and type(plain.policy).__name__ == "SawyerPegInsertionSideV3Policy"
+    routed = MetaWorld(via_points=True).make_expert("peg-insert-side-v3")
+    assert isinstance(routed, ViaPointExpert) and isinstance(routed.expert, ScriptedExpert)
+    assert type(routed.expert.policy).__name__ == "SawyerPegInsertionSideV3Policy"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("via", [False, True], ids=["metaworld", "via-points"])
+@pytest.mark.parametrize("task", MT10_TASKS)
+def test_every_mt10_expert_succeeds_on_a_training_variation(task: str, via: bool):
+    """Simulator test: each task's expert, as make_expert builds it, succeeds on the first training variation and the
+    episode stops at that success, well before the step limit; observations are the 39-d state and the instruction."""
+    benchmark = MetaWorld(via_points=via)
+    env, expert = benchmark.make_env(task, "train"), benchmark.make_expert(task)
+    assert isinstance(env, Environment) and env.task == task and env.instruction == benchmark.instruction(task)
+    observation = env.reset(0, render=False)
+    assert observation.state.shape == (STATE_DIM,) and observation.state.dtype == np.float32
+    assert observation.instruction == MT10_INSTRUCTIONS[task] and observation.image is None
+    expert.reset(observation)
     done = success = False
     while not done:
-        observation, success, done = env.step(expert.get_action(observation.state))
+        action = expert.act(observation)
+        assert action.shape == (ACTION_DIM,)
+        observation, success, done = env.step(action)
     assert success and env.steps < MAX_EPISODE_STEPS
+    env.close()
 
 
-def test_evaluation_variations_differ_from_training_ones():
-    train, evaluation = MetaWorldEnv("reach-v3", "train"), MetaWorldEnv("reach-v3", "eval")
-    train_starts = np.stack([train.reset(v).state for v in range(10)])
-    eval_starts = np.stack([evaluation.reset(v).state for v in range(10)])
-    # no evaluation start (object and goal positions) coincides with a training one
+@pytest.mark.slow
+def test_variations_per_split_and_evaluation_variations_differ_from_training_ones():
+    """Simulator test: 50 variations a task in each split, none of the evaluation starts (object and goal positions)
+    equal to a training one; a variation out of range is named."""
+    benchmark = MetaWorld()
+    assert benchmark.num_variations("train") == benchmark.num_variations("eval") == 50
+    train, evaluation = benchmark.make_env("reach-v3", "train"), benchmark.make_env("reach-v3", "eval")
+    train_starts = np.stack([train.reset(v, render=False).state for v in range(10)])
+    eval_starts = np.stack([evaluation.reset(v, render=False).state for v in range(10)])
     distances = np.abs(train_starts[:, None] - eval_starts[None]).max(-1)
     assert distances.min() > 1e-3
-
-
-def test_unknown_task_and_variation_are_named():
-    with pytest.raises(ValueError, match="unknown Meta-World task"):
-        MetaWorldEnv("fly-to-the-moon-v3")
-    with pytest.raises(ValueError, match="variation must be in"):
-        MetaWorldEnv("reach-v3").reset(10_000)
-
-
-def test_stored_demonstration_replays_to_success(tmp_path):
-    collected = collect_demonstrations(["button-press-topdown-v3"], 2, progress=False)
-    collected.save(tmp_path)
-    loaded = Demonstrations.load(tmp_path)
-    assert np.array_equal(loaded.states, collected.states) and np.array_equal(loaded.actions, collected.actions)
-    for number, episode in enumerate(loaded.episodes):
-        env = MetaWorldEnv(episode.task, "train")
-        observation = env.reset(episode.variation)
-        rows = loaded.rows([number])
-        success = False
-        for row in rows:
-            assert np.allclose(observation.state, loaded.states[row], atol=1e-5)
-            observation, success, _ = env.step(loaded.actions[row])
-        assert success, f"episode {number} did not replay to success"
-    assert loaded.instructions == {"button-press-topdown-v3": "press the button from the top"}
-    stats = loaded.stats()
-    assert len(stats.state_mean) == STATE_DIM and min(stats.state_std) > 0
-
-
-def _demonstrations(**changes):
-    states, actions = np.zeros((5, 3), np.float32), np.zeros((5, 2), np.float32)
-    from snapflow.data import Episode
-
-    arguments = dict(states=states, actions=actions, episode_index=np.zeros(5, np.int64),
-                     episodes=[Episode("reach-v3", 0, 0, 5)], instructions={"reach-v3": "reach"})
-    arguments.update(changes)
-    return Demonstrations(**arguments)
-
-
-@pytest.mark.parametrize(
-    "changes, message",
-    [
-        ({"actions": np.array([[0, 0]] * 4 + [[np.nan, 0]], np.float32)}, "NaN or inf"),
-        ({"states": np.zeros((5, 3), np.int64)}, "floating point"),
-        ({"episodes": []}, "no episodes"),
-        ({"actions": np.zeros((4, 2), np.float32)}, "must be"),
-        ({"instructions": {}}, "no instruction"),
-    ],
-)
-def test_bad_demonstrations_are_rejected_with_the_reason(changes, message):
-    with pytest.raises(DemonstrationError, match=message):
-        _demonstrations(**changes)
-
-
-def test_loading_a_missing_or_foreign_directory_is_explained(tmp_path):
-    with pytest.raises(DemonstrationError, match="snapflow collect"):
-        Demonstrations.load(tmp_path)
-    (tmp_path / "meta.json").write_text('{"format": "something-else"}')
-    (tmp_path / "demonstrations.npz").write_bytes(b"not a zip")
-    with pytest.raises(DemonstrationError, match="expected format"):
-        Demonstrations.load(tmp_path)
-
-
-def test_all_mt10_tasks_have_experts():
-    for task in MT10_TASKS:
-        assert hasattr(make_expert(task), "get_action")
+    with pytest.raises(ValueError, match=r"variation must be in \[0, 50\), got 10000"):
+        train.reset(10_000)

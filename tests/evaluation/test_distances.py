@@ -7,10 +7,11 @@ import math
 import pytest
 import torch
 
-from snapflow.evaluation import energy_distance
+from snapflow.evaluation.distances import energy_distance
 
 
 def test_energy_distance_by_hand():
+    """Two points against two points, with the within-set means over distinct pairs only."""
     x = torch.tensor([[0.0], [1.0]])
     y = torch.tensor([[2.0], [4.0]])
     # E|X-Y| = (2 + 4 + 1 + 3) / 4 = 2.5, E|X-X'| = 1, E|Y-Y'| = 2 over distinct pairs
@@ -18,6 +19,8 @@ def test_energy_distance_by_hand():
 
 
 def test_energy_distance_is_small_for_one_distribution_and_grows_with_a_shift():
+    """Two draws of one distribution score near zero (a set against itself exactly zero), and the distance grows
+    with a shift of one of them."""
     generator = torch.Generator().manual_seed(0)
     x, y = torch.randn(800, 2, generator=generator), torch.randn(800, 2, generator=generator)
     same = energy_distance(x, y).item()
@@ -28,6 +31,7 @@ def test_energy_distance_is_small_for_one_distribution_and_grows_with_a_shift():
 
 
 def test_energy_distance_rejects_bad_shapes():
+    """Sets of different widths, or of fewer than two samples, are refused by name."""
     with pytest.raises(ValueError, match="sample sets"):
         energy_distance(torch.zeros(5, 2), torch.zeros(5, 3))
     with pytest.raises(ValueError, match="two samples"):

@@ -14,6 +14,7 @@ from snapflow.flow import (
     UniformTimeSampler,
     conditional_velocity,
     euler_sample,
+    euler_step,
     interpolate,
     sample_actions,
 )
@@ -21,6 +22,7 @@ from tests.helpers import RecordingPolicy
 
 
 def test_path_endpoints_and_velocity():
+    """x_t runs from the data at t = 0 to the noise at t = 1 on a straight line whose velocity is eps - a."""
     actions, noise = torch.randn(4, 3, 2), torch.randn(4, 3, 2)
     assert torch.equal(interpolate(actions, noise, torch.zeros(4)), actions)
     assert torch.equal(interpolate(actions, noise, torch.ones(4)), noise)
@@ -35,6 +37,7 @@ def test_path_endpoints_and_velocity():
 
 
 def test_path_rejects_mismatched_shapes():
+    """Actions and noise of different shapes, or a time per sample of the wrong length, are named."""
     with pytest.raises(ValueError, match="differ in shape"):
         interpolate(torch.zeros(2, 3), torch.zeros(2, 4), torch.zeros(2))
     with pytest.raises(ValueError, match="time must have shape"):
@@ -42,6 +45,7 @@ def test_path_rejects_mismatched_shapes():
 
 
 def test_beta_time_sampler_matches_pi0_distribution():
+    """pi0's Beta(1.5, 1) times, scaled into [0.001, 1], match their exact CDF and are reproducible by generator."""
     sampler = BetaTimeSampler()
     t = sampler(200_000, generator=torch.Generator().manual_seed(0))
     assert t.min() >= 0.001 and t.max() <= 1.0
@@ -50,18 +54,21 @@ def test_beta_time_sampler_matches_pi0_distribution():
     empirical = (t[None, :] <= grid[:, None]).double().mean(dim=1)
     exact = ((grid - 0.001) / 0.999).double() ** 1.5
     assert (empirical - exact).abs().max() < 0.005
-    assert torch.equal(sampler(8, generator=torch.Generator().manual_seed(3)), sampler(8, generator=torch.Generator().manual_seed(3)))
+    draws = [sampler(8, generator=torch.Generator().manual_seed(3)) for _ in range(2)]
+    assert torch.equal(draws[0], draws[1])
     with pytest.raises(ValueError, match="concentration"):
         BetaTimeSampler(concentration=0)
 
 
 def test_uniform_time_sampler():
+    """U(0, 1) times: in range with mean 1/2."""
     t = UniformTimeSampler()(100_000, generator=torch.Generator().manual_seed(0))
     assert 0 <= t.min() and t.max() < 1
     assert abs(t.mean().item() - 0.5) < 0.005
 
 
 def test_sampling_mode_names_round_trip():
+    """Mode names parse (with the bare defaults), canonical names round-trip, and malformed names are refused."""
     assert SamplingMode.parse("teacher-10") == TEACHER_10
     assert SamplingMode.parse("teacher") == TEACHER_10
     assert SamplingMode.parse("naive") == NAIVE_1 == SamplingMode.parse("teacher-1")
@@ -69,27 +76,40 @@ def test_sampling_mode_names_round_trip():
     assert SamplingMode.parse("SnapFlow-2") == SamplingMode(2, jump=True)
     for mode in (TEACHER_10, NAIVE_1, SNAPFLOW_1, SamplingMode(4, jump=True)):
         assert SamplingMode.parse(mode.name) == mode
-    for bad in ("fast", "teacher-0", "naive-2", "snapflow--1"):
-        with pytest.raises(ValueError):
+    for bad, message in (("fast", "unknown sampling mode 'fast'"), ("teacher-0", "takes no step"),
+                         ("naive-2", "naive sampling is one step"), ("snapflow--1", "unknown sampling mode")):
+        with pytest.raises(ValueError, match=message):
             SamplingMode.parse(bad)
+    with pytest.raises(ValueError, match="num_steps must be at least 1, got 0"):
+        SamplingMode(0, jump=True)
 
 
 def test_euler_is_exact_for_a_constant_velocity_field():
-    # On one straight path the velocity is constant, so any number of Euler steps lands on the data.
+    """On one straight path the velocity is constant, so any number of Euler steps lands on the data."""
     actions, noise = torch.randn(3, 4, 2), torch.randn(3, 4, 2)
     for steps in (1, 2, 10):
         result = euler_sample(lambda x, t, s: noise - actions, noise, SamplingMode(steps, jump=False))
         assert torch.allclose(result, actions, atol=1e-6)
 
 
+def test_euler_step_moves_by_the_time_difference_per_sample():
+    """x + (t_next - t) * v, with a time difference per sample broadcast over the chunk."""
+    x, velocity = torch.randn(2, 3, 2), torch.randn(2, 3, 2)
+    t, t_next = torch.tensor([1.0, 0.5]), torch.tensor([0.75, 0.0])
+    moved = euler_step(x, velocity, t, t_next)
+    assert torch.allclose(moved[0], x[0] - 0.25 * velocity[0]) and torch.allclose(moved[1], x[1] - 0.5 * velocity[1])
+
+
 def test_euler_follows_a_time_dependent_field_by_hand():
-    # v(x, t) = x: two Euler steps of dt = -1/2 give x * (1 - 1/2) ** 2.
+    """v(x, t) = x: two Euler steps of dt = -1/2 give x * (1 - 1/2) ** 2."""
     noise = torch.randn(2, 1, 3)
     result = euler_sample(lambda x, t, s: x, noise, SamplingMode(2, jump=False))
     assert torch.allclose(result, noise * 0.25)
 
 
 def test_each_mode_asks_for_the_right_target_time(student, batch):
+    """The teacher asks for s = t at each grid time, naive for s = t = 1, SnapFlow-N for s = the next grid time;
+    the prefix is encoded once and sampling builds no graph."""
     observation, _ = batch
     noise = torch.randn(6, 3, 2)
     for mode, expected in [
@@ -104,10 +124,11 @@ def test_each_mode_asks_for_the_right_target_time(student, batch):
         asked = [(c.t[0].item(), c.s[0].item()) for c in recorder.calls]
         assert len(asked) == len(expected)
         assert torch.allclose(torch.tensor(asked), torch.tensor(expected, dtype=torch.float32))
-        assert result.shape == noise.shape
+        assert result.shape == noise.shape and not result.requires_grad
 
 
 def test_snapflow_one_step_is_x1_minus_the_jump_velocity(student, batch):
+    """SnapFlow 1-NFE is x_1 - F(x_1, t=1, s=0); naive 1-NFE is x_1 - F(x_1, t=1, s=1)."""
     observation, _ = batch
     noise = torch.randn(6, 3, 2)
     context = student.encode(observation)

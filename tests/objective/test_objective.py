@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from snapflow import SnapFlowObjective, UniformTimeSampler
-from snapflow.objective import euler_shortcut_target
+from snapflow.flow import UniformTimeSampler
+from snapflow.objective import SnapFlowObjective, euler_shortcut_target
 from tests.helpers import RecordingPolicy
 
 
@@ -38,6 +38,7 @@ def hand_computed_loss(policy, observation, actions, noise, time, n_fm, alpha, l
 
 @pytest.mark.parametrize("alpha, lam, clamp", [(0.5, 0.1, None), (0.3, 1.0, None), (0.5, 0.1, 0.05)])
 def test_loss_equals_the_hand_computation(student, batch, alpha, lam, clamp):
+    """The loss and both parts equal SPEC section 4 computed sample by sample, with and without a velocity clamp."""
     observation, actions = batch
     objective = SnapFlowObjective(alpha, lam, UniformTimeSampler(), teacher_velocity_clamp=clamp)
     n_fm = objective.num_flow_matching(6)
@@ -51,6 +52,7 @@ def test_loss_equals_the_hand_computation(student, batch, alpha, lam, clamp):
 
 
 def test_consistency_target_is_the_two_step_euler_shortcut(student, batch):
+    """The paper's target is (v_1 + v_.5) / 2 from the model's own FM velocities, and carries no gradient."""
     observation, _ = batch
     context = student.encode(observation)
     x_1 = torch.randn(6, 3, 2)
@@ -63,6 +65,8 @@ def test_consistency_target_is_the_two_step_euler_shortcut(student, batch):
 
 
 def test_gradient_flows_only_through_the_jump_pass(student, batch):
+    """Two no-grad teacher passes in FM mode at t = 1 and t = .5, then one gradient pass whose consistency rows jump
+    from the teacher's x_1 at t = 1 to s = 0; phi_s receives gradient."""
     observation, actions = batch
     recorder = RecordingPolicy(student)
     objective = SnapFlowObjective(time_sampler=UniformTimeSampler())
@@ -84,6 +88,7 @@ def test_gradient_flows_only_through_the_jump_pass(student, batch):
 
 
 def test_alpha_one_is_plain_flow_matching(student, batch):
+    """alpha = 1 trains the teacher: one pass, and the loss is the FM loss by hand."""
     observation, actions = batch
     recorder = RecordingPolicy(student)
     objective = SnapFlowObjective(alpha=1.0, time_sampler=UniformTimeSampler())
@@ -96,6 +101,7 @@ def test_alpha_one_is_plain_flow_matching(student, batch):
 
 
 def test_alpha_zero_is_consistency_only(student, batch):
+    """alpha = 0 has no FM row and the loss is the consistency loss (lambda = 1)."""
     observation, actions = batch
     output = SnapFlowObjective(alpha=0.0, consistency_weight=1.0)(student, observation, actions)
     assert output.num_flow_matching == 0 and output.flow_matching_loss == 0
@@ -103,6 +109,7 @@ def test_alpha_zero_is_consistency_only(student, batch):
 
 
 def test_split_is_a_fixed_count_with_both_branches_present():
+    """The FM share is round(alpha * B) half up, kept in [1, B - 1] for 0 < alpha < 1; a batch of one cannot split."""
     assert SnapFlowObjective(alpha=0.5).num_flow_matching(4) == 2
     assert SnapFlowObjective(alpha=0.5).num_flow_matching(5) == 3
     assert SnapFlowObjective(alpha=0.1).num_flow_matching(4) == 1
@@ -114,14 +121,17 @@ def test_split_is_a_fixed_count_with_both_branches_present():
 
 @pytest.mark.parametrize(
     "kwargs, message",
-    [({"alpha": 1.5}, "alpha"), ({"consistency_weight": -1}, "consistency_weight"), ({"teacher_velocity_clamp": 0}, "clamp")],
+    [({"alpha": 1.5}, "alpha"), ({"consistency_weight": -1}, "consistency_weight"),
+     ({"teacher_velocity_clamp": 0}, "clamp")],
 )
 def test_invalid_settings_are_named(kwargs, message):
+    """Out-of-range alpha, lambda and clamp are ValueErrors naming the setting."""
     with pytest.raises(ValueError, match=message):
         SnapFlowObjective(**kwargs)
 
 
 def test_given_noise_and_time_shapes_are_checked(student, batch):
+    """Given noise must match the actions and given times the FM rows; either mismatch is named."""
     observation, actions = batch
     objective = SnapFlowObjective()
     with pytest.raises(ValueError, match="noise"):

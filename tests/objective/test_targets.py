@@ -6,16 +6,16 @@ from __future__ import annotations
 import pytest
 import torch
 
-from snapflow import SnapFlowObjective, UniformTimeSampler
-from snapflow.experiments.toy import ToyConfig, run_toy_experiment
-from snapflow.flow.solver import SamplingMode, euler_sample
-from snapflow.objective import BootstrappedSnapFlowObjective, euler_shortcut_target
+from snapflow.flow import SamplingMode, UniformTimeSampler, euler_sample
+from snapflow.jobs.toy import ToyConfig, run_toy_experiment
+from snapflow.objective import BootstrappedSnapFlowObjective, SnapFlowObjective, euler_shortcut_target
 from snapflow.objective.snapflow import stage_at
 from snapflow.training.distill import DistillSettings
 from tests.helpers import RecordingPolicy
 
 
 def test_k_step_target_averages_k_hand_written_euler_velocities_and_lands_where_the_solver_does(student, batch):
+    """K = 4: the target is the mean of four hand-written Euler velocities, and x_1 - target is the solver's sample."""
     observation, _ = batch
     context = student.encode(observation)
     velocity = lambda x, t, s: student.velocity(x, t, s, context)  # noqa: E731
@@ -33,6 +33,7 @@ def test_k_step_target_averages_k_hand_written_euler_velocities_and_lands_where_
 
 @pytest.mark.parametrize("steps", [2, 4, 8])
 def test_euler_target_costs_k_no_grad_passes_and_one_gradient_pass(student, batch, steps):
+    """A K-step target costs K no-grad passes at t = 1, 1 - 1/K, ..., then one gradient pass."""
     observation, actions = batch
     recorder = RecordingPolicy(student)
     SnapFlowObjective(time_sampler=UniformTimeSampler(), target_steps=steps)(recorder, observation, actions)
@@ -41,6 +42,7 @@ def test_euler_target_costs_k_no_grad_passes_and_one_gradient_pass(student, batc
 
 
 def test_schedule_raises_k_in_equal_stages_of_training(student, batch):
+    """A schedule (2, 4, 8) splits training into equal thirds; the call's progress picks K, and K its passes."""
     assert [stage_at((2, 4, 8), p) for p in (0.0, 0.33, 0.34, 0.66, 0.67, 0.999, 1.0)] == [2, 2, 4, 4, 8, 8, 8]
     objective = SnapFlowObjective(time_sampler=UniformTimeSampler(), target_steps=[2, 4, 8])
     assert objective.target_steps == (2, 4, 8) and objective.schedule(0.5) == {"target_steps": 4}
@@ -56,7 +58,8 @@ def test_bootstrapped_target_by_hand(student, batch):
     1/2, through instantaneous velocities); three passes, rows at the draws the sampler made."""
     observation, actions = batch
     recorder = RecordingPolicy(student)
-    objective = BootstrappedSnapFlowObjective(alpha=0.0, consistency_weight=1.0, time_sampler=UniformTimeSampler(), target_steps=4)
+    objective = BootstrappedSnapFlowObjective(alpha=0.0, consistency_weight=1.0, time_sampler=UniformTimeSampler(),
+                                              target_steps=4)
     noise = torch.randn(6, 3, 2)
     output = objective(recorder, observation, actions, noise=noise, generator=torch.Generator().manual_seed(0))
     first, second, gradient_pass = recorder.calls
@@ -84,6 +87,7 @@ def test_bootstrapped_target_by_hand(student, batch):
 
 
 def test_bootstrapped_target_with_two_steps_is_snapflow(student, batch):
+    """With K = 2 the bootstrapped objective has one level, the finest: exactly the paper's loss."""
     observation, actions = batch
     noise = torch.randn(6, 3, 2)
     time = torch.rand(3)
@@ -94,23 +98,30 @@ def test_bootstrapped_target_with_two_steps_is_snapflow(student, batch):
 
 
 @pytest.mark.parametrize("settings, message", [
-    ({"target": "oracle"}, "unknown SnapFlow target"),
+    ({"target": "oracle"}, "unknown SnapFlow target 'oracle'"),
     ({"target_steps": 0}, "target_steps must be a positive integer"),
     ({"target_steps": []}, "target_steps must be a positive integer"),
-    ({"target": "bootstrap", "target_steps": 6}, "power of two"),
-    ({"target": "bootstrap", "target_steps": [2, 4]}, "grows by itself"),
-    ({"target": "bootstrap", "teacher_velocity": "conditional"}, "takes no teacher_velocity"),
-    ({"method": "meanflow", "target_steps": 4}, "options of the snapflow method only"),
+    ({"target": "bootstrap", "target_steps": 6}, "power of two >= 2, got 6"),
+    ({"target": "bootstrap", "target_steps": [2, 4]}, r"grows by itself .* not the schedule \[2, 4\]"),
+    ({"target": "bootstrap", "teacher_velocity": "conditional"},
+     "teacher_velocity is not an option of the snapflow-bootstrap objective"),
+    ({"method": "meanflow", "target_steps": 4}, "target_steps is not an option of the meanflow objective"),
+    ({"method": "meanflow", "target": "bootstrap"}, "target is an option of the snapflow method only"),
 ])
 def test_bad_target_settings_are_named(settings, message):
+    """Target settings the objectives cannot honour are ValueErrors saying why."""
     with pytest.raises(ValueError, match=message):
         DistillSettings(**settings)
 
 
+@pytest.mark.slow
 def test_more_euler_steps_in_the_target_bring_the_one_step_jump_closer_to_the_data():
     """Learning test on the multimodal toy: an 8-step target beats the paper's 2-step target, which cannot
     beat the 2-step teacher it imitates."""
-    distances = {steps: run_toy_experiment(ToyConfig(distill_steps=1000, consistency_weight=1.0, target_steps=steps), progress=False).distances
-                 for steps in (2, 8)}
+    distances = {
+        steps: run_toy_experiment(ToyConfig(distill_steps=1000, consistency_weight=1.0, target_steps=steps),
+                                  progress=False).distances
+        for steps in (2, 8)
+    }
     print({steps: round(d["snapflow-1"], 4) for steps, d in distances.items()})
     assert distances[8]["snapflow-1"] < 0.75 * distances[2]["snapflow-1"]

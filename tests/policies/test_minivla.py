@@ -8,18 +8,22 @@ import numpy as np
 import pytest
 import torch
 
-from snapflow import SnapFlowObjective, SnapFlowPolicy, UniformTimeSampler
-from snapflow.data import NormalizationStats
+from snapflow.flow import UniformTimeSampler
+from snapflow.nn import SnapFlowPolicy
+from snapflow.objective import SnapFlowObjective
 from snapflow.policies.minivla import MiniVLA, MiniVLAConfig, MiniVLAProcessor
+from snapflow.policies.processor import NormalizationStats
 
-CONFIG = MiniVLAConfig(state_dim=6, action_dim=3, chunk_length=4, prefix_width=32, expert_width=32, num_layers=2, num_heads=2, head_dim=8, max_instruction_tokens=6)
+CONFIG = MiniVLAConfig(state_dim=6, action_dim=3, chunk_length=4, prefix_width=32, expert_width=32, num_layers=2,
+                       num_heads=2, head_dim=8, max_instruction_tokens=6)
 STATS = NormalizationStats([0.0] * 6, [1.0] * 6, [0.0] * 3, [1.0] * 3)
 
 
-def _observation(batch: int = 4):
+def _observation(batch: int = 4) -> dict[str, torch.Tensor]:
     processor = MiniVLAProcessor(CONFIG, STATS)
     generator = torch.Generator().manual_seed(0)
-    return processor.observation(torch.randn(batch, 6, generator=generator).numpy(), ["push the puck to the goal", "open the door"] * (batch // 2))
+    states = torch.randn(batch, 6, generator=generator).numpy()
+    return processor.observation(states, ["push the puck to the goal", "open the door"] * (batch // 2))
 
 
 def _randomise_modulation(model: MiniVLA) -> None:
@@ -31,12 +35,14 @@ def _randomise_modulation(model: MiniVLA) -> None:
 
 
 def test_tokenizer_is_stable_and_pads():
+    """Words hash to ids independently of case and punctuation; padding is id 0 and masked out."""
     processor = MiniVLAProcessor(CONFIG, STATS)
     tokens, mask = processor.tokenize(["Push the puck!", "push THE puck"])
     assert torch.equal(tokens[0], tokens[1]) and mask[0].sum() == 3 and tokens[0, 3:].eq(0).all()
 
 
 def test_cached_prefix_gives_the_same_velocity_as_recomputing_it():
+    """A denoising pass leaves the cached prefix intact, and the velocity reads the instruction through it."""
     torch.manual_seed(0)
     model = MiniVLA(CONFIG)
     _randomise_modulation(model)
@@ -54,6 +60,8 @@ def test_cached_prefix_gives_the_same_velocity_as_recomputing_it():
 
 
 def test_wrapping_minivla_is_bit_identical_and_distillation_leaves_the_prefix_alone():
+    """The wrapped student is the teacher bit for bit; distilling its expert_parameters() moves the action expert
+    and phi_s and not one prefix ("VLM") weight."""
     torch.manual_seed(0)
     model = MiniVLA(CONFIG)
     _randomise_modulation(model)
@@ -68,7 +76,8 @@ def test_wrapping_minivla_is_bit_identical_and_distillation_leaves_the_prefix_al
             teacher.velocity(x, t, t, teacher.encode(observation)),
         )
     prefix = {id(p) for p in student.model.prefix_parameters()}
-    trainable = [p for p in student.parameters() if id(p) not in prefix]
+    trainable = student.expert_parameters()
+    assert {id(p) for p in trainable} == {id(p) for p in student.parameters()} - prefix
     before = {name: p.detach().clone() for name, p in student.named_parameters()}
     optimizer = torch.optim.Adam(trainable, lr=1e-3)
     objective = SnapFlowObjective(time_sampler=UniformTimeSampler())
@@ -76,31 +85,37 @@ def test_wrapping_minivla_is_bit_identical_and_distillation_leaves_the_prefix_al
         optimizer.zero_grad()
         objective(student, observation, torch.randn(4, 4, 3)).loss.backward()
         optimizer.step()
-    updated = [name for name, p in student.named_parameters() if id(p) not in prefix and p.grad is not None and p.grad.abs().sum() > 0]
+    updated = [name for name, p in student.named_parameters()
+               if id(p) not in prefix and p.grad is not None and p.grad.abs().sum() > 0]
     assert len(updated) >= len(trainable) // 2, "most of the expert should receive gradient"
     for name in updated:
         assert not torch.equal(before[name], student.get_parameter(name)), f"{name} had a gradient but did not move"
     assert all(torch.equal(before[n], p) for n, p in student.named_parameters() if id(p) in prefix)
-    assert not torch.equal(before["target_time_embedding.linear_out.weight"], student.target_time_embedding.linear_out.weight)
+    phi_s_out = "target_time_embedding.linear_out.weight"
+    assert not torch.equal(before[phi_s_out], student.get_parameter(phi_s_out))
 
 
 def test_shape_errors_name_the_expected_shape():
+    """A state or a noisy action chunk of the wrong shape is refused with the shape expected."""
     model = MiniVLA(CONFIG)
     observation = _observation()
-    import pytest
-
     with pytest.raises(ValueError, match=r"state must have shape \(B, 6\)"):
         model.encode(dict(observation, state=torch.zeros(4, 7)))
     with pytest.raises(ValueError, match=r"noisy actions must have shape \(B, 4, 3\)"):
-        model.velocity_from_time_embedding(torch.zeros(4, 5, 3), model.embed_time(torch.rand(4)), model.encode(observation))
+        model.velocity_from_time_embedding(torch.zeros(4, 5, 3), model.embed_time(torch.rand(4)),
+                                           model.encode(observation))
 
 
 def test_a_proprioceptive_policy_reads_the_leading_state_entries_only():
+    """state_dim = 4 with a camera reads the hand and gripper entries and leaves the rest of the state to the image."""
     config = MiniVLAConfig(state_dim=4, use_image=True, image_size=32)
     processor = MiniVLAProcessor(config, NormalizationStats([0.0] * 4, [1.0] * 4, [0.0] * 4, [1.0] * 4))
     states = np.arange(2 * 39, dtype=np.float32).reshape(2, 39)
     images = np.zeros((2, 32, 32, 3), dtype=np.uint8)
     batch = processor.observation(states, ["reach", "push"], images)
     assert torch.equal(batch["state"], torch.from_numpy(states[:, :4]))
+    assert batch["image"].shape == (2, 3, 32, 32) and processor.image_size == 32
     with pytest.raises(ValueError, match=r"states must have shape \(batch, >= 4\)"):
         processor.observation(states[:, :3], ["reach", "push"], images)
+    with pytest.raises(ValueError, match="use_image=True, so every observation needs an image"):
+        processor.observation(states, ["reach", "push"])

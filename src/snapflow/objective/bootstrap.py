@@ -44,6 +44,11 @@ class BootstrappedSnapFlowObjective(TwoBranchObjective):
 
     def __post_init__(self) -> None:
         self._check_weights()
+        if isinstance(self.target_steps, tuple | list):
+            raise ValueError(
+                "a bootstrapped target grows by itself from 2 to target_steps Euler steps; give target_steps one power "
+                f"of two, not the schedule {list(self.target_steps)}"
+            )
         if (
             not isinstance(self.target_steps, int)
             or self.target_steps < 2

@@ -1,0 +1,78 @@
+"""The demonstration format on disk, and collection from a benchmark's experts replayed in the real simulator."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from snapflow.data import DemonstrationError, Demonstrations, Episode
+from snapflow.data.collect import collect_demonstrations
+from snapflow.envs.metaworld import STATE_DIM, MetaWorld
+
+
+@pytest.mark.slow
+def test_stored_demonstration_replays_to_success(tmp_path):
+    """Simulator test: collected episodes saved and loaded replay step by step to success in a fresh environment."""
+    benchmark = MetaWorld()
+    collected = collect_demonstrations(benchmark, ["button-press-topdown-v3"], 2, progress=False)
+    collected.save(tmp_path)
+    loaded = Demonstrations.load(tmp_path)
+    assert np.array_equal(loaded.states, collected.states) and np.array_equal(loaded.actions, collected.actions)
+    assert loaded.env == collected.env == "metaworld"
+    for number, episode in enumerate(loaded.episodes):
+        env = benchmark.make_env(episode.task, "train")
+        observation = env.reset(episode.variation, render=False)
+        success = False
+        for row in loaded.rows([number]):
+            assert np.allclose(observation.state, loaded.states[row], atol=1e-5)
+            observation, success, _ = env.step(loaded.actions[row])
+        assert success, f"episode {number} did not replay to success"
+    assert loaded.instructions == {"button-press-topdown-v3": "press the button from the top"}
+    stats = loaded.stats()
+    assert len(stats.state_mean) == STATE_DIM and min(stats.state_std) > 0
+
+
+def _demonstrations(**changes) -> Demonstrations:
+    states, actions = np.zeros((5, 3), np.float32), np.zeros((5, 2), np.float32)
+    arguments = dict(states=states, actions=actions, episode_index=np.zeros(5, np.int64),
+                     episodes=[Episode("reach-v3", 0, 0, 5)], instructions={"reach-v3": "reach"})
+    arguments.update(changes)
+    return Demonstrations(**arguments)
+
+
+@pytest.mark.parametrize(
+    "changes, message",
+    [
+        ({"actions": np.array([[0, 0]] * 4 + [[np.nan, 0]], np.float32)}, "NaN or inf"),
+        ({"states": np.zeros((5, 3), np.int64)}, "floating point"),
+        ({"episodes": []}, "no episodes"),
+        ({"actions": np.zeros((4, 2), np.float32)}, "must be"),
+        ({"instructions": {}}, "no instruction"),
+    ],
+)
+def test_bad_demonstrations_are_rejected_with_the_reason(changes, message):
+    """What would silently corrupt training is refused with the reason."""
+    with pytest.raises(DemonstrationError, match=message):
+        _demonstrations(**changes)
+
+
+def test_the_benchmark_name_travels_with_the_demonstrations(tmp_path):
+    """The env field is saved and loaded; an env that is not a name is refused."""
+    demonstrations = _demonstrations(env="metaworld-via-points")
+    loaded = Demonstrations.load(demonstrations.save(tmp_path))
+    assert loaded.env == "metaworld-via-points" and np.array_equal(loaded.states, demonstrations.states)
+    meta = (tmp_path / "meta.json").read_text()
+    (tmp_path / "meta.json").write_text(meta.replace('"env": "metaworld-via-points"', '"env": 3'))
+    with pytest.raises(DemonstrationError, match="'env' must name a benchmark, got 3"):
+        Demonstrations.load(tmp_path)
+
+
+def test_loading_a_missing_or_foreign_directory_is_explained(tmp_path):
+    """A missing set points at `snapflow collect`; a foreign one names the format expected."""
+    with pytest.raises(DemonstrationError, match="snapflow collect"):
+        Demonstrations.load(tmp_path)
+    (tmp_path / "meta.json").write_text('{"format": "something-else"}')
+    (tmp_path / "demonstrations.npz").write_bytes(b"not a zip")
+    with pytest.raises(DemonstrationError, match="expected format"):
+        Demonstrations.load(tmp_path)
+
