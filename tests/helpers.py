@@ -18,8 +18,15 @@ OBSERVATION_DIM, CHUNK, ACTION_DIM = 5, 3, 2
 
 def make_model(seed: int = 0) -> MLPFlowModel:
     torch.manual_seed(seed)
-    return MLPFlowModel(MLPPolicyConfig(observation_dim=OBSERVATION_DIM, action_dim=ACTION_DIM, chunk_length=CHUNK,
-                                        hidden_dim=32, time_embedding_dim=16))
+    return MLPFlowModel(
+        MLPPolicyConfig(
+            observation_dim=OBSERVATION_DIM,
+            action_dim=ACTION_DIM,
+            chunk_length=CHUNK,
+            hidden_dim=32,
+            time_embedding_dim=16,
+        )
+    )
 
 
 def randomise_target_time(policy: SnapFlowPolicy, seed: int = 1) -> SnapFlowPolicy:

@@ -41,39 +41,79 @@ def write_tiny_smolvlm(directory: Path) -> Path:
     core.pre_tokenizer = pre_tokenizers.Whitespace()
     specials = [*OTHER_SPECIAL[2:], *IMAGE_TOKENS.values(), *ROW_COL]
     tokenizer = PreTrainedTokenizerFast(
-        tokenizer_object=core, pad_token="[PAD]", unk_token="[UNK]", bos_token="<|im_start|>",
-        eos_token="<end_of_utterance>", additional_special_tokens=specials, extra_special_tokens=dict(IMAGE_TOKENS),
-        model_max_length=512, padding_side="right",
+        tokenizer_object=core,
+        pad_token="[PAD]",
+        unk_token="[UNK]",
+        bos_token="<|im_start|>",
+        eos_token="<end_of_utterance>",
+        additional_special_tokens=specials,
+        extra_special_tokens=dict(IMAGE_TOKENS),
+        model_max_length=512,
+        padding_side="right",
     )
     size = {"longest_edge": IMAGE_SIZE}
     SmolVLMProcessor(
-        image_processor=SmolVLMImageProcessor(do_resize=True, size=size, do_image_splitting=False, max_image_size=size, do_pad=True),
+        image_processor=SmolVLMImageProcessor(
+            do_resize=True, size=size, do_image_splitting=False, max_image_size=size, do_pad=True
+        ),
         tokenizer=tokenizer,
         video_processor=SmolVLMVideoProcessor(size=size, max_image_size=size, do_image_splitting=False),
         image_seq_len=(IMAGE_SIZE // PATCH_SIZE) ** 2 // SCALE_FACTOR**2,
     ).save_pretrained(directory)
     SmolVLMConfig(
-        vision_config=dict(hidden_size=32, intermediate_size=64, num_hidden_layers=1, num_attention_heads=2,
-                           image_size=IMAGE_SIZE, patch_size=PATCH_SIZE),
-        text_config=dict(model_type="llama", hidden_size=64, intermediate_size=128, num_hidden_layers=2,
-                         num_attention_heads=4, num_key_value_heads=2, head_dim=16, vocab_size=len(tokenizer),
-                         max_position_embeddings=256, pad_token_id=tokenizer.pad_token_id, tie_word_embeddings=False),
-        scale_factor=SCALE_FACTOR, image_token_id=tokenizer.convert_tokens_to_ids("<image>"), pad_token_id=tokenizer.pad_token_id,
+        vision_config=dict(
+            hidden_size=32,
+            intermediate_size=64,
+            num_hidden_layers=1,
+            num_attention_heads=2,
+            image_size=IMAGE_SIZE,
+            patch_size=PATCH_SIZE,
+        ),
+        text_config=dict(
+            model_type="llama",
+            hidden_size=64,
+            intermediate_size=128,
+            num_hidden_layers=2,
+            num_attention_heads=4,
+            num_key_value_heads=2,
+            head_dim=16,
+            vocab_size=len(tokenizer),
+            max_position_embeddings=256,
+            pad_token_id=tokenizer.pad_token_id,
+            tie_word_embeddings=False,
+        ),
+        scale_factor=SCALE_FACTOR,
+        image_token_id=tokenizer.convert_tokens_to_ids("<image>"),
+        pad_token_id=tokenizer.pad_token_id,
     ).save_pretrained(directory)
     return directory
 
 
-def build_tiny_smolvla(vlm_directory: Path, seed: int = 0, state_dim: int = 6, image_key: str = "observation.images.top",
-                       image_size: int = IMAGE_SIZE):
+def build_tiny_smolvla(
+    vlm_directory: Path,
+    seed: int = 0,
+    state_dim: int = 6,
+    image_key: str = "observation.images.top",
+    image_size: int = IMAGE_SIZE,
+):
     from lerobot.configs.types import FeatureType, PolicyFeature
     from lerobot.policies.smolvla.configuration_smolvla import SmolVLAConfig
     from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
 
     torch.manual_seed(seed)
     config = SmolVLAConfig(
-        vlm_model_name=str(vlm_directory), load_vlm_weights=False, num_vlm_layers=2, expert_width_multiplier=0.5,
-        resize_imgs_with_padding=(IMAGE_SIZE, IMAGE_SIZE), chunk_size=4, n_action_steps=4, max_state_dim=8,
-        max_action_dim=4, tokenizer_max_length=16, device="cpu", push_to_hub=False,
+        vlm_model_name=str(vlm_directory),
+        load_vlm_weights=False,
+        num_vlm_layers=2,
+        expert_width_multiplier=0.5,
+        resize_imgs_with_padding=(IMAGE_SIZE, IMAGE_SIZE),
+        chunk_size=4,
+        n_action_steps=4,
+        max_state_dim=8,
+        max_action_dim=4,
+        tokenizer_max_length=16,
+        device="cpu",
+        push_to_hub=False,
         input_features={
             "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(state_dim,)),
             image_key: PolicyFeature(type=FeatureType.VISUAL, shape=(3, image_size, image_size)),
@@ -99,8 +139,15 @@ def tiny_pi_configs(policy_type: str) -> Iterator[None]:
 
     module = importlib.import_module(get_policy_class(policy_type).__module__)
     sizes = {"gemma_2b": dict(width=64, depth=2, mlp_dim=128), "gemma_300m": dict(width=32, depth=2, mlp_dim=64)}
-    vision = dict(model_type="siglip_vision_model", hidden_size=32, intermediate_size=64, num_hidden_layers=1,
-                  num_attention_heads=2, patch_size=14, image_size=PI_IMAGE_SIZE)
+    vision = dict(
+        model_type="siglip_vision_model",
+        hidden_size=32,
+        intermediate_size=64,
+        num_hidden_layers=1,
+        num_attention_heads=2,
+        patch_size=14,
+        image_size=PI_IMAGE_SIZE,
+    )
     projector = modeling_paligemma.PaliGemmaMultiModalProjector
 
     def tiny_projector(self, config) -> None:
@@ -109,8 +156,13 @@ def tiny_pi_configs(policy_type: str) -> Iterator[None]:
 
     original = module.get_gemma_config, module.CONFIG_MAPPING, projector.__init__
     # 8 heads: LeRobot's joint training forward hard-codes them
-    module.get_gemma_config = lambda variant: module.GemmaConfig(num_heads=8, num_kv_heads=1, head_dim=8, **sizes[variant])
-    module.CONFIG_MAPPING = {"paligemma": lambda: PaliGemmaConfig(vision_config=vision), "gemma": CONFIG_MAPPING["gemma"]}
+    module.get_gemma_config = lambda variant: module.GemmaConfig(
+        num_heads=8, num_kv_heads=1, head_dim=8, **sizes[variant]
+    )
+    module.CONFIG_MAPPING = {
+        "paligemma": lambda: PaliGemmaConfig(vision_config=vision),
+        "gemma": CONFIG_MAPPING["gemma"],
+    }
     projector.__init__ = tiny_projector
     try:
         yield
@@ -126,8 +178,16 @@ def build_tiny_pi(policy_type: str, seed: int = 0):
 
     torch.manual_seed(seed)
     config = make_policy_config(
-        policy_type, image_resolution=(PI_IMAGE_SIZE, PI_IMAGE_SIZE), chunk_size=4, n_action_steps=4, max_state_dim=8,
-        max_action_dim=4, tokenizer_max_length=16, device="cpu", push_to_hub=False, dtype="float32",
+        policy_type,
+        image_resolution=(PI_IMAGE_SIZE, PI_IMAGE_SIZE),
+        chunk_size=4,
+        n_action_steps=4,
+        max_state_dim=8,
+        max_action_dim=4,
+        tokenizer_max_length=16,
+        device="cpu",
+        push_to_hub=False,
+        dtype="float32",
         input_features={
             "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(6,)),
             "observation.images.top": PolicyFeature(type=FeatureType.VISUAL, shape=(3, PI_IMAGE_SIZE, PI_IMAGE_SIZE)),
@@ -158,6 +218,33 @@ def tiny_batch(batch_size: int = 4, seed: int = 0) -> dict[str, torch.Tensor]:
     }
 
 
+def model_inputs(policy, batch: dict[str, torch.Tensor]) -> tuple:
+    """What each LeRobot policy's ``predict_action_chunk`` hands its model, written out per policy (not the adapter's
+    ``model_inputs``, which the tests check against it)."""
+    language = batch["observation.language.tokens"], batch["observation.language.attention_mask"]
+    if policy.config.type == "smolvla":
+        return *policy.prepare_images(batch), *language, policy.prepare_state(batch)
+    state = (policy.prepare_state(batch),) if policy.config.type == "pi0" else ()  # pi0.5's state is in its prompt
+    return *policy._preprocess_images(batch), *language, *state
+
+
+def lerobot_sample(policy, batch: dict[str, torch.Tensor], noise: torch.Tensor, steps: int) -> torch.Tensor:
+    """LeRobot's own Euler sampler on the (possibly wrapped) policy: s = t throughout."""
+    policy.config.num_steps = policy.config.num_inference_steps = steps  # SmolVLA's name, pi0's name
+    with torch.no_grad():
+        return policy.model.sample_actions(*model_inputs(policy, batch), noise=noise)
+
+
+def randomise_target_time(policy, std: float = 0.2, seed: int = 1):
+    """A non-zero phi_s last layer, the same for a given seed: a partly trained student whose output depends on s.
+    Works on any policy with a ``target_time_embedding`` (a LeRobot adapter or a SnapFlowPolicy)."""
+    generator = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for parameter in policy.target_time_embedding.linear_out.parameters():
+            parameter.copy_(std * torch.randn(parameter.shape, generator=generator))
+    return policy
+
+
 def cache_as_hub_repo(folder: Path, repo_id: str) -> None:
     """Make ``folder`` what an offline ``from_pretrained(repo_id)`` finds in the (test session's) HF cache."""
     import shutil
@@ -172,8 +259,14 @@ def cache_as_hub_repo(folder: Path, repo_id: str) -> None:
         (repo / "refs" / "main").write_text(revision)
 
 
-def write_tiny_dataset(root: Path, repo_id: str = "local/tiny", episodes: int = 3, frames: int = 12, fps: int = 10,
-                       nan_at: int | None = None) -> Path:
+def write_tiny_dataset(
+    root: Path,
+    repo_id: str = "local/tiny",
+    episodes: int = 3,
+    frames: int = 12,
+    fps: int = 10,
+    nan_at: int | None = None,
+) -> Path:
     """A LeRobotDataset on disk (images stored in the parquet, no video) whose tasks use the tiny vocabulary;
     ``nan_at`` puts a NaN into that frame's action."""
     import numpy as np
@@ -181,23 +274,36 @@ def write_tiny_dataset(root: Path, repo_id: str = "local/tiny", episodes: int = 
 
     features = {
         "observation.state": {"dtype": "float32", "shape": (6,), "names": None},
-        "observation.images.top": {"dtype": "image", "shape": (IMAGE_SIZE, IMAGE_SIZE, 3), "names": ["height", "width", "channels"]},
+        "observation.images.top": {
+            "dtype": "image",
+            "shape": (IMAGE_SIZE, IMAGE_SIZE, 3),
+            "names": ["height", "width", "channels"],
+        },
         "action": {"dtype": "float32", "shape": (4,), "names": None},
     }
     generator = np.random.default_rng(0)
-    dataset = LeRobotDataset.create(repo_id=repo_id, fps=fps, features=features, root=root, use_videos=False,
-                                    image_writer_threads=0, image_writer_processes=0)
+    dataset = LeRobotDataset.create(
+        repo_id=repo_id,
+        fps=fps,
+        features=features,
+        root=root,
+        use_videos=False,
+        image_writer_threads=0,
+        image_writer_processes=0,
+    )
     for episode in range(episodes):
         for frame in range(frames):
             action = (generator.standard_normal(4) + episode).astype(np.float32)
             if episode * frames + frame == nan_at:
                 action[1] = np.nan
-            dataset.add_frame({
-                "observation.state": generator.standard_normal(6).astype(np.float32),
-                "observation.images.top": generator.integers(0, 256, (IMAGE_SIZE, IMAGE_SIZE, 3), dtype=np.uint8),
-                "action": action,
-                "task": ["push the red cube", "open the drawer", "pick the blue cube"][episode % 3],
-            })
+            dataset.add_frame(
+                {
+                    "observation.state": generator.standard_normal(6).astype(np.float32),
+                    "observation.images.top": generator.integers(0, 256, (IMAGE_SIZE, IMAGE_SIZE, 3), dtype=np.uint8),
+                    "action": action,
+                    "task": ["push the red cube", "open the drawer", "pick the blue cube"][episode % 3],
+                }
+            )
         dataset.save_episode()
     dataset.finalize()  # without it the episode index is never written and loading falls back to the hub
     return root

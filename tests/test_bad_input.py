@@ -19,8 +19,10 @@ from hypothesis import strategies as st
 from snapflow.cli import main
 from snapflow.data.demonstrations import DemonstrationError, Demonstrations, Episode
 from snapflow.flow.solver import SamplingMode
+from snapflow.policies.checkpoint import CheckpointError, load_policy
+from snapflow.policies.factory import POLICIES
 from snapflow.policies.minivla import MiniVLA, MiniVLAConfig
-from snapflow.training.checkpoint import CheckpointError, load_policy
+from snapflow.policies.mlp import MLPFlowModel, MLPPolicyConfig
 
 TRIED: dict[str, dict[str, int]] = {}
 SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -39,8 +41,14 @@ def report_counts():
     print(f"\nbad-input suite: {total} inputs tried, none escaped as a bare traceback: {json.dumps(TRIED)}")
 
 
-ANY_VALUE = st.one_of(st.none(), st.booleans(), st.integers(-5, 1000), st.floats(allow_nan=True), st.text(max_size=6),
-                      st.lists(st.integers(), max_size=2))
+ANY_VALUE = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-5, 1000),
+    st.floats(allow_nan=True),
+    st.text(max_size=6),
+    st.lists(st.integers(), max_size=2),
+)
 
 
 @SETTINGS
@@ -56,28 +64,63 @@ def test_sampling_mode_names_parse_or_are_refused_with_the_accepted_forms(name):
         assert SamplingMode.parse(mode.name) == mode and mode.num_steps >= 1
 
 
+# per registered policy: fields to fuzz (with a stranger), and the required ones given where the fuzz leaves them out
+CONFIG_FIELDS = {
+    "minivla": (
+        [
+            "state_dim",
+            "action_dim",
+            "chunk_length",
+            "use_image",
+            "image_size",
+            "patch_size",
+            "num_heads",
+            "expert_width",
+            "colour",
+        ],
+        {},
+    ),
+    "mlp": (
+        ["observation_dim", "action_dim", "chunk_length", "hidden_dim", "num_layers", "time_embedding_dim", "colour"],
+        {"observation_dim": 5, "action_dim": 2},
+    ),
+}
+
+
+@pytest.mark.parametrize("name", sorted(POLICIES))
 @SETTINGS
-@given(st.dictionaries(st.sampled_from(["state_dim", "action_dim", "chunk_length", "use_image", "image_size", "patch_size",
-                                        "num_heads", "expert_width", "colour"]), ANY_VALUE, max_size=4))
-def test_policy_configs_are_validated_with_the_field_named(data):
+@given(data=st.data())
+def test_policy_configs_are_validated_with_the_field_named(name, data):
+    fields, required = CONFIG_FIELDS[name]
+    fuzzed = data.draw(st.dictionaries(st.sampled_from(fields), ANY_VALUE, max_size=4))
+    entry = POLICIES[name]
     try:
-        config = MiniVLAConfig.from_dict(data)
+        config = entry.config_class.from_dict({**required, **fuzzed})
     except ValueError as error:
-        _count("policy configs", True)
-        assert any(key in str(error) for key in data), f"{error} names none of {sorted(data)}"
+        _count(f"{name} configs", True)
+        assert any(key in str(error) for key in fuzzed), f"{error} names none of {sorted(fuzzed)}"
     else:
-        _count("policy configs", False)
-        MiniVLA(config)  # an accepted config builds
+        _count(f"{name} configs", False)
+        entry.model_class(config)  # an accepted config builds
+
+
+def test_every_registered_policy_has_its_config_fuzzed():
+    assert sorted(CONFIG_FIELDS) == sorted(POLICIES)
 
 
 @SETTINGS
 @given(st.lists(st.integers(0, 6), min_size=1, max_size=4), st.sampled_from(["state", "tokens", "token_mask", "image"]))
 def test_wrong_observation_shapes_are_named(shape, key):
-    config = MiniVLAConfig(chunk_length=4, prefix_width=32, expert_width=32, num_layers=1, num_heads=2, head_dim=16, use_image=True)
+    config = MiniVLAConfig(
+        chunk_length=4, prefix_width=32, expert_width=32, num_layers=1, num_heads=2, head_dim=16, use_image=True
+    )
     policy = MiniVLA(config)
-    observation = {"state": torch.zeros(2, config.state_dim), "tokens": torch.zeros(2, config.max_instruction_tokens, dtype=torch.long),
-                   "token_mask": torch.ones(2, config.max_instruction_tokens, dtype=torch.bool),
-                   "image": torch.zeros(2, 3, config.image_size, config.image_size)}
+    observation = {
+        "state": torch.zeros(2, config.state_dim),
+        "tokens": torch.zeros(2, config.max_instruction_tokens, dtype=torch.long),
+        "token_mask": torch.ones(2, config.max_instruction_tokens, dtype=torch.bool),
+        "image": torch.zeros(2, 3, config.image_size, config.image_size),
+    }
     observation[key] = torch.zeros(*shape, dtype=observation[key].dtype)
     try:
         policy.encode(observation)
@@ -88,15 +131,54 @@ def test_wrong_observation_shapes_are_named(shape, key):
         _count("observation shapes", False)
 
 
-CORRUPTIONS = ["nan", "inf", "integer dtype", "empty episode", "missing array", "missing meta key", "bad meta json",
-               "episode beyond the data", "unknown episode field", "instructions not a mapping", "images wrong dtype"]
+@SETTINGS
+@given(st.lists(st.integers(0, 7), min_size=0, max_size=3), st.sampled_from(["observation", "noisy actions"]))
+def test_wrong_mlp_input_shapes_are_named(shape, which):
+    policy = MLPFlowModel(
+        MLPPolicyConfig(observation_dim=5, action_dim=2, chunk_length=3, hidden_dim=8, time_embedding_dim=4)
+    )
+    observation, x_t = torch.zeros(2, 5), torch.zeros(2, 3, 2)
+    try:
+        if which == "observation":
+            policy.encode(torch.zeros(tuple(shape)))
+        else:
+            policy.velocity_from_time_embedding(
+                torch.zeros(2, *shape), policy.embed_time(torch.zeros(2)), policy.encode(observation)
+            )
+    except ValueError as error:
+        _count("MLP input shapes", True)
+        assert which in str(error) and "must have shape" in str(error)
+    else:
+        _count("MLP input shapes", False)
+        # accepted: any batch of 5-wide observations, or exactly the (chunk, action) shape for the noisy actions
+        assert (len(shape) == 2 and shape[1] == 5) if which == "observation" else (tuple(shape) == tuple(x_t.shape[1:]))
+
+
+CORRUPTIONS = [
+    "nan",
+    "inf",
+    "integer dtype",
+    "empty episode",
+    "missing array",
+    "missing meta key",
+    "bad meta json",
+    "episode beyond the data",
+    "unknown episode field",
+    "instructions not a mapping",
+    "images wrong dtype",
+]
 
 
 def _demonstrations(steps: int = 6) -> Demonstrations:
     generator = np.random.default_rng(0)
-    return Demonstrations(generator.standard_normal((steps, 3)).astype(np.float32), generator.standard_normal((steps, 2)).astype(np.float32),
-                          np.repeat([0, 1], steps // 2), [Episode("reach-v3", 0, 0, steps // 2), Episode("reach-v3", 1, steps // 2, steps // 2)],
-                          {"reach-v3": "reach the goal"}, np.zeros((steps, 4, 4, 3), dtype=np.uint8))
+    return Demonstrations(
+        generator.standard_normal((steps, 3)).astype(np.float32),
+        generator.standard_normal((steps, 2)).astype(np.float32),
+        np.repeat([0, 1], steps // 2),
+        [Episode("reach-v3", 0, 0, steps // 2), Episode("reach-v3", 1, steps // 2, steps // 2)],
+        {"reach-v3": "reach the goal"},
+        np.zeros((steps, 4, 4, 3), dtype=np.uint8),
+    )
 
 
 def _corrupt(directory: Path, kind: str, where: int) -> None:
@@ -144,14 +226,18 @@ def test_corrupt_demonstrations_are_rejected_before_training(tmp_path_factory, k
 
 @pytest.fixture(scope="module")
 def checkpoint(tmp_path_factory):
-    from snapflow.experiments.metaworld import train_teacher
+    from snapflow.training.recipes import train_teacher
     from snapflow.training.trainer import TrainConfig
-    from tests.test_training import TINY
+    from tests.training.fixtures import TINY
 
     data = _demonstrations(steps=16)
-    data = Demonstrations(data.states, np.zeros((16, 4), np.float32), data.episode_index, data.episodes, data.instructions)
+    data = Demonstrations(
+        data.states, np.zeros((16, 4), np.float32), data.episode_index, data.episodes, data.instructions
+    )
     states = np.zeros((16, 39), np.float32)
-    directory = Demonstrations(states, data.actions, data.episode_index, data.episodes, data.instructions).save(tmp_path_factory.mktemp("data"))
+    directory = Demonstrations(states, data.actions, data.episode_index, data.episodes, data.instructions).save(
+        tmp_path_factory.mktemp("data")
+    )
     run = tmp_path_factory.mktemp("run")
     train_teacher(directory, run, TINY, TrainConfig(steps=1, batch_size=4, checkpoint_every=1), progress=False)
     return run / "checkpoints" / "step_0000001"
@@ -175,18 +261,43 @@ def test_corrupt_checkpoint_files_raise_checkpoint_errors(checkpoint, tmp_path_f
 
 
 @SETTINGS
-@given(st.lists(st.text(string.ascii_letters + string.digits + "-_./", max_size=12), max_size=4),
-       st.sampled_from(["eval", "distill", "train", "bench", "sweep", "toy-compare", "bench-targets"]))
+@given(
+    st.lists(st.text(string.ascii_letters + string.digits + "-_./", max_size=12), max_size=4),
+    st.sampled_from(["eval", "distill", "train", "bench", "sweep", "toy-compare", "bench-targets"]),
+)
 def test_cli_rejects_bad_arguments_with_a_message_and_exit_code_2(capsys, tmp_path_factory, values, command):
     output = str(tmp_path_factory.mktemp("out"))
     values = values or ["x"]
-    options = {"eval": ["--policy", *values, "--tasks", "reach-v3", "--episodes", "1", "--output-dir", output],
-               "distill": ["--teacher", values[0], "--data", "nowhere", "--output", output],
-               "train": ["--data", values[0], "--output", output, "--steps", "1"],
-               "bench": ["--architecture", values[0], "--repeats", "1", "--warmup", "0", "--no-profile", "--output-dir", output],
-               "sweep": [*values, "--report-only"],
-               "bench-targets": ["--teacher", values[0], "--data", "nowhere", "--repeats", "1", "--output-dir", output],
-               "toy-compare": ["--targets", *values, "--seeds", "0", "--teacher-steps", "1", "--distill-steps", "1", "--output-dir", output]}
+    options = {
+        "eval": ["--policy", *values, "--tasks", "reach-v3", "--episodes", "1", "--output-dir", output],
+        "distill": ["--teacher", values[0], "--data", "nowhere", "--output", output],
+        "train": ["--data", values[0], "--output", output, "--steps", "1"],
+        "bench": [
+            "--architecture",
+            values[0],
+            "--repeats",
+            "1",
+            "--warmup",
+            "0",
+            "--no-profile",
+            "--output-dir",
+            output,
+        ],
+        "sweep": [*values, "--report-only"],
+        "bench-targets": ["--teacher", values[0], "--data", "nowhere", "--repeats", "1", "--output-dir", output],
+        "toy-compare": [
+            "--targets",
+            *values,
+            "--seeds",
+            "0",
+            "--teacher-steps",
+            "1",
+            "--distill-steps",
+            "1",
+            "--output-dir",
+            output,
+        ],
+    }
     try:
         code = main([command, *options[command], "--no-progress"])
     except SystemExit as exit_:  # argparse's own refusal of a malformed command line
@@ -218,6 +329,10 @@ def test_a_pickle_in_place_of_the_weights_is_refused_and_never_run(checkpoint, t
         load_policy(copy)
     assert main(["eval", "--policy", str(copy), "--tasks", "reach-v3", "--episodes", "1", "--no-progress"]) == 2
     assert not marker.exists()
-    torch.load(copy / "policy.safetensors", weights_only=False)  # the payload is live: a pickle loader would have run it
+    # the payload is live: a pickle loader would have run it. The control hands torch.load an open file, not the path:
+    # torch >= 2.13 reads a path ending in .safetensors with safetensors whatever weights_only says, and torch >= 2.6
+    # refuses arbitrary objects unless weights_only=False
+    with open(copy / "policy.safetensors", "rb") as pickled:
+        torch.load(pickled, weights_only=False)
     assert marker.exists()
     _count("hostile pickles", True)

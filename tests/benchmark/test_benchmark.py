@@ -7,9 +7,37 @@ import json
 import pytest
 import torch
 
-from snapflow.benchmark.latency import measure_latency, time_round_robin
+from snapflow.benchmark.latency import LatencyReport, LatencyRow, Timing, measure_latency, time_round_robin
+from snapflow.benchmark.subjects import architectures, random_builtin_policy
 from snapflow.cli import main
-from snapflow.flow.solver import SNAPFLOW_1, SamplingMode
+from snapflow.flow.solver import SNAPFLOW_1, SamplingMode, sample_actions
+from snapflow.inference import compile_policy
+from snapflow.nn import SnapFlowPolicy
+from snapflow.policies.mlp import MLPFlowModel, MLPPolicyConfig
+from tests.evaluation.figures import CYCLE, assert_figure
+from tests.lerobot_tiny import randomise_target_time
+
+OBSERVATION_DIM, CHUNK, ACTION_DIM = 5, 3, 2
+
+
+@pytest.fixture
+def student() -> SnapFlowPolicy:
+    torch.manual_seed(0)
+    model = MLPFlowModel(
+        MLPPolicyConfig(
+            observation_dim=OBSERVATION_DIM,
+            action_dim=ACTION_DIM,
+            chunk_length=CHUNK,
+            hidden_dim=32,
+            time_embedding_dim=16,
+        )
+    )
+    return randomise_target_time(SnapFlowPolicy(model), std=0.3)
+
+
+@pytest.fixture
+def observation() -> torch.Tensor:
+    return torch.randn(6, OBSERVATION_DIM, generator=torch.Generator().manual_seed(7))
 
 
 def test_round_robin_warms_up_then_rotates_the_order_of_every_repeat():
@@ -18,11 +46,21 @@ def test_round_robin_warms_up_then_rotates_the_order_of_every_repeat():
     timed = time_round_robin(functions, torch.device("cpu"), warmup=2, repeats=4)
     assert calls[:6] == ["a", "b", "c"] * 2  # warm-up, untimed
     assert calls[6:] == ["a", "b", "c", "b", "c", "a", "c", "a", "b", "a", "b", "c"]  # each repeat starts one later
-    assert all(entry["repeats"] == 4 and 0 <= entry["median_ms"] <= entry["p90_ms"] for entry in timed.values())
+    assert list(timed) == ["a", "b", "c"]
+    assert all(
+        isinstance(entry, Timing) and entry.repeats == 4 and 0 <= entry.median_ms <= entry.p90_ms
+        for entry in timed.values()
+    )
+    with pytest.raises(ValueError, match="need repeats >= 1 and warmup >= 0"):
+        time_round_robin(functions, torch.device("cpu"), warmup=0, repeats=0)
 
 
-def test_latency_counts_passes_and_derives_shares_and_speedups(student, batch):
-    observation, _ = batch
+def test_timing_takes_the_median_and_the_90th_percentile():
+    timing = Timing.of([5.0, 1.0, 4.0, 2.0, 3.0, 10.0, 6.0, 7.0, 8.0, 9.0])
+    assert (timing.median_ms, timing.p90_ms, timing.repeats) == (5.5, 10.0, 10)
+
+
+def test_latency_counts_passes_and_derives_shares_and_speedups(student, observation):
     passes = {"velocity": 0, "encode": 0}
     velocity, encode = student.velocity, student.encode
 
@@ -35,41 +73,110 @@ def test_latency_counts_passes_and_derives_shares_and_speedups(student, batch):
         return encode(*args)
 
     student.velocity, student.encode = counted_velocity, counted_encode
-    noise = torch.randn(1, *batch[1].shape[1:])
+    noise = torch.randn(1, CHUNK, ACTION_DIM)
     modes = [SamplingMode(10, jump=False), SNAPFLOW_1]
     result = measure_latency(student, observation[:1], noise, modes, warmup=1, repeats=3)
     # per repeat: 10 + 1 denoising passes, and the same again end-to-end, each end-to-end run encoding once
     assert passes["velocity"] == 4 * (10 + 1) * 2
     assert passes["encode"] == 1 + 4 * (1 + 2)  # the shared context, then prefix timing and both end-to-end runs
-    teacher, one_step = result["modes"]["teacher-10"], result["modes"]["snapflow-1"]
-    assert teacher["denoising_speedup"] == teacher["end_to_end_speedup"] == 1.0
-    assert teacher["per_pass_ms"] == teacher["denoising"]["median_ms"] / 10
-    assert one_step["denoising_speedup"] == teacher["denoising"]["median_ms"] / one_step["denoising"]["median_ms"]
-    assert one_step["denoising_share"] == one_step["denoising"]["median_ms"] / one_step["end_to_end"]["median_ms"]
+    assert isinstance(result, LatencyReport) and list(result.modes) == ["teacher-10", "snapflow-1"]
+    assert (result.warmup, result.repeats, result.device) == (1, 3, "cpu") and result.prefix.repeats == 3
+    teacher, one_step = result.modes["teacher-10"], result.modes["snapflow-1"]
+    assert isinstance(teacher, LatencyRow) and (teacher.nfe, one_step.nfe) == (10, 1)
+    assert teacher.denoising_speedup == teacher.end_to_end_speedup == 1.0
+    assert teacher.per_pass_ms == teacher.denoising.median_ms / 10
+    assert one_step.denoising_speedup == teacher.denoising.median_ms / one_step.denoising.median_ms
+    assert one_step.end_to_end_speedup == teacher.end_to_end.median_ms / one_step.end_to_end.median_ms
+    assert one_step.denoising_share == one_step.denoising.median_ms / one_step.end_to_end.median_ms
+    # the JSON form carries the derived quantities too
+    row = result.to_dict()["modes"]["snapflow-1"]
+    assert row["per_pass_ms"] == one_step.per_pass_ms and row["denoising_share"] == one_step.denoising_share
+    assert row["denoising"] == {
+        "median_ms": one_step.denoising.median_ms,
+        "p90_ms": one_step.denoising.p90_ms,
+        "repeats": 3,
+    }
 
 
-def test_bench_cli_times_the_built_in_architecture_and_writes_every_result_file(tmp_path, capsys):
+@pytest.mark.parametrize(
+    "architecture, profile", [pytest.param("minivla", True, marks=pytest.mark.slow), ("mlp", False)]
+)
+def test_bench_cli_times_a_built_in_architecture_and_writes_every_result_file(architecture, profile, tmp_path, capsys):
     output = tmp_path / "bench"
-    assert main(["bench", "--architecture", "minivla", "--warmup", "1", "--repeats", "3", "--output-dir", str(output)]) == 0
+    assert architecture in architectures()
+    arguments = [
+        "bench",
+        "--architecture",
+        architecture,
+        "--warmup",
+        "1",
+        "--repeats",
+        "3",
+        "--output-dir",
+        str(output),
+    ]
+    assert main(arguments + ([] if profile else ["--no-profile"])) == 0
     report = json.loads((output / "bench.json").read_text())
-    assert list(report["latency"]["modes"]) == ["teacher-10", "teacher-5", "teacher-2", "snapflow-1"]
-    assert report["latency"]["repeats"] == 3 and report["machine"]["torch"] == torch.__version__
-    assert report["details"]["parameters"] > 0 and report["profile_one_step"]["calls"] == 20
-    assert (output / "latency.png").stat().st_size > 0 and "aten::" in (output / "profile.txt").read_text()
-    assert "| snapflow-1 | 1 |" in (output / "bench.md").read_text() and "| snapflow-1 | 1 |" in capsys.readouterr().out
+    latency = report["latency"]
+    assert list(latency["modes"]) == ["teacher-10", "teacher-5", "teacher-2", "snapflow-1"]
+    assert [entry["nfe"] for entry in latency["modes"].values()] == [10, 5, 2, 1]
+    assert latency["repeats"] == 3 and latency["warmup"] == 1 and latency["prefix"]["repeats"] == 3
+    reference = latency["modes"]["teacher-10"]
+    assert reference["denoising_speedup"] == reference["end_to_end_speedup"] == 1.0
+    for entry in latency["modes"].values():
+        assert (
+            0 < entry["denoising"]["median_ms"] <= entry["denoising"]["p90_ms"] and entry["denoising"]["repeats"] == 3
+        )
+        assert entry["per_pass_ms"] == pytest.approx(entry["denoising"]["median_ms"] / entry["nfe"])
+        assert entry["denoising_speedup"] == pytest.approx(
+            reference["denoising"]["median_ms"] / entry["denoising"]["median_ms"]
+        )
+        assert entry["end_to_end_speedup"] == pytest.approx(
+            reference["end_to_end"]["median_ms"] / entry["end_to_end"]["median_ms"]
+        )
+    assert (
+        report["machine"]["torch"] == torch.__version__ and report["dtype"] == "float32" and report["compile"] is None
+    )
+    assert report["subject"] == f"{architecture} (random weights)" and report["details"]["policy_type"] == architecture
+    expected = random_builtin_policy(architecture)
+    assert report["details"]["parameters"] == sum(parameter.numel() for parameter in expected.policy.parameters())
+    assert report["details"]["config"] == expected.processor.config.to_dict()
+    assert "profile_table" not in report
+    if profile:
+        summary = report["profile_one_step"]
+        assert summary["calls"] == 20 and summary["wall_ms_per_call"] > 0 and 0 <= summary["outside_aten_share"] <= 1
+        assert "aten::" in (output / "profile.txt").read_text()
+    else:
+        assert "profile_one_step" not in report and not (output / "profile.txt").exists()
+    # the plot: per mode a prefix bar (C0, thin for a small prefix) under a denoising bar (C1)
+    assert_figure(output / "latency.png", (6.5, 3.8), {CYCLE[0]: 0.0003, CYCLE[1]: 0.01})
+    row = f"| snapflow-1 | 1 | {latency['modes']['snapflow-1']['denoising']['median_ms']:.2f} "
+    assert row in (output / "bench.md").read_text() and row in capsys.readouterr().out
 
-    assert main(["bench", "--architecture", "gpt", "--output-dir", str(output)]) == 2
-    assert "unknown architecture 'gpt'" in capsys.readouterr().err
+
+def test_bench_cli_refuses_an_unknown_architecture_and_a_missing_subject(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["bench", "--architecture", "gpt", "--output-dir", str(tmp_path)])
+    assert exit_.value.code == 2 and "invalid choice: 'gpt'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:
+        main(["bench", "--output-dir", str(tmp_path)])
+    assert (
+        exit_.value.code == 2 and "one of the arguments --policy --architecture is required" in capsys.readouterr().err
+    )
+    assert not (tmp_path / "bench.json").exists()
 
 
-def test_compiled_one_pass_expert_computes_what_the_eager_one_does(student, batch):
-    from snapflow.benchmark.bench import compile_velocity
-    from snapflow.flow.solver import sample_actions
+def test_bench_cli_names_a_policy_folder_that_does_not_exist(tmp_path, capsys):
+    assert main(["bench", "--policy", str(tmp_path / "nowhere"), "--output-dir", str(tmp_path)]) == 2
+    assert "snapflow bench: error: " in (error := capsys.readouterr().err) and str(tmp_path / "nowhere") in error
+    assert not (tmp_path / "bench.json").exists()
 
-    observation, actions = batch
-    noise = torch.randn_like(actions)
+
+@pytest.mark.slow
+def test_compiled_one_pass_expert_computes_what_the_eager_one_does(student, observation):
+    noise = torch.randn(len(observation), CHUNK, ACTION_DIM, generator=torch.Generator().manual_seed(0))
     eager = sample_actions(student, observation, noise, SNAPFLOW_1)
-    compile_velocity(student, "default")
+    assert compile_policy(student, "default") is student
     assert torch.allclose(sample_actions(student, observation, noise, SNAPFLOW_1), eager, atol=1e-5)
     with pytest.raises(ValueError, match="unknown compile mode 'fastest'"):
-        compile_velocity(student, "fastest")
+        compile_policy(student, "fastest")

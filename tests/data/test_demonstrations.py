@@ -34,8 +34,13 @@ def test_stored_demonstration_replays_to_success(tmp_path):
 
 def _demonstrations(**changes) -> Demonstrations:
     states, actions = np.zeros((5, 3), np.float32), np.zeros((5, 2), np.float32)
-    arguments = dict(states=states, actions=actions, episode_index=np.zeros(5, np.int64),
-                     episodes=[Episode("reach-v3", 0, 0, 5)], instructions={"reach-v3": "reach"})
+    arguments = dict(
+        states=states,
+        actions=actions,
+        episode_index=np.zeros(5, np.int64),
+        episodes=[Episode("reach-v3", 0, 0, 5)],
+        instructions={"reach-v3": "reach"},
+    )
     arguments.update(changes)
     return Demonstrations(**arguments)
 
@@ -75,4 +80,3 @@ def test_loading_a_missing_or_foreign_directory_is_explained(tmp_path):
     (tmp_path / "demonstrations.npz").write_bytes(b"not a zip")
     with pytest.raises(DemonstrationError, match="expected format"):
         Demonstrations.load(tmp_path)
-

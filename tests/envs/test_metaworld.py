@@ -40,11 +40,13 @@ def test_unknown_task_empty_task_list_and_unknown_split_are_named():
     """Every entry point names the unknown task and lists the benchmark's, before the simulator is built."""
     benchmark = MetaWorld()
     message = r"unknown metaworld task\(s\) \['fly-to-the-moon-v3'\]; it has \['reach-v3', 'push-v3'"
-    for call in (lambda: benchmark.check_tasks(["reach-v3", "fly-to-the-moon-v3"]),
-                 lambda: benchmark.instruction("fly-to-the-moon-v3"),
-                 lambda: benchmark.make_expert("fly-to-the-moon-v3"),
-                 lambda: benchmark.make_env("fly-to-the-moon-v3", "train"),
-                 lambda: MetaWorldEnv("fly-to-the-moon-v3")):
+    for call in (
+        lambda: benchmark.check_tasks(["reach-v3", "fly-to-the-moon-v3"]),
+        lambda: benchmark.instruction("fly-to-the-moon-v3"),
+        lambda: benchmark.make_expert("fly-to-the-moon-v3"),
+        lambda: benchmark.make_env("fly-to-the-moon-v3", "train"),
+        lambda: MetaWorldEnv("fly-to-the-moon-v3"),
+    ):
         with pytest.raises(ValueError, match=message):
             call()
     with pytest.raises(ValueError, match=r"unknown metaworld-via-points task\(s\) \['fly'\]"):

@@ -102,8 +102,10 @@ def test_the_benchmarks_experts_draw_sides_reproducibly_per_task():
     """Each task's expert draws its sides from a generator seeded by the task's name: the same sequence each time
     the expert is made, both sides over episodes, and another sequence for another task."""
     benchmark = MetaWorld(via_points=True)
-    draws = {task: [benchmark.make_expert(task).sides.integers(2, size=32).tolist() for _ in range(2)]
-             for task in ("reach-v3", "push-v3")}
+    draws = {
+        task: [benchmark.make_expert(task).sides.integers(2, size=32).tolist() for _ in range(2)]
+        for task in ("reach-v3", "push-v3")
+    }
     for first, second in draws.values():
         assert first == second and set(first) == {0, 1}
     assert draws["reach-v3"][0] != draws["push-v3"][0]
@@ -158,8 +160,9 @@ def test_success_needs_the_task_done_after_a_via_point(side: int):
 def test_demonstrations_take_both_via_points_and_pass_through_the_chosen_one():
     """Simulator test: from one start the collected demonstrations set off full speed left or right, and every
     episode passes a via-point; the set records the variant's name."""
-    demonstrations = collect_demonstrations(make_benchmark("metaworld-via-points"), ["reach-v3", "push-v3"], 6,
-                                            progress=False)
+    demonstrations = collect_demonstrations(
+        make_benchmark("metaworld-via-points"), ["reach-v3", "push-v3"], 6, progress=False
+    )
     assert demonstrations.env == "metaworld-via-points"
     for task in ("reach-v3", "push-v3"):
         episodes = [episode for episode in demonstrations.episodes if episode.task == task]

@@ -76,8 +76,12 @@ def test_sampling_mode_names_round_trip():
     assert SamplingMode.parse("SnapFlow-2") == SamplingMode(2, jump=True)
     for mode in (TEACHER_10, NAIVE_1, SNAPFLOW_1, SamplingMode(4, jump=True)):
         assert SamplingMode.parse(mode.name) == mode
-    for bad, message in (("fast", "unknown sampling mode 'fast'"), ("teacher-0", "takes no step"),
-                         ("naive-2", "naive sampling is one step"), ("snapflow--1", "unknown sampling mode")):
+    for bad, message in (
+        ("fast", "unknown sampling mode 'fast'"),
+        ("teacher-0", "takes no step"),
+        ("naive-2", "naive sampling is one step"),
+        ("snapflow--1", "unknown sampling mode"),
+    ):
         with pytest.raises(ValueError, match=message):
             SamplingMode.parse(bad)
     with pytest.raises(ValueError, match="num_steps must be at least 1, got 0"):

@@ -20,8 +20,12 @@ def test_sinusoidal_features_by_hand():
     features = sinusoidal_features(t, 4, min_period=0.5, max_period=2.0)
     # two periods, 0.5 and 2.0: [sin(2 pi t / .5), sin(2 pi t / 2), cos(2 pi t / .5), cos(2 pi t / 2)]
     for row, value in enumerate(t.tolist()):
-        expected = [math.sin(4 * math.pi * value), math.sin(math.pi * value),
-                    math.cos(4 * math.pi * value), math.cos(math.pi * value)]
+        expected = [
+            math.sin(4 * math.pi * value),
+            math.sin(math.pi * value),
+            math.cos(4 * math.pi * value),
+            math.cos(math.pi * value),
+        ]
         assert features[row].tolist() == pytest.approx(expected, abs=1e-6)
     with pytest.raises(ValueError, match="even"):
         sinusoidal_features(t, 5)
@@ -89,8 +93,9 @@ def _distillation_problem() -> tuple[SnapFlowPolicy, tuple[torch.Tensor, ...], t
     return student, (observation, actions, torch.randn(16, CHUNK, ACTION_DIM, generator=generator)), generator
 
 
-def _distil(student: SnapFlowPolicy, observation: torch.Tensor, actions: torch.Tensor, generator: torch.Generator,
-            steps: int) -> set[str]:
+def _distil(
+    student: SnapFlowPolicy, observation: torch.Tensor, actions: torch.Tensor, generator: torch.Generator, steps: int
+) -> set[str]:
     """``steps`` Adam steps of the SnapFlow loss; returns the names of the phi_s tensors that moved."""
     initial = copy.deepcopy(student.target_time_embedding.state_dict())
     objective = SnapFlowObjective(time_sampler=UniformTimeSampler())

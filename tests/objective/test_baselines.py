@@ -16,8 +16,9 @@ from snapflow.training.distill import DistillSettings
 def test_conditional_velocity_ablation_regresses_the_jump_on_eps_minus_a(student, batch):
     """teacher_velocity="conditional" (the paper's Table 5 ablation): the jump F(eps, 1, 0) regresses eps - a."""
     observation, actions = batch
-    objective = SnapFlowObjective(alpha=0.5, consistency_weight=1.0, time_sampler=UniformTimeSampler(),
-                                  teacher_velocity="conditional")
+    objective = SnapFlowObjective(
+        alpha=0.5, consistency_weight=1.0, time_sampler=UniformTimeSampler(), teacher_velocity="conditional"
+    )
     noise, time = torch.randn(6, 3, 2), torch.rand(3)
     output = objective(student, observation, actions, noise=noise, time=time)
     context = student.encode(observation)
@@ -30,8 +31,9 @@ def test_consistency_distillation_loss_and_ema_target_by_hand(student, batch):
     """CD regresses f(x_hi, t_hi) on the EMA network's f(x_lo, t_lo) one teacher Euler step below, weighted t_hi^2;
     the EMA network starts as a copy and follows the online weights in training mode only."""
     observation, actions = batch
-    objective = ConsistencyDistillationObjective(alpha=0.5, consistency_weight=1.0, time_sampler=UniformTimeSampler(),
-                                                 num_intervals=4, ema_decay=0.9)
+    objective = ConsistencyDistillationObjective(
+        alpha=0.5, consistency_weight=1.0, time_sampler=UniformTimeSampler(), num_intervals=4, ema_decay=0.9
+    )
     noise, time = torch.randn(6, 3, 2), torch.rand(3)
     generator = torch.Generator().manual_seed(3)
     output = objective(student, observation, actions, noise=noise, time=time, generator=generator)
@@ -70,8 +72,9 @@ def test_consistency_distillation_loss_and_ema_target_by_hand(student, batch):
 def test_meanflow_target_is_the_mean_flow_identity(student, batch, power):
     """MeanFlow regresses F(x_t, t, s) on v - (t - s) d/dt u(x_t, t, s), with and without its adaptive weighting."""
     observation, actions = batch
-    objective = MeanFlowObjective(alpha=0.5, consistency_weight=1.0, time_sampler=UniformTimeSampler(),
-                                  adaptive_power=power)
+    objective = MeanFlowObjective(
+        alpha=0.5, consistency_weight=1.0, time_sampler=UniformTimeSampler(), adaptive_power=power
+    )
     noise, time = torch.randn(6, 3, 2), torch.rand(3)
     generator = torch.Generator().manual_seed(5)
     output = objective(student, observation, actions, noise=noise, time=time, generator=generator)
@@ -84,8 +87,9 @@ def test_meanflow_target_is_the_mean_flow_identity(student, batch, power):
     v = student.velocity(x_t, t, t, context).detach()
     # the total derivative d/dt u(x_t, t, s) along (v, 1), by reverse-mode autograd's double-vjp trick (the
     # objective uses forward mode); finite differences are too coarse for the high-frequency time features
-    _, du_dt = torch.autograd.functional.jvp(lambda x, time: student.velocity(x, time, s, context), (x_t, t),
-                                             (v, torch.ones_like(t)))
+    _, du_dt = torch.autograd.functional.jvp(
+        lambda x, time: student.velocity(x, time, s, context), (x_t, t), (v, torch.ones_like(t))
+    )
     target = v - (t - s)[:, None, None] * du_dt
     error = ((student.velocity(x_t, t, s, context) - target) ** 2).flatten(1).mean(1)
     expected = (error / (error + 1e-3) ** power).mean()  # MeanFlow's adaptive weighting, sg(e + c) ** -p
@@ -96,29 +100,39 @@ def test_meanflow_target_is_the_mean_flow_identity(student, batch, power):
 def test_consistency_distillation_learns_a_one_step_jump_on_the_toy_mixture():
     """Learning test: its 1-NFE samples end far closer to the data than the naive one-step teacher's."""
     result = run_toy_experiment(ToyConfig(method="consistency-distillation", distill_steps=1000), progress=False)
-    print(f"energy distance: naive-1 {result.distances['naive-1']:.4f}, "
-          f"consistency distillation 1-NFE {result.distances['snapflow-1']:.4f}")
+    print(
+        f"energy distance: naive-1 {result.distances['naive-1']:.4f}, "
+        f"consistency distillation 1-NFE {result.distances['snapflow-1']:.4f}"
+    )
     assert result.distances["snapflow-1"] < 0.8 * result.distances["naive-1"]
 
 
-@pytest.mark.parametrize("settings, message", [
-    ({"method": "dance"}, "unknown distillation method 'dance'"),
-    ({"teacher_velocity": "imagined"}, "teacher_velocity must be one of"),
-    ({"method": "meanflow", "teacher_velocity": "conditional"},
-     "teacher_velocity is not an option of the meanflow objective"),
-])
+@pytest.mark.parametrize(
+    "settings, message",
+    [
+        ({"method": "dance"}, "unknown distillation method 'dance'"),
+        ({"teacher_velocity": "imagined"}, "teacher_velocity must be one of"),
+        (
+            {"method": "meanflow", "teacher_velocity": "conditional"},
+            "teacher_velocity is not an option of the meanflow objective",
+        ),
+    ],
+)
 def test_bad_distill_settings_are_named(settings, message):
     """A method the settings do not know, a bad option value, and an option the chosen method lacks are named."""
     with pytest.raises(ValueError, match=message):
         DistillSettings(**settings)
 
 
-@pytest.mark.parametrize("objective, kwargs, message", [
-    (ConsistencyDistillationObjective, {"num_intervals": 0}, "num_intervals"),
-    (ConsistencyDistillationObjective, {"ema_decay": 1.0}, "ema_decay"),
-    (MeanFlowObjective, {"adaptive_power": -1.0}, "adaptive_power"),
-    (MeanFlowObjective, {"alpha": 2.0}, "alpha"),
-])
+@pytest.mark.parametrize(
+    "objective, kwargs, message",
+    [
+        (ConsistencyDistillationObjective, {"num_intervals": 0}, "num_intervals"),
+        (ConsistencyDistillationObjective, {"ema_decay": 1.0}, "ema_decay"),
+        (MeanFlowObjective, {"adaptive_power": -1.0}, "adaptive_power"),
+        (MeanFlowObjective, {"alpha": 2.0}, "alpha"),
+    ],
+)
 def test_bad_baseline_settings_are_named(objective, kwargs, message):
     """Each baseline checks its own values and names the one out of range."""
     with pytest.raises(ValueError, match=message):

@@ -22,8 +22,17 @@ from snapflow.policies.minivla import MiniVLA, MiniVLAConfig, MiniVLAProcessor
 from snapflow.policies.processor import NormalizationStats
 from tests.helpers import ACTION_DIM, CHUNK, OBSERVATION_DIM, RecordingPolicy, make_model, randomise_target_time
 
-MINIVLA = MiniVLAConfig(state_dim=6, action_dim=ACTION_DIM, chunk_length=CHUNK, prefix_width=16, expert_width=16,
-                        num_layers=1, num_heads=2, head_dim=8, max_instruction_tokens=4)
+MINIVLA = MiniVLAConfig(
+    state_dim=6,
+    action_dim=ACTION_DIM,
+    chunk_length=CHUNK,
+    prefix_width=16,
+    expert_width=16,
+    num_layers=1,
+    num_heads=2,
+    head_dim=8,
+    max_instruction_tokens=4,
+)
 INSTRUCTIONS = ["push the puck", "open the door", "close the window"]
 
 
@@ -80,8 +89,9 @@ class ObjectiveContract:
     def build(self, **changes: Any) -> TwoBranchObjective:
         return make_objective(self.name, **{**self.options, **changes})
 
-    def run(self, kind: str, batch_size: int = 6, seed: int = 0, **changes: Any
-            ) -> tuple[LossOutput, RecordingPolicy, SnapFlowPolicy]:
+    def run(
+        self, kind: str, batch_size: int = 6, seed: int = 0, **changes: Any
+    ) -> tuple[LossOutput, RecordingPolicy, SnapFlowPolicy]:
         """One call of a freshly built objective on a fresh problem, its draws made from a generator seeded ``seed``."""
         policy, observation, actions = make_problem(kind, batch_size)
         recorder = RecordingPolicy(policy)
@@ -121,9 +131,18 @@ class ObjectiveContract:
             assert torch.equal(getattr(first, name), getattr(again, name)), name
         assert not torch.equal(first.loss, other.loss)
 
-    @pytest.mark.parametrize("alpha, batch_size, n_fm", [
-        (0.5, 6, 3), (0.5, 5, 3), (0.25, 6, 2), (0.3, 10, 3), (0.5, 2, 1), (0.1, 4, 1), (0.9, 4, 3),
-    ])
+    @pytest.mark.parametrize(
+        "alpha, batch_size, n_fm",
+        [
+            (0.5, 6, 3),
+            (0.5, 5, 3),
+            (0.25, 6, 2),
+            (0.3, 10, 3),
+            (0.5, 2, 1),
+            (0.1, 4, 1),
+            (0.9, 4, 3),
+        ],
+    )
     def test_rows_split_round_alpha_b_with_both_branches_present(self, alpha: float, batch_size: int, n_fm: int):
         """The first round(alpha * B) rows (half up, at least one of each kind) are flow matching at s = t on the
         straight path; the others ask for a jump s < t from a time in (0, 1]."""

@@ -121,8 +121,11 @@ def test_split_is_a_fixed_count_with_both_branches_present():
 
 @pytest.mark.parametrize(
     "kwargs, message",
-    [({"alpha": 1.5}, "alpha"), ({"consistency_weight": -1}, "consistency_weight"),
-     ({"teacher_velocity_clamp": 0}, "clamp")],
+    [
+        ({"alpha": 1.5}, "alpha"),
+        ({"consistency_weight": -1}, "consistency_weight"),
+        ({"teacher_velocity_clamp": 0}, "clamp"),
+    ],
 )
 def test_invalid_settings_are_named(kwargs, message):
     """Out-of-range alpha, lambda and clamp are ValueErrors naming the setting."""

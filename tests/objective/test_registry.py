@@ -38,11 +38,17 @@ def test_unknown_objective_and_option_are_named():
     """An unknown name lists the known ones; an option the objective lacks lists the options it has; a bad value is
     the objective's own named error."""
     for call in (lambda: make_objective("dance"), lambda: objective_options("dance")):
-        with pytest.raises(ValueError, match="unknown objective 'dance'; choose one of snapflow, snapflow-bootstrap, "
-                                             "consistency-distillation, meanflow"):
+        with pytest.raises(
+            ValueError,
+            match="unknown objective 'dance'; choose one of snapflow, snapflow-bootstrap, "
+            "consistency-distillation, meanflow",
+        ):
             call()
-    with pytest.raises(ValueError, match=r"the meanflow objective takes no option ema_decay, target_steps; its options "
-                                         r"are \['adaptive_power', 'alpha', 'consistency_weight', 'time_sampler'\]"):
+    with pytest.raises(
+        ValueError,
+        match=r"the meanflow objective takes no option ema_decay, target_steps; its options "
+        r"are \['adaptive_power', 'alpha', 'consistency_weight', 'time_sampler'\]",
+    ):
         make_objective("meanflow", target_steps=4, ema_decay=0.5)
     with pytest.raises(ValueError, match="ema_decay must be in"):
         make_objective("consistency-distillation", ema_decay=1.5)

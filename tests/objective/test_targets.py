@@ -58,8 +58,9 @@ def test_bootstrapped_target_by_hand(student, batch):
     1/2, through instantaneous velocities); three passes, rows at the draws the sampler made."""
     observation, actions = batch
     recorder = RecordingPolicy(student)
-    objective = BootstrappedSnapFlowObjective(alpha=0.0, consistency_weight=1.0, time_sampler=UniformTimeSampler(),
-                                              target_steps=4)
+    objective = BootstrappedSnapFlowObjective(
+        alpha=0.0, consistency_weight=1.0, time_sampler=UniformTimeSampler(), target_steps=4
+    )
     noise = torch.randn(6, 3, 2)
     output = objective(recorder, observation, actions, noise=noise, generator=torch.Generator().manual_seed(0))
     first, second, gradient_pass = recorder.calls
@@ -93,21 +94,27 @@ def test_bootstrapped_target_with_two_steps_is_snapflow(student, batch):
     time = torch.rand(3)
     paper = SnapFlowObjective(time_sampler=UniformTimeSampler())(student, observation, actions, noise=noise, time=time)
     bootstrapped = BootstrappedSnapFlowObjective(time_sampler=UniformTimeSampler(), target_steps=2)(
-        student, observation, actions, noise=noise, time=time, generator=torch.Generator().manual_seed(0))
+        student, observation, actions, noise=noise, time=time, generator=torch.Generator().manual_seed(0)
+    )
     assert torch.allclose(paper.loss, bootstrapped.loss, atol=1e-6)
 
 
-@pytest.mark.parametrize("settings, message", [
-    ({"target": "oracle"}, "unknown SnapFlow target 'oracle'"),
-    ({"target_steps": 0}, "target_steps must be a positive integer"),
-    ({"target_steps": []}, "target_steps must be a positive integer"),
-    ({"target": "bootstrap", "target_steps": 6}, "power of two >= 2, got 6"),
-    ({"target": "bootstrap", "target_steps": [2, 4]}, r"grows by itself .* not the schedule \[2, 4\]"),
-    ({"target": "bootstrap", "teacher_velocity": "conditional"},
-     "teacher_velocity is not an option of the snapflow-bootstrap objective"),
-    ({"method": "meanflow", "target_steps": 4}, "target_steps is not an option of the meanflow objective"),
-    ({"method": "meanflow", "target": "bootstrap"}, "target is an option of the snapflow method only"),
-])
+@pytest.mark.parametrize(
+    "settings, message",
+    [
+        ({"target": "oracle"}, "unknown SnapFlow target 'oracle'"),
+        ({"target_steps": 0}, "target_steps must be a positive integer"),
+        ({"target_steps": []}, "target_steps must be a positive integer"),
+        ({"target": "bootstrap", "target_steps": 6}, "power of two >= 2, got 6"),
+        ({"target": "bootstrap", "target_steps": [2, 4]}, r"grows by itself .* not the schedule \[2, 4\]"),
+        (
+            {"target": "bootstrap", "teacher_velocity": "conditional"},
+            "teacher_velocity is not an option of the snapflow-bootstrap objective",
+        ),
+        ({"method": "meanflow", "target_steps": 4}, "target_steps is not an option of the meanflow objective"),
+        ({"method": "meanflow", "target": "bootstrap"}, "target is an option of the snapflow method only"),
+    ],
+)
 def test_bad_target_settings_are_named(settings, message):
     """Target settings the objectives cannot honour are ValueErrors saying why."""
     with pytest.raises(ValueError, match=message):
@@ -119,8 +126,9 @@ def test_more_euler_steps_in_the_target_bring_the_one_step_jump_closer_to_the_da
     """Learning test on the multimodal toy: an 8-step target beats the paper's 2-step target, which cannot
     beat the 2-step teacher it imitates."""
     distances = {
-        steps: run_toy_experiment(ToyConfig(distill_steps=1000, consistency_weight=1.0, target_steps=steps),
-                                  progress=False).distances
+        steps: run_toy_experiment(
+            ToyConfig(distill_steps=1000, consistency_weight=1.0, target_steps=steps), progress=False
+        ).distances
         for steps in (2, 8)
     }
     print({steps: round(d["snapflow-1"], 4) for steps, d in distances.items()})

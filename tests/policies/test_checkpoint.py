@@ -28,10 +28,22 @@ from tests.helpers import randomise_target_time
 
 INSTRUCTIONS = ["reach the goal", "push the puck"]
 CONFIGS: dict[str, PolicyConfig] = {
-    "mlp": MLPPolicyConfig(observation_dim=5 + len(INSTRUCTIONS), action_dim=2, chunk_length=3, hidden_dim=16,
-                           time_embedding_dim=8),
-    "minivla": MiniVLAConfig(state_dim=5, action_dim=2, chunk_length=3, use_image=True, image_size=16, patch_size=8,
-                             prefix_width=16, expert_width=16, num_layers=1, num_heads=2, head_dim=8),
+    "mlp": MLPPolicyConfig(
+        observation_dim=5 + len(INSTRUCTIONS), action_dim=2, chunk_length=3, hidden_dim=16, time_embedding_dim=8
+    ),
+    "minivla": MiniVLAConfig(
+        state_dim=5,
+        action_dim=2,
+        chunk_length=3,
+        use_image=True,
+        image_size=16,
+        patch_size=8,
+        prefix_width=16,
+        expert_width=16,
+        num_layers=1,
+        num_heads=2,
+        head_dim=8,
+    ),
 }
 STATS = NormalizationStats([0.1, 0.2, 0.3, 0.4, 0.5], [1.0, 2.0, 3.0, 4.0, 5.0], [-0.5, 0.5], [0.25, 4.0])
 

@@ -21,12 +21,15 @@ def config_class_and_required(request: pytest.FixtureRequest) -> tuple[type[Poli
     return CONFIGS[request.param]
 
 
-@pytest.mark.parametrize("field, value, message", [
-    ("action_dim", True, "action_dim must be int, got True"),
-    ("chunk_length", 2.0, "chunk_length must be int, got 2.0"),
-    ("chunk_length", "8", "chunk_length must be int, got '8'"),
-    ("action_dim", 0, "action_dim must be at least 1, got 0"),
-])
+@pytest.mark.parametrize(
+    "field, value, message",
+    [
+        ("action_dim", True, "action_dim must be int, got True"),
+        ("chunk_length", 2.0, "chunk_length must be int, got 2.0"),
+        ("chunk_length", "8", "chunk_length must be int, got '8'"),
+        ("action_dim", 0, "action_dim must be at least 1, got 0"),
+    ],
+)
 def test_ints_refuse_bools_floats_strings_and_non_positive_values(config_class_and_required, field, value, message):
     """Every int field of both configurations refuses a bool (a flag given for a size), a float, a string and
     values below 1, naming the configuration and the field."""

@@ -31,11 +31,17 @@ MT10 = list(MT10_INSTRUCTIONS.values())
 def test_registry_lookup_by_name_and_by_configuration():
     """Each built-in policy is found by its name and by the type of its configuration."""
     assert set(POLICIES) == {"minivla", "mlp"}
-    for name, config, model, processor in (("minivla", MiniVLAConfig, MiniVLA, MiniVLAProcessor),
-                                           ("mlp", MLPPolicyConfig, MLPFlowModel, MLPProcessor)):
+    for name, config, model, processor in (
+        ("minivla", MiniVLAConfig, MiniVLA, MiniVLAProcessor),
+        ("mlp", MLPPolicyConfig, MLPFlowModel, MLPProcessor),
+    ):
         entry = policy_type(name)
         assert (entry.name, entry.config_class, entry.model_class, entry.processor_class) == (
-            name, config, model, processor)
+            name,
+            config,
+            model,
+            processor,
+        )
     assert policy_type_of(MiniVLAConfig()) is POLICIES["minivla"]
     assert policy_type_of(MLPPolicyConfig(observation_dim=3, action_dim=2)) is POLICIES["mlp"]
 
@@ -70,13 +76,19 @@ def test_default_configs_on_mt10_dimensions():
     assert default_config("minivla", 4, ACTION_DIM, MT10, use_image=True).use_image
 
 
-@pytest.mark.parametrize("name, overrides, message", [
-    ("mlp", {"prefix_width": 8}, "the mlp policy has no option prefix_width"),
-    ("minivla", {"observation_dim": 3, "hidden_dim": 8},
-     "the minivla policy has no option hidden_dim, observation_dim"),
-    ("mlp", {"hidden_dim": True}, "MLPPolicyConfig.hidden_dim must be int, got True"),
-    ("gpt", {}, "unknown policy 'gpt'"),
-])
+@pytest.mark.parametrize(
+    "name, overrides, message",
+    [
+        ("mlp", {"prefix_width": 8}, "the mlp policy has no option prefix_width"),
+        (
+            "minivla",
+            {"observation_dim": 3, "hidden_dim": 8},
+            "the minivla policy has no option hidden_dim, observation_dim",
+        ),
+        ("mlp", {"hidden_dim": True}, "MLPPolicyConfig.hidden_dim must be int, got True"),
+        ("gpt", {}, "unknown policy 'gpt'"),
+    ],
+)
 def test_default_config_names_a_bad_override(name: str, overrides: dict, message: str):
     """An option the policy lacks, or a value of the wrong type, is named."""
     with pytest.raises(ValueError, match=message):
@@ -86,8 +98,12 @@ def test_default_config_names_a_bad_override(name: str, overrides: dict, message
 def test_models_and_processors_are_built_from_the_configuration():
     """make_model and make_processor dispatch on the configuration; every model speaks TimeEmbeddingModel."""
     stats = NormalizationStats([0.0] * 3, [1.0] * 3, [0.0] * 2, [1.0] * 2)
-    for config in (MiniVLAConfig(state_dim=3, action_dim=2, prefix_width=16, expert_width=16, num_layers=1, num_heads=2,
-                                 head_dim=8), MLPPolicyConfig(observation_dim=5, action_dim=2, hidden_dim=16)):
+    for config in (
+        MiniVLAConfig(
+            state_dim=3, action_dim=2, prefix_width=16, expert_width=16, num_layers=1, num_heads=2, head_dim=8
+        ),
+        MLPPolicyConfig(observation_dim=5, action_dim=2, hidden_dim=16),
+    ):
         entry = policy_type_of(config)
         model = make_model(config)
         assert type(model) is entry.model_class and isinstance(model, TimeEmbeddingModel)
@@ -102,11 +118,14 @@ def test_fit_processor_takes_the_statistics_of_the_chosen_episodes():
     generator = np.random.default_rng(0)
     states, actions = generator.normal(size=(9, 6)).astype(np.float32), generator.normal(size=(9, 2)).astype(np.float32)
     episodes = [Episode("reach-v3", 0, 0, 3), Episode("push-v3", 0, 3, 4), Episode("reach-v3", 1, 7, 2)]
-    demonstrations = Demonstrations(states, actions, np.repeat([0, 1, 2], [3, 4, 2]), episodes,
-                                    {"reach-v3": "reach", "push-v3": "push"})
+    demonstrations = Demonstrations(
+        states, actions, np.repeat([0, 1, 2], [3, 4, 2]), episodes, {"reach-v3": "reach", "push-v3": "push"}
+    )
     rows = [0, 1, 2, 7, 8]
-    for config, entries in ((MLPPolicyConfig(observation_dim=6, action_dim=2), 4),
-                            (MiniVLAConfig(state_dim=5, action_dim=2), 5)):
+    for config, entries in (
+        (MLPPolicyConfig(observation_dim=6, action_dim=2), 4),
+        (MiniVLAConfig(state_dim=5, action_dim=2), 5),
+    ):
         processor = fit_processor(config, demonstrations, [0, 2])
         assert processor.instructions == ("reach", "push") and processor.state_dim == entries
         assert np.allclose(processor.stats.state_mean, states[rows, :entries].mean(0))

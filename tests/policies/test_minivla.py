@@ -14,8 +14,17 @@ from snapflow.objective import SnapFlowObjective
 from snapflow.policies.minivla import MiniVLA, MiniVLAConfig, MiniVLAProcessor
 from snapflow.policies.processor import NormalizationStats
 
-CONFIG = MiniVLAConfig(state_dim=6, action_dim=3, chunk_length=4, prefix_width=32, expert_width=32, num_layers=2,
-                       num_heads=2, head_dim=8, max_instruction_tokens=6)
+CONFIG = MiniVLAConfig(
+    state_dim=6,
+    action_dim=3,
+    chunk_length=4,
+    prefix_width=32,
+    expert_width=32,
+    num_layers=2,
+    num_heads=2,
+    head_dim=8,
+    max_instruction_tokens=6,
+)
 STATS = NormalizationStats([0.0] * 6, [1.0] * 6, [0.0] * 3, [1.0] * 3)
 
 
@@ -85,8 +94,11 @@ def test_wrapping_minivla_is_bit_identical_and_distillation_leaves_the_prefix_al
         optimizer.zero_grad()
         objective(student, observation, torch.randn(4, 4, 3)).loss.backward()
         optimizer.step()
-    updated = [name for name, p in student.named_parameters()
-               if id(p) not in prefix and p.grad is not None and p.grad.abs().sum() > 0]
+    updated = [
+        name
+        for name, p in student.named_parameters()
+        if id(p) not in prefix and p.grad is not None and p.grad.abs().sum() > 0
+    ]
     assert len(updated) >= len(trainable) // 2, "most of the expert should receive gradient"
     for name in updated:
         assert not torch.equal(before[name], student.get_parameter(name)), f"{name} had a gradient but did not move"
@@ -102,8 +114,9 @@ def test_shape_errors_name_the_expected_shape():
     with pytest.raises(ValueError, match=r"state must have shape \(B, 6\)"):
         model.encode(dict(observation, state=torch.zeros(4, 7)))
     with pytest.raises(ValueError, match=r"noisy actions must have shape \(B, 4, 3\)"):
-        model.velocity_from_time_embedding(torch.zeros(4, 5, 3), model.embed_time(torch.rand(4)),
-                                           model.encode(observation))
+        model.velocity_from_time_embedding(
+            torch.zeros(4, 5, 3), model.embed_time(torch.rand(4)), model.encode(observation)
+        )
 
 
 def test_a_proprioceptive_policy_reads_the_leading_state_entries_only():

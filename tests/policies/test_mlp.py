@@ -11,8 +11,9 @@ from snapflow.policies.processor import NormalizationStats
 from snapflow.protocol import TimeEmbeddingModel
 
 INSTRUCTIONS = ["reach the goal", "push the puck", "open the door"]
-CONFIG = MLPPolicyConfig(observation_dim=4 + len(INSTRUCTIONS), action_dim=2, chunk_length=3, hidden_dim=16,
-                         time_embedding_dim=8)
+CONFIG = MLPPolicyConfig(
+    observation_dim=4 + len(INSTRUCTIONS), action_dim=2, chunk_length=3, hidden_dim=16, time_embedding_dim=8
+)
 STATS = NormalizationStats([1.0, -2.0, 0.5, 0.0], [2.0, 4.0, 0.5, 1.0], [0.1, -0.1], [0.5, 2.0])
 
 
@@ -23,8 +24,7 @@ def test_observation_is_the_normalised_state_then_a_one_hot_of_the_instruction_b
     assert processor.state_dim == 4
     states = np.array([[3.0, 2.0, 1.0, 5.0, 99.0], [1.0, -2.0, 0.0, -1.0, -99.0]], dtype=np.float32)
     observation = processor.observation(states, ["open the door", "reach the goal"])
-    expected = torch.tensor([[1.0, 1.0, 1.0, 5.0, 0.0, 0.0, 1.0],
-                             [0.0, 0.0, -1.0, -1.0, 1.0, 0.0, 0.0]])
+    expected = torch.tensor([[1.0, 1.0, 1.0, 5.0, 0.0, 0.0, 1.0], [0.0, 0.0, -1.0, -1.0, 1.0, 0.0, 0.0]])
     assert torch.equal(observation, expected)
     actions = torch.tensor([[[0.6, 3.9]]])
     assert torch.allclose(processor.normalize_actions(actions), torch.tensor([[[1.0, 2.0]]]))
@@ -35,8 +35,11 @@ def test_unknown_instruction_and_bad_dimensions_are_named():
     """An instruction the policy was not trained on, too few state entries, no room for a state entry, and statistics
     of the wrong size are ValueErrors naming the problem."""
     processor = MLPProcessor(CONFIG, STATS, INSTRUCTIONS)
-    with pytest.raises(ValueError, match=r"trained on the instructions \['reach the goal', 'push the puck', 'open the "
-                                         r"door'\]; it cannot read \['close the window'\]"):
+    with pytest.raises(
+        ValueError,
+        match=r"trained on the instructions \['reach the goal', 'push the puck', 'open the "
+        r"door'\]; it cannot read \['close the window'\]",
+    ):
         processor.observation(np.zeros((2, 4)), ["push the puck", "close the window"])
     with pytest.raises(ValueError, match=r"states must have shape \(batch, >= 4\), got \(2, 3\)"):
         processor.observation(np.zeros((2, 3)), ["push the puck"] * 2)

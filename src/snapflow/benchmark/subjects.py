@@ -7,6 +7,7 @@ depend on the values, so a user can time pi0.5 or SmolVLA before downloading or 
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -201,8 +202,15 @@ def make_subject(
     if (local / POLICY_CONFIG).is_file() or (local / LATEST).is_file():  # what resolve_checkpoint accepts
         loaded = load_policy(policy)
         return builtin_subject(loaded, f"{loaded.metadata['policy']} ({policy})", device, dtype)
-    from snapflow.adapters.lerobot import load_distilled, load_pretrained_policy
-    from snapflow.adapters.lerobot.checkpoint import SNAPFLOW_MARKER
+    if not local.exists() and not re.fullmatch(r"[\w.-]+/[\w.-]+", policy):
+        raise ValueError(
+            f"{policy} does not exist (a checkpoint or run folder, a distilled LeRobot folder, or a hub id org/name)"
+        )
+    try:
+        from snapflow.adapters.lerobot import load_distilled, load_pretrained_policy
+        from snapflow.adapters.lerobot.checkpoint import SNAPFLOW_MARKER
+    except ImportError as error:  # LeRobot is an optional extra
+        raise ValueError(f"{policy} is not a built-in checkpoint, and {error}") from None
 
     loaded = load_distilled(local) if (local / SNAPFLOW_MARKER).is_file() else load_pretrained_policy(policy)
     return lerobot_subject(loaded, policy, device, dtype)

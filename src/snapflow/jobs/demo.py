@@ -15,7 +15,8 @@ from snapflow.evaluation.report import write_report
 from snapflow.evaluation.results import EvaluationReport
 from snapflow.flow.solver import NAIVE_1, SNAPFLOW_1, TEACHER_10
 from snapflow.policies.checkpoint import load_policy
-from snapflow.policies.minivla import MiniVLAConfig
+from snapflow.policies.configuration import PolicyConfig
+from snapflow.policies.factory import policy_type
 from snapflow.training.distill import DistillSettings
 from snapflow.training.recipes import STUDENT_TRAINING, TEACHER_TRAINING, VAL_FRACTION, distill, train_teacher
 from snapflow.training.trainer import TrainConfig
@@ -31,7 +32,7 @@ class DemoPreset:
     tasks: tuple[str, ...] = MT10_TASKS
     episodes_per_task: int = EPISODES_PER_TASK
     val_fraction: float = VAL_FRACTION
-    policy: MiniVLAConfig = field(default_factory=MiniVLAConfig)
+    policy: PolicyConfig = field(default_factory=lambda: policy_type("minivla").config_class())
     teacher: TrainConfig = TEACHER_TRAINING
     student: TrainConfig = STUDENT_TRAINING
     distill: DistillSettings = field(default_factory=DistillSettings)

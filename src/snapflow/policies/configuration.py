@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import MISSING, asdict, dataclass, fields
 from typing import Any, TypeVar
 
 Config = TypeVar("Config", bound="PolicyConfig")
@@ -35,6 +35,9 @@ class PolicyConfig:
         unknown = sorted(set(data) - {field.name for field in fields(cls)})
         if unknown:
             raise ValueError(f"unknown {cls.__name__} field(s) {unknown}")
+        missing = sorted(field.name for field in fields(cls) if field.default is MISSING and field.name not in data)
+        if missing:
+            raise ValueError(f"missing {cls.__name__} field(s) {missing}")
         return cls(**data)
 
 

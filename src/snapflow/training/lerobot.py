@@ -107,7 +107,7 @@ def distill_lerobot(
     if settings.method != "snapflow" or not settings.target_time:
         raise ValueError(
             "LeRobot policies are distilled with SnapFlow and its target-time embedding; "
-            "the baselines and the no-phi_s ablation run on the built-in MiniVLA"
+            "the baselines and the no-phi_s ablation run on the built-in policies (snapflow train --policy ...)"
         )
     policy = load_pretrained_policy(policy_path)
     metadata = LeRobotDatasetMetadata(repo_id, root=dataset_root)

@@ -138,7 +138,7 @@ def _data(raw: Any) -> DataSpec:
 
 
 def _policy(section: str, raw: Any, data: DataSpec) -> PolicyConfig:
-    """The built-in policy ``type`` (default MiniVLA) sized for the data, with the table's other keys applied."""
+    """The built-in policy ``type`` (default minivla) sized for the data, with the table's other keys applied."""
     name = raw.get("type", DEFAULT_POLICY) if isinstance(raw, dict) else DEFAULT_POLICY
     try:
         config_class = policy_type(name).config_class

@@ -1,0 +1,15 @@
+"""Fixtures of the LeRobot adapter tests: the tiny SmolVLM folder every tiny SmolVLA reads (written once a session)."""
+
+from __future__ import annotations
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def vlm_directory(tmp_path_factory):
+    pytest.importorskip(
+        "lerobot", reason="LeRobot is installed by the README's test command; this environment lacks it"
+    )
+    from tests.lerobot_tiny import write_tiny_smolvlm
+
+    return write_tiny_smolvlm(tmp_path_factory.mktemp("tiny_smolvlm"))

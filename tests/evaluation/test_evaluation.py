@@ -1,0 +1,256 @@
+"""Evaluation without a simulator: closed-loop re-planning, offline metrics, the pipeline's report and its files, on a
+scripted benchmark registered for the test (the same code runs Meta-World in tests/evaluation/test_pipeline.py)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from snapflow.data.chunks import ChunkData
+from snapflow.data.demonstrations import Demonstrations
+from snapflow.envs import factory
+from snapflow.envs.base import Benchmark, Environment, Observation
+from snapflow.evaluation.closed_loop import ClosedLoopEvaluator
+from snapflow.evaluation.offline import offline_metrics
+from snapflow.evaluation.pipeline import evaluate
+from snapflow.evaluation.report import markdown_report, write_report
+from snapflow.evaluation.results import (
+    EpisodeResult,
+    EvaluationReport,
+    EvaluationRow,
+    OfflineMetrics,
+    SuccessCount,
+    success_by_task,
+)
+from snapflow.flow.solver import NAIVE_1, SNAPFLOW_1, TEACHER_10, SamplingMode, sample_actions
+from snapflow.policies.checkpoint import load_policy
+from snapflow.policies.factory import default_config
+from snapflow.training.distill import DistillSettings
+from snapflow.training.recipes import distill, train_teacher
+from tests.evaluation.figures import CYCLE, assert_figure
+from tests.training.fixtures import ACTION_DIM, STATE_DIM, SYNTHETIC_TASKS, synthetic_demonstrations, train_config
+
+EPISODE_STEPS = 6
+
+
+class ScriptedEnv(Environment):
+    """A fixed state per variation; every action is recorded; an episode lasts ``EPISODE_STEPS`` steps and succeeds
+    when the first action dimension summed over it is positive."""
+
+    def __init__(self, task: str) -> None:
+        self.task, self.instruction, self.steps = task, SYNTHETIC_TASKS[task], 0
+        self.actions: list[np.ndarray] = []
+        self.state = np.zeros(STATE_DIM, np.float32)
+
+    def reset(self, variation: int, render: bool = True) -> Observation:
+        self.state = np.random.default_rng([variation, len(self.task)]).standard_normal(STATE_DIM).astype(np.float32)
+        self.steps, self.actions = 0, []
+        return Observation(self.state, self.instruction)
+
+    def step(self, action: np.ndarray, render: bool = False) -> tuple[Observation, bool, bool]:
+        self.steps += 1
+        self.actions.append(np.asarray(action))
+        done = self.steps == EPISODE_STEPS
+        return Observation(self.state, self.instruction), done and float(np.sum([a[0] for a in self.actions])) > 0, done
+
+    def close(self) -> None:
+        self.closed = True
+
+
+class ScriptedBenchmark(Benchmark):
+    name, title = "scripted", "Scripted test benchmark"
+    state_dim, action_dim, max_episode_steps = STATE_DIM, ACTION_DIM, EPISODE_STEPS
+
+    def __init__(self) -> None:
+        self.envs: list[ScriptedEnv] = []
+
+    @property
+    def tasks(self) -> tuple[str, ...]:
+        return tuple(SYNTHETIC_TASKS)
+
+    def instruction(self, task: str) -> str:
+        return SYNTHETIC_TASKS[task]
+
+    def num_variations(self, split: str) -> int:
+        return 3
+
+    def make_env(self, task: str, split: str, image_size: int | None = None) -> ScriptedEnv:
+        self.envs.append(ScriptedEnv(task))
+        return self.envs[-1]
+
+    def make_expert(self, task: str):
+        raise NotImplementedError
+
+
+@pytest.fixture
+def scripted(monkeypatch) -> ScriptedBenchmark:
+    monkeypatch.setitem(factory.BENCHMARKS, ScriptedBenchmark.name, ScriptedBenchmark)  # reports name their benchmark
+    return ScriptedBenchmark()
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """Demonstrations, an MLP teacher and its SnapFlow student, trained a few steps."""
+    root = tmp_path_factory.mktemp("runs")
+    data = synthetic_demonstrations(episodes_per_task=5).save(root / "demos")
+    config = default_config(
+        "mlp",
+        STATE_DIM,
+        ACTION_DIM,
+        list(SYNTHETIC_TASKS.values()),
+        chunk_length=4,
+        hidden_dim=32,
+        time_embedding_dim=16,
+    )
+    train_teacher(data, root / "teacher", config, train_config(3), val_fraction=0.2, progress=False)
+    distill(root / "teacher", data, root / "student", train_config(3), DistillSettings(), progress=False)
+    return data, load_policy(root / "teacher"), load_policy(root / "student")
+
+
+def test_success_is_counted_per_task_and_averaged_over_tasks():
+    results = [EpisodeResult("a", 0, True, 5), EpisodeResult("a", 1, False, 9), EpisodeResult("b", 0, True, 3)]
+    table = success_by_task(results)
+    assert table == {"a": SuccessCount(1, 2, 0.5), "b": SuccessCount(1, 1, 1.0), "mean": SuccessCount(2, 3, 0.75)}
+
+
+def test_closed_loop_replans_every_n_act_actions_in_one_batch_and_scores_each_episode(scripted, runs):
+    _, teacher, _ = runs
+    policy, processor = teacher.policy, teacher.processor
+    encodes = []
+    encode = policy.encode
+    policy.encode = lambda observation: encodes.append(len(observation)) or encode(observation)
+    try:
+        evaluator = ClosedLoopEvaluator(scripted, list(SYNTHETIC_TASKS), 2, image_size=None)
+        results = evaluator.run(policy, processor, TEACHER_10, n_act=4, seed=3, progress=False)
+        evaluator.close()
+    finally:
+        del policy.encode  # the module's shared policy gets its own method back
+    envs = scripted.envs
+    assert [(r.task, r.variation, r.steps) for r in results] == [
+        (task, v, EPISODE_STEPS) for task in SYNTHETIC_TASKS for v in range(2)
+    ]
+    assert all(env.closed for env in envs)
+    assert encodes == [4, 4], "every environment re-plans at steps 0 and 4, all in one batch"
+    # the executed actions are the policy's chunks, unnormalised, drawn from the seeded noise in re-planning order
+    generator = torch.Generator().manual_seed(3)
+    states = np.stack([env.state for env in envs])
+    observation = processor.observation(states, [env.instruction for env in envs])
+    chunks = []
+    for _ in range(2):
+        noise = torch.randn(4, processor.chunk_length, processor.action_dim, generator=generator)
+        chunks.append(processor.unnormalize_actions(sample_actions(policy, observation, noise, TEACHER_10)).numpy())
+    for row, (env, result) in enumerate(zip(envs, results, strict=True)):
+        expected = np.concatenate([chunks[0][row, :4], chunks[1][row, :2]])
+        assert np.allclose(np.stack(env.actions), expected, atol=1e-6)
+        assert result.success == (expected[:, 0].sum() > 0)
+    with pytest.raises(ValueError, match=r"n_act must be in \[1, 4\]"):
+        ClosedLoopEvaluator(scripted, ["reach-v3"], 1).run(policy, processor, NAIVE_1, n_act=5, progress=False)
+    with pytest.raises(ValueError, match=r"episodes per task must be in \[1, 3\]"):
+        ClosedLoopEvaluator(scripted, ["reach-v3"], 4)
+    with pytest.raises(ValueError, match=r"unknown scripted task\(s\) \['fly-v3'\]"):
+        ClosedLoopEvaluator(scripted, ["fly-v3"], 1)
+
+
+def test_offline_metrics_summarise_the_per_chunk_errors_of_fixed_draws(runs):
+    data, teacher, _ = runs
+    demonstrations = Demonstrations.load(data)
+    _, val_episodes = demonstrations.split(teacher.val_fraction)
+    chunks = ChunkData(demonstrations, val_episodes, teacher.processor)
+    metrics = offline_metrics(teacher.policy, chunks, TEACHER_10, max_samples=15, seed=4)
+    assert isinstance(metrics, OfflineMetrics) and metrics.samples == 15 < len(chunks)
+    # by hand: the seed fixes which chunks and which noise
+    generator = torch.Generator().manual_seed(4)
+    indices = torch.randperm(len(chunks), generator=generator)[:15]
+    noise = torch.randn((15, *chunks.actions.shape[1:]), generator=generator)
+    observation, target = chunks.batch(indices)
+    prediction = sample_actions(teacher.policy, observation, noise, TEACHER_10)
+    errors = (prediction - target).pow(2).flatten(1).mean(1).double()
+    cosine = torch.nn.functional.cosine_similarity(prediction.flatten(1), target.flatten(1), dim=1).double().mean()
+    assert metrics.mse == pytest.approx(errors.mean().item()) and metrics.mse_median == pytest.approx(
+        errors.median().item()
+    )
+    assert metrics.mse_std == pytest.approx(errors.std().item()) and metrics.cosine == pytest.approx(cosine.item())
+    assert metrics.mse_p95 == pytest.approx(torch.quantile(errors, 0.95).item()) and metrics.mse_p90 <= metrics.mse_p95
+    assert offline_metrics(teacher.policy, chunks, TEACHER_10, max_samples=15, seed=4) == metrics
+    assert offline_metrics(teacher.policy, chunks, NAIVE_1, max_samples=15, seed=4) != metrics
+
+
+def test_evaluate_reports_success_offline_error_and_latency_and_writes_every_file(scripted, runs, tmp_path):
+    data, teacher, student = runs
+    labelled = [
+        ("teacher 10-NFE", teacher, TEACHER_10),
+        ("naive 1-NFE", teacher, NAIVE_1),
+        ("SnapFlow 1-NFE", student, SNAPFLOW_1),
+    ]
+    report = evaluate(
+        labelled, scripted, list(SYNTHETIC_TASKS), 2, n_act=4, data=data, offline_samples=20, progress=False
+    )
+    assert isinstance(report, EvaluationReport) and list(report.rows) == [label for label, _, _ in labelled]
+    assert (report.env, report.tasks, report.episodes_per_task, report.n_act) == (
+        "scripted",
+        list(SYNTHETIC_TASKS),
+        2,
+        4,
+    )
+    demonstrations = Demonstrations.load(data)
+    for label, loaded, mode in labelled:
+        row = report.rows[label]
+        assert (row.policy, row.mode, row.nfe) == (
+            str(loaded.path),
+            mode.name,
+            mode.num_steps,
+        ) and row.closed_loop_s > 0
+        assert all(row.success[task].episodes == 2 for task in SYNTHETIC_TASKS) and row.success["mean"].episodes == 4
+        assert row.success["mean"].successes == sum(row.success[task].successes for task in SYNTHETIC_TASKS)
+        # offline: the checkpoint's own held-out episodes, every mode on the same draws
+        _, val_episodes = demonstrations.split(loaded.val_fraction)
+        expected = offline_metrics(
+            loaded.policy, ChunkData(demonstrations, val_episodes, loaded.processor), mode, 20, 0
+        )
+        assert row.offline == expected and row.offline.samples == 20
+        latency = report.latency[label]
+        assert latency.nfe == mode.num_steps and latency.prefix is not None and latency.prefix.repeats == 50
+    assert report.latency["teacher 10-NFE"].end_to_end_speedup == 1.0
+    one_step, reference = report.latency["SnapFlow 1-NFE"], report.latency["teacher 10-NFE"]
+    assert one_step.denoising_speedup == reference.denoising.median_ms / one_step.denoising.median_ms
+
+    write_report(report, tmp_path)
+    written = json.loads((tmp_path / "report.json").read_text())
+    assert written == json.loads(json.dumps(report.to_dict())) and written["machine"] == report.machine
+    assert written["rows"]["SnapFlow 1-NFE"]["success"]["mean"] == {
+        "successes": report.rows["SnapFlow 1-NFE"].success["mean"].successes,
+        "episodes": 4,
+        "success_rate": report.rows["SnapFlow 1-NFE"].success["mean"].success_rate,
+    }
+    assert {label: EvaluationRow.from_dict(row) for label, row in written["rows"].items()} == report.rows
+    assert (
+        written["latency"]["SnapFlow 1-NFE"]["nfe"] == 1
+        and written["latency"]["naive 1-NFE"]["prefix"]["repeats"] == 50
+    )
+    markdown = (tmp_path / "report.md").read_text()
+    assert markdown == markdown_report(report) and markdown.startswith("# SnapFlow on Scripted test benchmark")
+    mean = report.rows["SnapFlow 1-NFE"].success["mean"]
+    assert "| **mean** |" in markdown and f"{100 * mean.success_rate:.1f}% ({mean.successes}/4)" in markdown
+    assert "## Offline action error (20 held-out demonstration chunks, normalised actions)" in markdown
+    assert f"| SnapFlow 1-NFE | {report.rows['SnapFlow 1-NFE'].offline.mse:.4f} |" in markdown
+    assert f"| SnapFlow 1-NFE | 1 | {one_step.prefix.median_ms:.2f} | {one_step.denoising.median_ms:.2f} |" in markdown
+    # three tasks' groups (two tasks and the mean) of three bars, and the legend, whatever the success
+    assert_figure(tmp_path / "success.png", (6, 4), {CYCLE[0]: 0.0003, CYCLE[1]: 0.0003, CYCLE[2]: 0.0003})
+    assert_figure(tmp_path / "latency.png", (6, 3.5), {CYCLE[0]: 0.0003, CYCLE[1]: 0.005})
+
+
+def test_a_report_without_data_or_timing_leaves_those_sections_out(scripted, runs, tmp_path):
+    _, teacher, _ = runs
+    report = evaluate([("naive", teacher, NAIVE_1)], scripted, ["reach-v3"], 1, progress=False, timing=False)
+    assert report.rows["naive"].offline is None and report.latency == {}
+    write_report(report, tmp_path)
+    written = json.loads((tmp_path / "report.json").read_text())
+    assert "offline" not in written["rows"]["naive"] and "latency" not in written
+    assert (
+        "Offline action error" not in (tmp_path / "report.md").read_text() and not (tmp_path / "latency.png").exists()
+    )
+    assert (tmp_path / "success.png").is_file()
+    assert SamplingMode.parse(written["rows"]["naive"]["mode"]) == NAIVE_1
