@@ -64,14 +64,9 @@ def test_gradient_checkpointing_gives_the_same_gradients(policy_type):
         assert torch.allclose(gradient, gradients[1][name], atol=1e-6), name
 
 
-@pytest.mark.slow
-def test_cli_distills_a_saved_smolvla_on_a_local_lerobot_dataset(vlm_directory, tmp_path, capsys):
-    from snapflow.cli import main
-    from tests.lerobot_tiny import write_tiny_dataset
-
-    dataset = write_tiny_dataset(tmp_path / "dataset")
-    build_tiny_smolvla(vlm_directory).save_pretrained(tmp_path / "teacher")
-    arguments = [
+def _distill_arguments(tmp_path, dataset) -> list[str]:
+    """``snapflow distill`` of the teacher saved at tmp_path/teacher on ``dataset``: three tiny steps into tmp_path/run."""
+    return [
         "distill",
         "--policy",
         str(tmp_path / "teacher"),
@@ -89,6 +84,16 @@ def test_cli_distills_a_saved_smolvla_on_a_local_lerobot_dataset(vlm_directory, 
         "1e-3",
         "--no-progress",
     ]
+
+
+@pytest.mark.slow
+def test_cli_distills_a_saved_smolvla_on_a_local_lerobot_dataset(vlm_directory, tmp_path, capsys):
+    from snapflow.cli import main
+    from tests.lerobot_tiny import write_tiny_dataset
+
+    dataset = write_tiny_dataset(tmp_path / "dataset")
+    build_tiny_smolvla(vlm_directory).save_pretrained(tmp_path / "teacher")
+    arguments = _distill_arguments(tmp_path, dataset)
     assert main(arguments) == 0
     assert (tmp_path / "run" / "checkpoints" / "step_0000003" / "policy.safetensors").is_file()
     distilled = load_distilled(tmp_path / "run" / "lerobot_policy")
@@ -164,29 +169,7 @@ def test_cli_distills_a_saved_pi_policy_on_a_local_lerobot_dataset(policy_type, 
     dataset = write_tiny_dataset(tmp_path / "dataset")
     build_tiny_pi(policy_type).save_pretrained(tmp_path / "teacher")
     with tiny_pi_configs(policy_type):
-        assert (
-            main(
-                [
-                    "distill",
-                    "--policy",
-                    str(tmp_path / "teacher"),
-                    "--dataset",
-                    str(dataset),
-                    "--repo-id",
-                    "local/tiny",
-                    "--output",
-                    str(tmp_path / "run"),
-                    "--steps",
-                    "3",
-                    "--batch-size",
-                    "4",
-                    "--learning-rate",
-                    "1e-3",
-                    "--no-progress",
-                ]
-            )
-            == 0
-        )
+        assert main(_distill_arguments(tmp_path, dataset)) == 0
         distilled = load_distilled(tmp_path / "run" / "lerobot_policy")
     assert distilled.target_time_embedding.linear_out.weight.abs().sum() > 0, "phi_s must have trained"
     teacher = build_tiny_pi(policy_type)
