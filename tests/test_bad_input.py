@@ -6,8 +6,14 @@ Each property counts what it tried in ``TRIED`` (printed by ``pytest -s``) and w
 
 from __future__ import annotations
 
+import argparse
 import json
+import signal
 import string
+import subprocess
+import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -16,9 +22,10 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+import snapflow
 from snapflow.cli import main
 from snapflow.data.demonstrations import DemonstrationError, Demonstrations, Episode
-from snapflow.flow.solver import SamplingMode
+from snapflow.flow.modes import SamplingMode
 from snapflow.policies.checkpoint import CheckpointError, load_policy
 from snapflow.policies.factory import POLICIES
 from snapflow.policies.minivla import MiniVLA, MiniVLAConfig
@@ -226,8 +233,8 @@ def test_corrupt_demonstrations_are_rejected_before_training(tmp_path_factory, k
 
 @pytest.fixture(scope="module")
 def checkpoint(tmp_path_factory):
+    from snapflow.training.config import TrainConfig
     from snapflow.training.recipes import train_teacher
-    from snapflow.training.trainer import TrainConfig
     from tests.training.fixtures import TINY
 
     data = _demonstrations(steps=16)
@@ -269,7 +276,7 @@ def test_cli_rejects_bad_arguments_with_a_message_and_exit_code_2(capsys, tmp_pa
     output = str(tmp_path_factory.mktemp("out"))
     values = values or ["x"]
     options = {
-        "eval": ["--policy", *values, "--tasks", "reach-v3", "--episodes", "1", "--output-dir", output],
+        "eval": ["--policy", *values, "--tasks", "reach-v3", "--episodes", "1", "--output", output],
         "distill": ["--teacher", values[0], "--data", "nowhere", "--output", output],
         "train": ["--data", values[0], "--output", output, "--steps", "1"],
         "bench": [
@@ -280,11 +287,11 @@ def test_cli_rejects_bad_arguments_with_a_message_and_exit_code_2(capsys, tmp_pa
             "--warmup",
             "0",
             "--no-profile",
-            "--output-dir",
+            "--output",
             output,
         ],
         "sweep": [*values, "--report-only"],
-        "bench-targets": ["--teacher", values[0], "--data", "nowhere", "--repeats", "1", "--output-dir", output],
+        "bench-targets": ["--teacher", values[0], "--data", "nowhere", "--repeats", "1", "--output", output],
         "toy-compare": [
             "--targets",
             *values,
@@ -294,7 +301,7 @@ def test_cli_rejects_bad_arguments_with_a_message_and_exit_code_2(capsys, tmp_pa
             "1",
             "--distill-steps",
             "1",
-            "--output-dir",
+            "--output",
             output,
         ],
     }
@@ -336,3 +343,183 @@ def test_a_pickle_in_place_of_the_weights_is_refused_and_never_run(checkpoint, t
         torch.load(pickled, weights_only=False)
     assert marker.exists()
     _count("hostile pickles", True)
+
+
+# What a new user meets, through the CLI as a user runs it: a fresh interpreter per command. Each refusal is one line
+# on stderr and exit code 2, arrives before anything heavy loads where the arguments alone decide it, and writes
+# nothing to the output.
+
+UNWRITABLE = "/sys/snapflow-test-output"  # sysfs refuses new files even to root: a real unwritable folder
+
+
+def _snapflow(*arguments: str, cwd: Path | None = None, missing: tuple[str, ...] = ()) -> subprocess.CompletedProcess:
+    """``snapflow ARGUMENTS`` in a new interpreter; ``missing`` modules cannot be imported there, as if their extra
+    were not installed."""
+    code = "".join(f"sys.modules[{module!r}] = None\n" for module in missing)
+    script = f"import sys\n{code}from snapflow.cli import main\nsys.exit(main(sys.argv[1:]))\n"
+    return subprocess.run(
+        [sys.executable, "-c", script, *arguments], capture_output=True, text=True, cwd=cwd, timeout=600
+    )
+
+
+def _assert_refused(result: subprocess.CompletedProcess, *words: str) -> str:
+    lines = result.stderr.strip().splitlines()
+    assert result.returncode == 2, result.stderr
+    assert len(lines) == 1 and "Traceback" not in result.stderr, result.stderr
+    for word in words:
+        assert word in lines[0], lines[0]
+    _count("CLI first contact", True)
+    return lines[0]
+
+
+ARGUMENT_MISTAKES = {
+    "zero episodes": (["collect", "--episodes", "0"], "--episodes", "at least 1"),
+    "zero actions per chunk": (["eval", "--policy", "run", "--n-act", "0"], "--n-act", "at least 1"),
+    "negative episodes": (["eval", "--policy", "run", "--episodes", "-3"], "--episodes"),
+    "zero steps": (["train", "--data", "d", "--steps", "0"], "--steps", "at least 1"),
+    "zero checkpoint interval": (["train", "--data", "d", "--checkpoint-every", "0"], "--checkpoint-every"),
+    "validation share above 1": (["train", "--data", "d", "--val-fraction", "1.5"], "--val-fraction", "at most 1"),
+    "nothing left to train on": (["train", "--data", "d", "--val-fraction", "1"], "--val-fraction", "below 1"),
+    "no teacher steps": (["toy", "--teacher-steps", "0"], "--teacher-steps", "at least 1"),
+    "negative lambda": (["distill", "--teacher", "t", "--data", "d", "--lambda", "-1"], "--lambda", "at least 0"),
+    "alpha above 1": (["distill", "--teacher", "t", "--data", "d", "--alpha", "1.5"], "--alpha", "at most 1"),
+    "infinite learning rate": (["train", "--data", "d", "--learning-rate", "inf"], "--learning-rate", "finite"),
+    "no timed calls": (["bench", "--architecture", "mlp", "--repeats", "0"], "--repeats"),
+    "no workers": (["sweep", "config.toml", "--workers", "0"], "--workers"),
+    "mistyped mode": (["eval", "--policy", "run", "--modes", "snapflow-x"], "unknown sampling mode 'snapflow-x'"),
+    "mistyped task": (["collect", "--tasks", "reach-v9"], "unknown metaworld task(s) ['reach-v9']"),
+    "mistyped target": (["toy-compare", "--targets", "euler"], "TARGET:STEPS"),
+}
+
+
+@pytest.mark.parametrize("case", ARGUMENT_MISTAKES, ids=list(ARGUMENT_MISTAKES))
+def test_argument_mistakes_are_refused_in_one_line_before_torch_loads(tmp_path, case):
+    arguments, *words = ARGUMENT_MISTAKES[case]
+    output = tmp_path / "out"
+    if arguments[0] != "sweep":
+        arguments = [*arguments, "--output", str(output)]
+    probe = tmp_path / "modules.txt"
+    script = (
+        "import sys\nfrom snapflow.cli import main\n"
+        "try:\n    code = main(sys.argv[2:])\nexcept SystemExit as exit_:\n    code = exit_.code\n"
+        "open(sys.argv[1], 'w').write(' '.join(m for m in ('torch', 'metaworld', 'mujoco') if m in sys.modules))\n"
+        "sys.exit(code)\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", script, str(probe), *arguments], capture_output=True, text=True, timeout=120
+    )
+    _assert_refused(result, *words)
+    assert probe.read_text() == "", f"loaded before refusing: {probe.read_text()}"
+    assert not output.exists()
+
+
+def test_help_and_version_load_no_torch_and_every_option_says_what_it_does():
+    from snapflow.cli import build_parser
+
+    parser = build_parser()
+    commands = next(action for action in parser._actions if isinstance(action, argparse._SubParsersAction))
+    for name, command in commands.choices.items():
+        for action in command._actions:
+            assert action.help, f"snapflow {name} {'/'.join(action.option_strings) or action.dest} has no help"
+        # one name for where a command writes (the sweep writes where its config says)
+        outputs = [action.option_strings for action in command._actions if action.dest == "output"]
+        assert outputs == ([] if name == "sweep" else [["--output", "--output-dir"]]), name
+    script = "import sys\nfrom snapflow.cli import main\ntry:\n    main(sys.argv[1:])\nexcept SystemExit:\n    pass\nprint('torch' in sys.modules)\n"
+    for arguments in (["--help"], ["train", "--help"], ["--version"]):
+        result = subprocess.run([sys.executable, "-c", script, *arguments], capture_output=True, text=True)
+        assert result.stdout.strip().endswith("False"), (arguments, result.stdout)
+    version = subprocess.run([sys.executable, "-m", "snapflow.cli", "--version"], capture_output=True, text=True)
+    assert version.stdout.strip() == f"snapflow {snapflow.__version__}"
+    assert "(default: 5000)" in subprocess.run(
+        [sys.executable, "-m", "snapflow.cli", "train", "--help"], capture_output=True, text=True
+    ).stdout.replace("\n", " ")
+
+
+MISSING_EXTRAS = {
+    "bench pi0.5 without lerobot": (["bench", "--architecture", "pi05"], "lerobot"),
+    "distill LeRobot without lerobot": (
+        ["distill", "--policy", "lerobot/smolvla_base", "--dataset", "lerobot/pusht"],
+        "lerobot",
+    ),
+    "eval in LeRobot's env without lerobot": (["eval", "--policy", "run", "--lerobot-env", "pusht"], "lerobot"),
+    "collect without metaworld": (["collect", "--episodes", "1", "--tasks", "reach-v3"], "metaworld"),
+}
+
+
+@pytest.mark.parametrize("case", MISSING_EXTRAS, ids=list(MISSING_EXTRAS))
+def test_a_missing_extra_is_named_with_its_install_command(tmp_path, case):
+    arguments, module = MISSING_EXTRAS[case]
+    output = tmp_path / "out"
+    result = _snapflow(*arguments, "--output", str(output), "--no-progress", cwd=tmp_path, missing=(module,))
+    _assert_refused(result, f'pip install "snapflow[{module}]"')
+    assert not output.exists()
+
+
+@pytest.mark.parametrize(
+    "arguments",
+    [
+        ["toy", "--teacher-steps", "1"],
+        ["collect", "--tasks", "reach-v3", "--episodes", "1"],
+        ["train", "--data", "missing"],
+        ["distill", "--teacher", "t", "--data", "d"],
+        ["eval", "--policy", "run"],
+        ["demo"],
+    ],
+    ids=lambda arguments: arguments[0],
+)
+def test_an_output_that_cannot_be_written_is_refused_before_any_work(tmp_path, arguments):
+    result = _snapflow(*arguments, "--output", f"{UNWRITABLE}/run", "--no-progress", cwd=tmp_path)
+    _assert_refused(result, f"cannot write to {UNWRITABLE}/run", "choose another --output")
+
+
+def test_a_jump_mode_on_a_teacher_is_refused_not_reported_as_snapflow(checkpoint, tmp_path):
+    output = tmp_path / "out"
+    arguments = ["eval", "--policy", str(checkpoint), "--modes", "teacher-10,snapflow-1", "--tasks", "reach-v3"]
+    result = _snapflow(*arguments, "--episodes", "1", "--output", str(output), "--no-progress")
+    _assert_refused(result, "is a flow-matching teacher", "use teacher-N or naive, or distill it first")
+    assert not output.exists()
+
+
+def test_a_second_demo_in_the_same_folder_is_refused_at_once_with_the_flag_that_exists(tmp_path):
+    (tmp_path / "demo" / "data").mkdir(parents=True)
+    result = _snapflow("demo", "--output", str(tmp_path / "demo"), "--no-progress")
+    _assert_refused(result, "holds a demo run", "--resume", "--output")
+    assert [path.name for path in (tmp_path / "demo").iterdir()] == ["data"]
+
+
+def _interrupt_when(process: subprocess.Popen, ready: Callable[[], bool]) -> str:
+    """SIGINT ``process`` (Ctrl-C) once ``ready()``; its last stderr line."""
+    deadline = time.monotonic() + 300
+    while not ready():
+        assert process.poll() is None and time.monotonic() < deadline, process.communicate()
+        time.sleep(0.05)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == 130, stderr
+    return stderr.strip().splitlines()[-1]
+
+
+@pytest.mark.slow
+def test_ctrl_c_says_what_was_kept(tmp_path):
+    from tests.training.fixtures import synthetic_demonstrations
+
+    data = synthetic_demonstrations().save(tmp_path / "data")
+    train = [sys.executable, "-m", "snapflow.cli", "train", "--policy", "mlp", "--data", str(data), "--no-progress"]
+    run = tmp_path / "early"
+    process = subprocess.Popen([*train, "--output", str(run)], stderr=subprocess.PIPE, text=True)
+    line = _interrupt_when(process, lambda: (run / ".snapflow.lock").exists())
+    assert "before the first checkpoint" in line and "--resume" not in line, line
+
+    run = tmp_path / "late"
+    process = subprocess.Popen(
+        [*train, "--output", str(run), "--checkpoint-every", "1"], stderr=subprocess.PIPE, text=True
+    )
+    line = _interrupt_when(process, lambda: (run / "latest.json").exists())
+    assert "keeps its last checkpoint" in line and "--resume" in line, line
+
+    output = tmp_path / "demonstrations"
+    collect = [sys.executable, "-m", "snapflow.cli", "collect", "--tasks", "reach-v3", "--output", str(output)]
+    process = subprocess.Popen([*collect, "--no-progress"], stderr=subprocess.PIPE, text=True)
+    line = _interrupt_when(process, lambda: (output / ".snapflow.lock").exists())
+    assert "no demonstrations were saved" in line and "checkpoint" not in line, line
+    assert not (output / "meta.json").exists()

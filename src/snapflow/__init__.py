@@ -2,39 +2,27 @@
 
 from importlib.metadata import version
 
-from snapflow.flow import (
-    NAIVE_1,
-    SNAPFLOW_1,
-    TEACHER_10,
-    BetaTimeSampler,
-    SamplingMode,
-    UniformTimeSampler,
-    conditional_velocity,
-    euler_sample,
-    interpolate,
-    sample_actions,
-)
-from snapflow.nn import SnapFlowPolicy, TargetTimeEmbedding
-from snapflow.objective import LossOutput, SnapFlowObjective
-from snapflow.protocol import FlowPolicy, TimeEmbeddingModel
+from snapflow._lazy import lazy_exports
 
 __version__ = version("snapflow")
 
-__all__ = [
-    "FlowPolicy",
-    "TimeEmbeddingModel",
-    "SnapFlowPolicy",
-    "TargetTimeEmbedding",
-    "SnapFlowObjective",
-    "LossOutput",
-    "SamplingMode",
-    "TEACHER_10",
-    "NAIVE_1",
-    "SNAPFLOW_1",
-    "sample_actions",
-    "euler_sample",
-    "interpolate",
-    "conditional_velocity",
-    "UniformTimeSampler",
-    "BetaTimeSampler",
-]
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "snapflow.protocol": ["FlowPolicy", "TimeEmbeddingModel"],
+        "snapflow.nn": ["SnapFlowPolicy", "TargetTimeEmbedding"],
+        "snapflow.objective": ["SnapFlowObjective", "LossOutput"],
+        "snapflow.flow": [
+            "SamplingMode",
+            "TEACHER_10",
+            "NAIVE_1",
+            "SNAPFLOW_1",
+            "sample_actions",
+            "euler_sample",
+            "interpolate",
+            "conditional_velocity",
+            "UniformTimeSampler",
+            "BetaTimeSampler",
+        ],
+    },
+)

@@ -1,30 +1,127 @@
 """The ``snapflow`` command line: one sub-command per job, each a thin shell over the Python API.
 
-Defaults and choices are read from the settings dataclasses and the registries, never restated here.
+Defaults and choices are read from the settings dataclasses and the registries, never restated here. Parsing loads
+no torch (those settings modules are plain Python): counts, fractions, sampling modes, task names and the output
+folder are checked before a command imports what it needs, so ``--help`` and a mistyped argument answer at once.
+Every error the user can fix is one line, ``snapflow <command>: error: ...``, and exit code 2.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import sys
+import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import MISSING, fields, replace
+from importlib.metadata import version
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
+from snapflow.benchmark.architectures import architectures
 from snapflow.data.collect import EPISODES_PER_TASK
 from snapflow.envs.factory import BENCHMARKS, DEFAULT_BENCHMARK, make_benchmark
+from snapflow.evaluation.config import N_ACT
+from snapflow.flow.modes import SamplingMode
 from snapflow.inference.compile import COMPILE_MODES
-from snapflow.jobs.toy import ToyConfig
-from snapflow.objective.snapflow import TEACHER_VELOCITIES
+from snapflow.jobs.toy_config import ToyConfig
+from snapflow.objective.options import TEACHER_VELOCITIES
 from snapflow.policies.factory import POLICIES
 from snapflow.reporting.files import write_json, write_text
 from snapflow.reporting.tables import markdown_table
+from snapflow.training.config import STUDENT_TRAINING, TEACHER_TRAINING, VAL_FRACTION, TrainConfig
 from snapflow.training.distill import METHODS, TARGETS, DistillSettings, TargetOption, parse_target_steps
-from snapflow.training.recipes import STUDENT_TRAINING, TEACHER_TRAINING, VAL_FRACTION
-from snapflow.training.trainer import TrainConfig
 
-TRAINING_OPTIONS = ("steps", "batch_size", "learning_rate", "seed")
+# TrainConfig fields every training command takes, with their help
+TRAINING_OPTIONS = {
+    "steps": "optimisation steps",
+    "batch_size": "training pairs per step",
+    "learning_rate": "peak learning rate (linear warm-up, then cosine decay)",
+    "seed": "seed of the initialisation, the batches and the noise",
+    "checkpoint_every": "steps between checkpoints (an interrupted run resumes from the last one)",
+}
+# the pip extra that installs each optional module a command may need
+EXTRAS = {"lerobot": "lerobot", "metaworld": "metaworld", "mujoco": "metaworld"}
+LATEST_CHECKPOINT = "latest.json"  # what a run folder holds once it has a checkpoint (snapflow.policies.checkpoint)
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with a one-line error (the problem, then where to read more) instead of a usage dump."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+class _HelpFormatter(argparse.HelpFormatter):
+    """Each option's help ends with its default, where it has one."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text, default = action.help or "", action.default
+        if not action.option_strings or default is None or default is False or default == argparse.SUPPRESS:
+            return text
+        if "default:" in text:  # the help states a default the parser cannot hold
+            return text
+        if isinstance(default, list):  # as typed: space-separated values, or one comma-separated list
+            default = (" " if action.nargs in ("+", "*") else ",").join(map(str, default))
+        return f"{text} (default: {str(default).replace('%', '%%')})"
+
+
+def _number(kind: type, minimum: float | None = None, maximum: float | None = None, strict: bool = False) -> Callable:
+    """An argparse type: a finite ``kind`` within [minimum, maximum] (``strict``: the open interval)."""
+
+    def parse(text: str) -> Any:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{'an integer' if kind is int else 'a number'} is needed, got {text!r}"
+            ) from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"a finite number is needed, got {text!r}")
+        if minimum is not None and (value <= minimum if strict else value < minimum):
+            raise argparse.ArgumentTypeError(f"must be {'above' if strict else 'at least'} {minimum}, got {text}")
+        if maximum is not None and (value >= maximum if strict else value > maximum):
+            raise argparse.ArgumentTypeError(f"must be {'below' if strict else 'at most'} {maximum}, got {text}")
+        return value
+
+    return parse
+
+
+COUNT = _number(int, 1)  # episodes, steps, repeats, workers, sizes: 0 and negatives are refused, never defaulted
+NON_NEGATIVE_COUNT = _number(int, 0)
+SHARE = _number(float, 0, 1)
+POSITIVE = _number(float, 0, strict=True)
+NON_NEGATIVE = _number(float, 0)
+
+
+def _validation_share(text: str) -> float:
+    value = SHARE(text)
+    if value == 1:
+        raise argparse.ArgumentTypeError("must be below 1 (some episodes must remain to train on), got 1")
+    return value
+
+
+def _modes(text: str) -> list[SamplingMode]:
+    try:
+        return [SamplingMode.parse(name) for name in text.split(",")]
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def _target_steps(value: str) -> int | tuple[int, ...]:
+    try:
+        return parse_target_steps(value)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def _target_option(value: str) -> TargetOption:
+    try:
+        return TargetOption.parse(value)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def _default(cls: type, name: str) -> Any:
@@ -41,7 +138,28 @@ def _tasks(benchmark_name: str, value: str) -> list[str]:
     )
 
 
+def _check_writable(output: str | Path) -> None:
+    """Refuse, before any work, an output folder that cannot be created or written (a probe file in the nearest
+    existing folder: permission bits alone miss read-only file systems and root)."""
+    path = Path(output).absolute()
+    existing = next(folder for folder in (path, *path.parents) if folder.exists())
+    if not existing.is_dir():
+        raise ValueError(f"cannot write to {output}: {existing} is a file, not a folder; choose another --output")
+    try:
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as error:
+        raise ValueError(
+            f"cannot write to {output}: {error.strerror.lower()} in {existing}; choose another --output"
+        ) from None
+
+
+def _train_config(args: argparse.Namespace, base: TrainConfig) -> TrainConfig:
+    return replace(base, **{name: getattr(args, name) for name in TRAINING_OPTIONS if getattr(args, name) is not None})
+
+
 def _toy(args: argparse.Namespace) -> int:
+    _check_writable(args.output)
     from snapflow.jobs.toy import plot_toy_result, run_toy_experiment
 
     config = ToyConfig(
@@ -75,7 +193,7 @@ def _toy(args: argparse.Namespace) -> int:
     )
     print(f"\ntrained and evaluated in {elapsed:.1f} s ({1000 * result.distill_step_s:.1f} ms per distillation step)")
 
-    output = Path(args.output_dir)
+    output = Path(args.output)
     plot_toy_result(result, output / "toy_samples.png")
     write_json(output / "toy_results.json", {**result.to_dict(), "wall_time_s": round(elapsed, 2)})
     print(f"wrote {output / 'toy_samples.png'} and {output / 'toy_results.json'}")
@@ -83,31 +201,28 @@ def _toy(args: argparse.Namespace) -> int:
 
 
 def _toy_compare(args: argparse.Namespace) -> int:
+    _check_writable(args.output)
     from snapflow.jobs.toy_compare import compare_targets, markdown_comparison
 
-    options = [TargetOption.parse(text) for text in args.targets]
     base = ToyConfig(
         teacher_steps=args.teacher_steps, distill_steps=args.distill_steps, consistency_weight=args.consistency_weight
     )
     started = time.perf_counter()
-    summary = compare_targets(options, args.seeds, base, args.output_dir, args.workers, not args.no_progress)
+    summary = compare_targets(args.targets, args.seeds, base, args.output, args.workers, not args.no_progress)
     print(markdown_comparison(summary))
     print(
-        f"\ndone in {(time.perf_counter() - started) / 60:.1f} min; wrote comparison.json, comparison.md and comparison.png to {args.output_dir}"
+        f"\ndone in {(time.perf_counter() - started) / 60:.1f} min; wrote comparison.json, comparison.md and comparison.png to {args.output}"
     )
     return 0
 
 
 def _collect(args: argparse.Namespace) -> int:
+    tasks = _tasks(args.env, args.tasks)
+    _check_writable(args.output)
     from snapflow.data.collect import collect
 
     demonstrations = collect(
-        make_benchmark(args.env),
-        _tasks(args.env, args.tasks),
-        args.episodes,
-        args.output,
-        args.image_size,
-        not args.no_progress,
+        make_benchmark(args.env), tasks, args.episodes, args.output, args.image_size, not args.no_progress
     )
     print(
         f"wrote {len(demonstrations.episodes)} successful expert episodes ({len(demonstrations.states)} steps) to {args.output}"
@@ -115,15 +230,13 @@ def _collect(args: argparse.Namespace) -> int:
     return 0
 
 
-def _train_config(args: argparse.Namespace, base: TrainConfig) -> TrainConfig:
-    return replace(base, **{name: getattr(args, name) for name in TRAINING_OPTIONS if getattr(args, name) is not None})
-
-
 def _train(args: argparse.Namespace) -> int:
+    _check_writable(args.output)
     from snapflow.data.demonstrations import Demonstrations
     from snapflow.policies.factory import default_config
     from snapflow.training.recipes import train_teacher
 
+    config = _train_config(args, TEACHER_TRAINING)
     demonstrations = Demonstrations.load(args.data)
     overrides = {
         name: getattr(args, name) for name in ("chunk_length", "image_size") if getattr(args, name) is not None
@@ -137,20 +250,17 @@ def _train(args: argparse.Namespace) -> int:
         list(demonstrations.instructions.values()),
         **overrides,
     )
-    state = train_teacher(
-        args.data,
-        args.output,
-        policy,
-        _train_config(args, TEACHER_TRAINING),
-        args.val_fraction,
-        args.resume,
-        not args.no_progress,
-    )
+    state = train_teacher(args.data, args.output, policy, config, args.val_fraction, args.resume, not args.no_progress)
     print(f"teacher trained to step {state['step']} in {state['wall_time_s']:.0f} s; checkpoints in {args.output}")
     return 0
 
 
 def _distill(args: argparse.Namespace) -> int:
+    built_in = bool(args.teacher and args.data) and not (args.policy or args.dataset)
+    lerobot = bool(args.policy and args.dataset) and not (args.teacher or args.data)
+    if not (built_in or lerobot):
+        raise ValueError("give either --teacher and --data (a built-in policy) or --policy and --dataset (LeRobot)")
+    _check_writable(args.output)
     settings = DistillSettings(
         alpha=args.alpha,
         consistency_weight=args.consistency_weight,
@@ -162,18 +272,18 @@ def _distill(args: argparse.Namespace) -> int:
         target=args.target,
         target_steps=args.target_steps,
     )
-    built_in = bool(args.teacher and args.data) and not (args.policy or args.dataset)
-    lerobot = bool(args.policy and args.dataset) and not (args.teacher or args.data)
-    if not (built_in or lerobot):
-        raise ValueError("give either --teacher and --data (a built-in policy) or --policy and --dataset (LeRobot)")
     if lerobot:
+        from snapflow.adapters.hub import local_folder
+
+        # a dataset root on disk, or else (None) a repo id LeRobot fetches and caches; a mistyped root is named
+        # before LeRobot loads
+        dataset_root = local_folder(args.dataset)
         from snapflow.training.lerobot import EXPORT_DIRECTORY, distill_lerobot, paper_training
 
-        local = Path(args.dataset).is_dir()  # a dataset root on disk, or else a repo id LeRobot fetches and caches
-        repo_id = (args.repo_id or f"local/{Path(args.dataset).name}") if local else args.dataset
+        repo_id = (args.repo_id or f"local/{dataset_root.name}") if dataset_root else args.dataset
         state = distill_lerobot(
             args.policy,
-            args.dataset if local else None,
+            dataset_root,
             repo_id,
             args.output,
             _train_config(args, paper_training()),
@@ -203,15 +313,16 @@ def _distill(args: argparse.Namespace) -> int:
 
 
 def _eval(args: argparse.Namespace) -> int:
-    from snapflow.evaluation.pipeline import N_ACT, evaluate
+    if args.lerobot_env:
+        return _eval_in_lerobot_env(args)
+    # every registered benchmark is checked again below once the policies name theirs; a typo is caught here first
+    _tasks(args.env or DEFAULT_BENCHMARK, args.tasks)
+    _check_writable(args.output)
+    from snapflow.evaluation.pipeline import evaluate
     from snapflow.evaluation.report import markdown_report, write_report
-    from snapflow.flow.solver import SamplingMode
     from snapflow.inference.compile import compile_policy
     from snapflow.policies.checkpoint import load_policy
 
-    modes = [SamplingMode.parse(name) for name in args.modes.split(",")]
-    if args.lerobot_env:
-        return _eval_in_lerobot_env(args, modes)
     loaded = {path: load_policy(path) for path in args.policy}
     if args.compile:
         for policy in loaded.values():
@@ -221,7 +332,7 @@ def _eval(args: argparse.Namespace) -> int:
     runs = [
         (f"{mode.name}" if len(loaded) == 1 else f"{Path(path).name} {mode.name}", policy, mode)
         for path, policy in loaded.items()
-        for mode in modes
+        for mode in args.modes
     ]
     report = evaluate(
         runs,
@@ -233,21 +344,22 @@ def _eval(args: argparse.Namespace) -> int:
         seed=args.seed if args.seed is not None else 0,
         progress=not args.no_progress,
     )
-    write_report(report, args.output_dir)
+    write_report(report, args.output)
     print(markdown_report(report))
-    print(f"wrote report.json, report.md and PNG plots to {args.output_dir}")
+    print(f"wrote report.json, report.md and PNG plots to {args.output}")
     return 0
 
 
-def _eval_in_lerobot_env(args: argparse.Namespace, modes: list) -> int:
-    from snapflow.evaluation.lerobot_env import evaluate_in_lerobot_env, lerobot_eval_table, write_lerobot_eval
-
+def _eval_in_lerobot_env(args: argparse.Namespace) -> int:
     if len(args.policy) != 1:
         raise ValueError("--lerobot-env evaluates one distilled LeRobot policy directory at a time")
+    _check_writable(args.output)
+    from snapflow.evaluation.lerobot_env import evaluate_in_lerobot_env, lerobot_eval_table, write_lerobot_eval
+
     report = evaluate_in_lerobot_env(
         args.policy[0],
         args.lerobot_env,
-        modes,
+        args.modes,
         args.episodes,
         args.env_task,
         args.n_act,
@@ -256,13 +368,14 @@ def _eval_in_lerobot_env(args: argparse.Namespace, modes: list) -> int:
         args.max_episode_steps,
         compile_mode=args.compile,
     )
-    write_lerobot_eval(report, args.output_dir)
+    write_lerobot_eval(report, args.output)
     print(lerobot_eval_table(report))
-    print(f"wrote report.json, report.md and each mode's eval_info.json to {args.output_dir}")
+    print(f"wrote report.json, report.md and each mode's eval_info.json to {args.output}")
     return 0
 
 
 def _bench(args: argparse.Namespace) -> int:
+    _check_writable(args.output)
     import torch
 
     from snapflow.benchmark.bench import markdown_bench, run_bench, write_bench
@@ -274,25 +387,23 @@ def _bench(args: argparse.Namespace) -> int:
     dtype = {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch.float16}[args.dtype]
     subject = make_subject(args.policy, args.architecture, device, dtype, args.vlm)
     report = run_bench(subject, args.warmup, args.repeats, args.compile, profile=not args.no_profile)
-    write_bench(report, args.output_dir)
+    write_bench(report, args.output)
     print(markdown_bench(report))
-    print(
-        f"wrote bench.json, bench.md, latency.png{'' if args.no_profile else ' and profile.txt'} to {args.output_dir}"
-    )
+    print(f"wrote bench.json, bench.md, latency.png{'' if args.no_profile else ' and profile.txt'} to {args.output}")
     return 0
 
 
 def _bench_targets(args: argparse.Namespace) -> int:
+    _check_writable(args.output)
     import torch
 
     from snapflow.benchmark.training_cost import checkpoint_training_cost, markdown_training_cost
 
     if args.threads:
         torch.set_num_threads(args.threads)
-    options = [TargetOption.parse(text) for text in args.targets]
-    result = checkpoint_training_cost(args.teacher, args.data, options, args.batch_size, args.warmup, args.repeats)
+    result = checkpoint_training_cost(args.teacher, args.data, args.targets, args.batch_size, args.warmup, args.repeats)
     table = markdown_training_cost(result)
-    output = Path(args.output_dir)
+    output = Path(args.output)
     write_json(output / "training_cost.json", {**result, "teacher": str(args.teacher), "data": str(args.data)})
     write_text(output / "training_cost.md", table + "\n")
     print(table)
@@ -315,31 +426,74 @@ def _sweep(args: argparse.Namespace) -> int:
 
 
 def _demo(args: argparse.Namespace) -> int:
+    _check_writable(args.output)
     from snapflow.evaluation.report import markdown_report
     from snapflow.jobs.demo import PRESETS, run_demo
 
-    report = run_demo(PRESETS["full" if args.full else "fast"], args.output_dir, not args.no_progress, args.resume)
+    report = run_demo(PRESETS["full" if args.full else "fast"], args.output, not args.no_progress, args.resume)
     print(markdown_report(report))
-    print(f"wrote report.json, report.md and PNG plots to {args.output_dir}")
+    print(f"wrote report.json, report.md and PNG plots to {args.output}")
     return 0
 
 
-def _add_training_options(parser: argparse.ArgumentParser, base: TrainConfig, data_required: bool = True) -> None:
-    """``--steps``, ``--batch-size``, ``--learning-rate``, ``--seed``: TrainConfig fields, defaults from ``base``."""
+def _training_interrupted(args: argparse.Namespace) -> str:
+    latest = Path(args.output) / LATEST_CHECKPOINT
+    if latest.is_file():
+        checkpoint = json.loads(latest.read_text()).get("checkpoint", "?")
+        return f"interrupted; {args.output} keeps its last checkpoint ({checkpoint}): run the same command with --resume to continue"
+    return (
+        f"interrupted before the first checkpoint (one every --checkpoint-every steps); nothing was kept in "
+        f"{args.output}: run the command again"
+    )
+
+
+def _nothing_written(args: argparse.Namespace) -> str:
+    return f"interrupted; nothing was written to {args.output}"
+
+
+def _collect_interrupted(args: argparse.Namespace) -> str:
+    return f"interrupted; no demonstrations were saved in {args.output}"
+
+
+def _runs_kept(args: argparse.Namespace) -> str:
+    return "interrupted; finished runs are kept: run the same command again to continue"
+
+
+def _demo_interrupted(args: argparse.Namespace) -> str:
+    return f"interrupted; finished stages and the last checkpoint are kept in {args.output}: continue with --resume"
+
+
+def _command(
+    commands: Any, name: str, help: str, run: Callable[[argparse.Namespace], int], interrupted: Callable, common: Any
+) -> argparse.ArgumentParser:
+    parser = commands.add_parser(name, parents=[common], help=help, description=help, formatter_class=_HelpFormatter)
+    parser.set_defaults(run=run, interrupted=interrupted)
+    return parser
+
+
+def _add_output(parser: argparse.ArgumentParser, default: str | None, help: str) -> None:
+    """``--output`` (``--output-dir`` kept as an alias), the one name for where every command writes."""
+    parser.add_argument("--output", "--output-dir", dest="output", required=default is None, default=default, help=help)
+
+
+def _add_training_options(
+    parser: argparse.ArgumentParser, base: TrainConfig | None, data_required: bool = True
+) -> None:
+    """``--data``, ``--output``, the TrainConfig fields of ``TRAINING_OPTIONS`` (defaults from ``base``; None: the
+    command picks its base once it knows the policy) and ``--resume``."""
     parser.add_argument("--data", required=data_required, help="demonstrations directory written by `snapflow collect`")
-    parser.add_argument("--output", required=True, help="run directory for checkpoints")
-    for name in TRAINING_OPTIONS:
+    _add_output(parser, None, "run directory for checkpoints")
+    for name, help in TRAINING_OPTIONS.items():
+        kind = type(getattr(TEACHER_TRAINING, name))
         parser.add_argument(
-            f"--{name.replace('_', '-')}", type=type(getattr(base, name)), help=f"default {getattr(base, name)}"
+            f"--{name.replace('_', '-')}",
+            type=POSITIVE if kind is float else (NON_NEGATIVE_COUNT if name == "seed" else COUNT),
+            default=getattr(base, name) if base is not None else None,
+            help=help
+            if base is not None
+            else f"{help} (default: {getattr(STUDENT_TRAINING, name)} for a built-in teacher, the paper's for LeRobot)",
         )
     parser.add_argument("--resume", action="store_true", help="continue from the run's latest checkpoint")
-
-
-def _target_steps(value: str) -> int | tuple[int, ...]:
-    try:
-        return parse_target_steps(value)
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def _add_objective_options(parser: argparse.ArgumentParser, cls: type) -> None:
@@ -354,9 +508,10 @@ def _add_objective_options(parser: argparse.ArgumentParser, cls: type) -> None:
     parser.add_argument(
         "--consistency-weight",
         "--lambda",
-        type=float,
+        type=NON_NEGATIVE,
         default=_default(cls, "consistency_weight"),
         dest="consistency_weight",
+        help="lambda, the weight of the one-step (consistency) loss",
     )
     parser.add_argument(
         "--target",
@@ -373,51 +528,66 @@ def _add_objective_options(parser: argparse.ArgumentParser, cls: type) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="snapflow", description="One-step action generation for flow-matching policies."
+    parser = _Parser(
+        prog="snapflow",
+        description="One-step action generation for flow-matching policies.",
+        formatter_class=_HelpFormatter,
     )
+    parser.add_argument("--version", action="version", version=f"snapflow {version('snapflow')}")
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--no-progress", action="store_true", help="hide progress bars")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    toy = commands.add_parser(
+    toy = _command(
+        commands,
         "toy",
-        parents=[common],
-        help="distill a 2-D conditional mixture and compare 10-step, naive 1-step, SnapFlow 1-step",
+        "distill a 2-D conditional mixture and compare 10-step, naive 1-step, SnapFlow 1-step",
+        _toy,
+        _nothing_written,
+        common,
     )
-    toy.add_argument("--seed", type=int, default=ToyConfig.seed)
-    toy.add_argument("--teacher-steps", type=int, default=ToyConfig.teacher_steps, help="flow-matching training steps")
-    toy.add_argument("--distill-steps", type=int, default=ToyConfig.distill_steps, help="SnapFlow distillation steps")
+    toy.add_argument("--seed", type=NON_NEGATIVE_COUNT, default=ToyConfig.seed, help="seed of data, models and noise")
+    toy.add_argument(
+        "--teacher-steps", type=COUNT, default=ToyConfig.teacher_steps, help="flow-matching training steps"
+    )
+    toy.add_argument("--distill-steps", type=COUNT, default=ToyConfig.distill_steps, help="distillation steps")
     _add_objective_options(toy, ToyConfig)
-    toy.add_argument("--output-dir", default="outputs/toy", help="where the PNG and JSON go")
-    toy.set_defaults(run=_toy)
+    _add_output(toy, "outputs/toy", "where the PNG and JSON go")
 
-    compare = commands.add_parser(
-        "toy-compare", parents=[common], help="SnapFlow's one-step targets on the toy mixture, over seeds"
+    compare = _command(
+        commands,
+        "toy-compare",
+        "SnapFlow's one-step targets on the toy mixture, over seeds",
+        _toy_compare,
+        _runs_kept,
+        common,
     )
     compare.add_argument(
         "--targets",
         nargs="+",
-        default=["euler:2", "euler:4", "euler:8"],
+        type=_target_option,
+        default=[TargetOption.parse(text) for text in ("euler:2", "euler:4", "euler:8")],
         help="TARGET:STEPS options, the first the reference: euler:8, euler:2,4,8 (a schedule), bootstrap:8",
     )
-    compare.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    compare.add_argument("--seeds", nargs="+", type=NON_NEGATIVE_COUNT, default=[0, 1, 2], help="seeds of every run")
     compare.add_argument(
-        "--teacher-steps", type=int, default=ToyConfig.teacher_steps, help="flow-matching training steps"
+        "--teacher-steps", type=COUNT, default=ToyConfig.teacher_steps, help="flow-matching training steps"
     )
-    compare.add_argument("--distill-steps", type=int, default=ToyConfig.distill_steps, help="distillation steps")
+    compare.add_argument("--distill-steps", type=COUNT, default=ToyConfig.distill_steps, help="distillation steps")
     compare.add_argument(
-        "--consistency-weight", "--lambda", type=float, default=ToyConfig.consistency_weight, dest="consistency_weight"
+        "--consistency-weight",
+        "--lambda",
+        type=NON_NEGATIVE,
+        default=ToyConfig.consistency_weight,
+        dest="consistency_weight",
+        help="lambda, the weight of the one-step (consistency) loss",
     )
-    compare.add_argument("--workers", type=int, default=1, help="runs in parallel, each on cores / workers threads")
-    compare.add_argument(
-        "--output-dir",
-        default="outputs/toy-compare",
-        help="where runs, JSON, table and PNG go (finished runs are reused)",
-    )
-    compare.set_defaults(run=_toy_compare)
+    compare.add_argument("--workers", type=COUNT, default=1, help="runs in parallel, each on cores / workers threads")
+    _add_output(compare, "outputs/toy-compare", "where runs, JSON, table and PNG go (finished runs are reused)")
 
-    collect = commands.add_parser("collect", parents=[common], help="expert demonstrations (successful episodes only)")
+    collect = _command(
+        commands, "collect", "expert demonstrations (successful episodes only)", _collect, _collect_interrupted, common
+    )
     collect.add_argument(
         "--env",
         choices=list(BENCHMARKS),
@@ -425,45 +595,59 @@ def build_parser() -> argparse.ArgumentParser:
         help="benchmark; metaworld-via-points routes each episode through one of two via-points (multimodal)",
     )
     collect.add_argument("--tasks", default="all", help="'all' or comma-separated task names")
-    collect.add_argument("--episodes", type=int, default=EPISODES_PER_TASK, help="successful episodes per task")
+    collect.add_argument("--episodes", type=COUNT, default=EPISODES_PER_TASK, help="successful episodes per task")
     collect.add_argument(
         "--image-size",
-        type=int,
+        type=COUNT,
         help="also store camera images of this size (rendered off-screen with MUJOCO_GL=egl or osmesa)",
     )
-    collect.add_argument("--output", required=True)
-    collect.set_defaults(run=_collect)
+    _add_output(collect, None, "demonstrations directory (npz + meta.json)")
 
-    train = commands.add_parser(
-        "train", parents=[common], help="train a built-in flow-matching teacher on demonstrations"
+    train = _command(
+        commands,
+        "train",
+        "train a built-in flow-matching teacher on demonstrations",
+        _train,
+        _training_interrupted,
+        common,
     )
     _add_training_options(train, TEACHER_TRAINING)
     train.add_argument("--policy", choices=list(POLICIES), default=next(iter(POLICIES)), help="built-in policy")
-    train.add_argument("--chunk-length", type=int, help="actions per predicted chunk (default: the policy's)")
+    train.add_argument("--chunk-length", type=COUNT, help="actions per predicted chunk (default: the policy's)")
     train.add_argument("--use-image", action="store_true", help="minivla: read the demonstrations' camera images")
-    train.add_argument("--image-size", type=int, help="minivla with --use-image: the images' size")
+    train.add_argument("--image-size", type=COUNT, help="minivla with --use-image: the images' size")
     train.add_argument(
-        "--state-dim", type=int, help="read only the leading entries of the state (4: hand and gripper; default all)"
+        "--state-dim", type=COUNT, help="read only the leading entries of the state (4: hand and gripper; default all)"
     )
     train.add_argument(
-        "--val-fraction", type=float, default=VAL_FRACTION, help="share of each task's episodes held out"
+        "--val-fraction",
+        type=_validation_share,
+        default=VAL_FRACTION,
+        help="share of each task's episodes held out, in [0, 1)",
     )
-    train.set_defaults(run=_train)
 
-    distill = commands.add_parser("distill", parents=[common], help="SnapFlow-distill a teacher into a 1-NFE student")
-    _add_training_options(distill, STUDENT_TRAINING, data_required=False)
+    distill = _command(
+        commands,
+        "distill",
+        "SnapFlow-distill a teacher into a 1-NFE student",
+        _distill,
+        _training_interrupted,
+        common,
+    )
+    # no parser defaults: a built-in teacher trains with STUDENT_TRAINING, a LeRobot policy with the paper's settings
+    _add_training_options(distill, None, data_required=False)
     distill.add_argument("--teacher", help="teacher run or checkpoint directory (built-in policy)")
     distill.add_argument("--policy", help="LeRobot pi0, pi0.5 or SmolVLA: hub id or local pretrained directory")
     distill.add_argument("--dataset", help="LeRobotDataset: root directory on disk, or repo id")
     distill.add_argument("--repo-id", help="repo id of a dataset given as a directory (default: local/<folder name>)")
     distill.add_argument(
-        "--alpha", type=float, default=_default(DistillSettings, "alpha"), help="flow-matching share of each batch"
+        "--alpha", type=SHARE, default=_default(DistillSettings, "alpha"), help="flow-matching share of each batch"
     )
     distill.add_argument(
         "--clamp",
-        type=float,
+        type=POSITIVE,
         default=_default(DistillSettings, "teacher_velocity_clamp"),
-        help="bound on the no-grad teacher velocities",
+        help="bound on the no-grad teacher velocities (default: none)",
     )
     distill.add_argument(
         "--train-prefix", action="store_true", help="also train the prefix encoder (frozen by default)"
@@ -472,17 +656,19 @@ def build_parser() -> argparse.ArgumentParser:
         "--teacher-velocity",
         choices=TEACHER_VELOCITIES,
         default=_default(DistillSettings, "teacher_velocity"),
-        help="snapflow's consistency target from the model's marginal velocity (default) or eps - a (ablation)",
+        help="snapflow's consistency target from the model's marginal velocity, or eps - a (ablation)",
     )
     distill.add_argument("--no-target-time", action="store_true", help="ablation: no target-time embedding phi_s")
     _add_objective_options(distill, DistillSettings)
-    distill.set_defaults(run=_distill)
 
-    evaluate = commands.add_parser(
+    evaluate = _command(
+        commands,
         "eval",
-        parents=[common],
-        help="closed-loop success, offline metrics and latency on a benchmark, "
+        "closed-loop success, offline metrics and latency on a benchmark, "
         "or success of a distilled LeRobot policy in LeRobot's environments",
+        _eval,
+        _nothing_written,
+        common,
     )
     evaluate.add_argument(
         "--policy",
@@ -492,7 +678,10 @@ def build_parser() -> argparse.ArgumentParser:
         "one distilled LeRobot policy directory, e.g. run/lerobot_policy)",
     )
     evaluate.add_argument(
-        "--modes", default="teacher-10,naive,snapflow-1", help="comma-separated: teacher-N, naive, snapflow-N"
+        "--modes",
+        type=_modes,
+        default=_modes("teacher-10,naive,snapflow-1"),
+        help="comma-separated: teacher-N, naive, snapflow-N (snapflow-N needs a distilled policy)",
     )
     evaluate.add_argument(
         "--env",
@@ -500,16 +689,18 @@ def build_parser() -> argparse.ArgumentParser:
         help="benchmark (default: the one the first policy's demonstrations came from)",
     )
     evaluate.add_argument("--tasks", default="all", help="the benchmark's tasks: 'all' or comma-separated names")
-    evaluate.add_argument("--episodes", type=int, default=10, help="episodes per task")
+    evaluate.add_argument("--episodes", type=COUNT, default=10, help="episodes per task")
     evaluate.add_argument(
         "--n-act",
         "--n-action-steps",
-        type=int,
+        type=COUNT,
         dest="n_act",
-        help="actions executed per predicted chunk (default 4; with --lerobot-env the policy's own)",
+        help=f"actions executed per predicted chunk (default: {N_ACT}; with --lerobot-env the policy's own)",
     )
     evaluate.add_argument("--data", help="demonstrations for offline metrics on the held-out episodes")
-    evaluate.add_argument("--seed", type=int, help="evaluation seed (default 0; with --lerobot-env LeRobot's 1000)")
+    evaluate.add_argument(
+        "--seed", type=NON_NEGATIVE_COUNT, help="evaluation seed (default: 0; with --lerobot-env LeRobot's 1000)"
+    )
     evaluate.add_argument(
         "--compile", choices=COMPILE_MODES, help="torch.compile the policies' one-pass velocity (snapflow.inference)"
     )
@@ -517,17 +708,21 @@ def build_parser() -> argparse.ArgumentParser:
         "--lerobot-env", help="evaluate in LeRobot's environment of this type (pusht, aloha, libero, metaworld, ...)"
     )
     evaluate.add_argument("--env-task", help="with --lerobot-env: the task or suite (default: the environment's own)")
-    evaluate.add_argument("--n-envs", type=int, default=1, help="with --lerobot-env: environments stepped in parallel")
     evaluate.add_argument(
-        "--max-episode-steps", type=int, help="with --lerobot-env: cut episodes short of the environment's limit"
+        "--n-envs", type=COUNT, default=1, help="with --lerobot-env: environments stepped in parallel"
     )
-    evaluate.add_argument("--output-dir", default="outputs/eval")
-    evaluate.set_defaults(run=_eval)
+    evaluate.add_argument(
+        "--max-episode-steps", type=COUNT, help="with --lerobot-env: cut episodes short of the environment's limit"
+    )
+    _add_output(evaluate, "outputs/eval", "where report.json, report.md and the plots go")
 
-    from snapflow.benchmark.subjects import architectures
-
-    bench = commands.add_parser(
-        "bench", parents=[common], help="batch-1 latency at NFE 10, 5, 2, 1: prefix, denoising, end-to-end, speedups"
+    bench = _command(
+        commands,
+        "bench",
+        "batch-1 latency at NFE 10, 5, 2, 1: prefix, denoising, end-to-end, speedups",
+        _bench,
+        _nothing_written,
+        common,
     )
     subject = bench.add_mutually_exclusive_group(required=True)
     subject.add_argument(
@@ -540,70 +735,90 @@ def build_parser() -> argparse.ArgumentParser:
         "--vlm", help="smolvla: folder (or hub id) of its VLM's config and processor (no weights are loaded)"
     )
     bench.add_argument("--device", help="cpu, cuda, cuda:1, ... (default: cuda when available)")
-    bench.add_argument("--dtype", choices=["float32", "bfloat16", "float16"], default="float32")
+    bench.add_argument(
+        "--dtype", choices=["float32", "bfloat16", "float16"], default="float32", help="weights and activations"
+    )
     bench.add_argument(
         "--compile",
         choices=COMPILE_MODES,
         help="torch.compile the one-pass action expert (reduce-overhead: CUDA-graph capture on a GPU)",
     )
-    bench.add_argument("--threads", type=int, help="CPU threads (torch.set_num_threads)")
-    bench.add_argument("--warmup", type=int, default=10, help="untimed calls of each quantity first")
-    bench.add_argument("--repeats", type=int, default=50, help="timed calls of each quantity, round-robin")
+    bench.add_argument("--threads", type=COUNT, help="CPU threads (torch.set_num_threads; default: torch's choice)")
+    bench.add_argument("--warmup", type=NON_NEGATIVE_COUNT, default=10, help="untimed calls of each quantity first")
+    bench.add_argument("--repeats", type=COUNT, default=50, help="timed calls of each quantity, round-robin")
     bench.add_argument("--no-profile", action="store_true", help="skip the torch.profiler table of the 1-NFE path")
-    bench.add_argument("--output-dir", default="outputs/bench")
-    bench.set_defaults(run=_bench)
+    _add_output(bench, "outputs/bench", "where bench.json, bench.md and the plot go")
 
-    targets = commands.add_parser(
+    targets = _command(
+        commands,
         "bench-targets",
-        parents=[common],
-        help="seconds per distillation step of each SnapFlow target (built-in policy)",
+        "seconds per distillation step of each SnapFlow target (built-in policy)",
+        _bench_targets,
+        _nothing_written,
+        common,
     )
     targets.add_argument("--teacher", required=True, help="teacher run or checkpoint directory (built-in policy)")
     targets.add_argument("--data", required=True, help="its demonstrations")
     targets.add_argument(
         "--targets",
         nargs="+",
-        default=["euler:2", "euler:4", "euler:8", "bootstrap:8"],
+        type=_target_option,
+        default=[TargetOption.parse(text) for text in ("euler:2", "euler:4", "euler:8", "bootstrap:8")],
         help="TARGET:STEPS options, the first the reference: euler:8, euler:2,4,8 (a schedule), bootstrap:8",
     )
-    targets.add_argument("--batch-size", type=int, default=64)
-    targets.add_argument("--warmup", type=int, default=5)
-    targets.add_argument("--repeats", type=int, default=30)
-    targets.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
-    targets.add_argument("--output-dir", default="outputs/bench-targets")
-    targets.set_defaults(run=_bench_targets)
+    targets.add_argument("--batch-size", type=COUNT, default=64, help="training pairs per timed step")
+    targets.add_argument("--warmup", type=NON_NEGATIVE_COUNT, default=5, help="untimed steps of each target first")
+    targets.add_argument("--repeats", type=COUNT, default=30, help="timed steps of each target")
+    targets.add_argument("--threads", type=COUNT, help="torch CPU threads (default: torch's choice)")
+    _add_output(targets, "outputs/bench-targets", "where training_cost.json and .md go")
 
-    sweep = commands.add_parser(
-        "sweep", parents=[common], help="run sweep configs (seeds, ablations, baselines) and write their results"
+    sweep = _command(
+        commands,
+        "sweep",
+        "run sweep configs (seeds, ablations, baselines) and write their results",
+        _sweep,
+        _runs_kept,
+        common,
     )
     sweep.add_argument("configs", nargs="+", help="sweep TOML files, e.g. configs/sweeps/mt10-state.toml")
-    sweep.add_argument("--workers", type=int, default=1, help="jobs run side by side, each on cores / workers threads")
+    sweep.add_argument(
+        "--workers", type=COUNT, default=1, help="jobs run side by side, each on cores / workers threads"
+    )
     sweep.add_argument(
         "--document", help="also write the tables between their markers in this Markdown file (e.g. docs/RESULTS.md)"
     )
     sweep.add_argument("--report-only", action="store_true", help="only rebuild the results from finished runs")
-    sweep.set_defaults(run=_sweep)
 
-    demo = commands.add_parser(
-        "demo", parents=[common], help="MT10: collect -> train -> distill -> eval, one final table"
+    demo = _command(
+        commands, "demo", "MT10: collect -> train -> distill -> eval, one final table", _demo, _demo_interrupted, common
     )
     demo.add_argument("--full", action="store_true", help="stronger, longer preset")
     demo.add_argument("--resume", action="store_true", help="continue an interrupted demo in the same output directory")
-    demo.add_argument("--output-dir", default="outputs/demo")
-    demo.set_defaults(run=_demo)
+    _add_output(demo, "outputs/demo", "where the data, runs, report and plots go")
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    prefix = f"snapflow {args.command}:"
     try:
         return args.run(args)
     except (ValueError, TypeError, FileNotFoundError, FileExistsError) as error:
-        print(f"snapflow {args.command}: error: {error}", file=sys.stderr)
-        return 2
+        print(f"{prefix} error: {error}", file=sys.stderr)
+    except ModuleNotFoundError as error:
+        module = (error.name or "").partition(".")[0]
+        if module not in EXTRAS:
+            raise
+        print(
+            f'{prefix} error: this needs {module}, which is not installed: pip install "snapflow[{EXTRAS[module]}]"',
+            file=sys.stderr,
+        )
+    except OSError as error:  # after the named cases above: a disk full, a folder made read-only mid-run, ...
+        print(f"{prefix} error: {error.strerror or error}: {error.filename}", file=sys.stderr)
     except KeyboardInterrupt:
-        print(f"snapflow {args.command}: interrupted; the last checkpoint is intact (use --resume)", file=sys.stderr)
+        print(f"{prefix} {args.interrupted(args)}", file=sys.stderr)
         return 130
+    return 2
 
 
 if __name__ == "__main__":

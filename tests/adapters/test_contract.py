@@ -35,7 +35,7 @@ from torch import Tensor, nn
 from snapflow import NAIVE_1, SNAPFLOW_1, FlowPolicy, SamplingMode, SnapFlowObjective, SnapFlowPolicy, sample_actions
 from snapflow.policies.checkpoint import CheckpointError, load_policy, policy_metadata, write_policy
 from snapflow.policies.factory import POLICIES, default_config, make_model, make_processor
-from snapflow.policies.processor import NormalizationStats
+from snapflow.policies.normalization import NormalizationStats
 from snapflow.protocol import index_batch, map_tensors
 from tests.lerobot_tiny import randomise_target_time
 
@@ -437,7 +437,7 @@ class LeRobotAdapterContract(FlowPolicyContract):
                         "--repeats",
                         "2",
                         "--no-profile",
-                        "--output-dir",
+                        "--output",
                         str(output),
                     ]
                 )

@@ -154,6 +154,17 @@ def test_cli_distills_a_saved_smolvla_on_a_local_lerobot_dataset(vlm_directory, 
     assert not (tmp_path / "nan_run" / "checkpoints").exists()
 
 
+def test_distilling_into_an_output_another_process_holds_is_refused_before_anything_loads(tmp_path):
+    from snapflow.reporting.locks import RunLockedError
+    from snapflow.training.lerobot import distill_lerobot
+    from tests.locking import held_by_another_process
+
+    with held_by_another_process(tmp_path / "run", "snapflow distill") as holder:
+        with pytest.raises(RunLockedError, match=rf"\(pid {holder.pid}, snapflow distill\)"):
+            # neither the policy nor the dataset exists: the refusal comes first
+            distill_lerobot(str(tmp_path / "no-policy"), tmp_path / "no-dataset", "local/none", tmp_path / "run")
+
+
 @pytest.mark.slow
 @PI_SKIP
 @pytest.mark.parametrize("policy_type", ["pi0", "pi05"])
@@ -224,7 +235,7 @@ def test_cli_evaluates_a_distilled_smolvla_in_lerobots_own_metaworld(vlm_directo
         "snapflow-1,teacher-2",
         "--max-episode-steps",
         "12",
-        "--output-dir",
+        "--output",
         str(output),
         "--no-progress",
     ]

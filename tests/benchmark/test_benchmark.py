@@ -7,10 +7,12 @@ import json
 import pytest
 import torch
 
+from snapflow.benchmark.architectures import architectures
 from snapflow.benchmark.latency import LatencyReport, LatencyRow, Timing, measure_latency, time_round_robin
-from snapflow.benchmark.subjects import architectures, random_builtin_policy
+from snapflow.benchmark.subjects import random_builtin_policy
 from snapflow.cli import main
-from snapflow.flow.solver import SNAPFLOW_1, SamplingMode, sample_actions
+from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
+from snapflow.flow.solver import sample_actions
 from snapflow.inference import compile_policy
 from snapflow.nn import SnapFlowPolicy
 from snapflow.policies.mlp import MLPFlowModel, MLPPolicyConfig
@@ -112,7 +114,7 @@ def test_bench_cli_times_a_built_in_architecture_and_writes_every_result_file(ar
         "1",
         "--repeats",
         "3",
-        "--output-dir",
+        "--output",
         str(output),
     ]
     assert main(arguments + ([] if profile else ["--no-profile"])) == 0
@@ -156,10 +158,10 @@ def test_bench_cli_times_a_built_in_architecture_and_writes_every_result_file(ar
 
 def test_bench_cli_refuses_an_unknown_architecture_and_a_missing_subject(tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_:
-        main(["bench", "--architecture", "gpt", "--output-dir", str(tmp_path)])
+        main(["bench", "--architecture", "gpt", "--output", str(tmp_path)])
     assert exit_.value.code == 2 and "invalid choice: 'gpt'" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exit_:
-        main(["bench", "--output-dir", str(tmp_path)])
+        main(["bench", "--output", str(tmp_path)])
     assert (
         exit_.value.code == 2 and "one of the arguments --policy --architecture is required" in capsys.readouterr().err
     )
@@ -167,7 +169,7 @@ def test_bench_cli_refuses_an_unknown_architecture_and_a_missing_subject(tmp_pat
 
 
 def test_bench_cli_names_a_policy_folder_that_does_not_exist(tmp_path, capsys):
-    assert main(["bench", "--policy", str(tmp_path / "nowhere"), "--output-dir", str(tmp_path)]) == 2
+    assert main(["bench", "--policy", str(tmp_path / "nowhere"), "--output", str(tmp_path)]) == 2
     assert "snapflow bench: error: " in (error := capsys.readouterr().err) and str(tmp_path / "nowhere") in error
     assert not (tmp_path / "bench.json").exists()
 

@@ -80,3 +80,15 @@ def test_loading_a_missing_or_foreign_directory_is_explained(tmp_path):
     (tmp_path / "demonstrations.npz").write_bytes(b"not a zip")
     with pytest.raises(DemonstrationError, match="expected format"):
         Demonstrations.load(tmp_path)
+
+
+def test_collecting_into_a_folder_another_process_holds_is_refused_before_any_episode(tmp_path):
+    from snapflow.data.collect import collect
+    from snapflow.reporting.locks import RunLockedError
+    from tests.locking import held_by_another_process
+
+    output = tmp_path / "data"
+    with held_by_another_process(output, "snapflow collect") as holder:
+        with pytest.raises(RunLockedError, match=rf"\(pid {holder.pid}, snapflow collect\)"):
+            collect(MetaWorld(), ["reach-v3"], 1, output, progress=False)
+    assert [path.name for path in output.iterdir()] == [".snapflow.lock"], "nothing collected, nothing written"

@@ -25,7 +25,8 @@ from snapflow.evaluation.results import (
     SuccessCount,
     success_by_task,
 )
-from snapflow.flow.solver import NAIVE_1, SNAPFLOW_1, TEACHER_10, SamplingMode, sample_actions
+from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, TEACHER_10, SamplingMode
+from snapflow.flow.solver import sample_actions
 from snapflow.policies.checkpoint import load_policy
 from snapflow.policies.factory import default_config
 from snapflow.training.distill import DistillSettings

@@ -24,7 +24,10 @@ def test_unknown_task_is_a_clear_cli_error(capsys):
         == 2
     )
     assert "unknown metaworld task(s) ['teleport-v3']" in capsys.readouterr().err
+    # the task is checked before any policy loads
     assert main(["eval", "--policy", "nowhere", "--env", "metaworld", "--tasks", "teleport-v3", "--no-progress"]) == 2
+    assert "unknown metaworld task(s) ['teleport-v3']" in capsys.readouterr().err
+    assert main(["eval", "--policy", "nowhere", "--env", "metaworld", "--tasks", "reach-v3", "--no-progress"]) == 2
     assert "nowhere does not exist" in capsys.readouterr().err
 
 
@@ -53,7 +56,7 @@ def test_collect_train_distill_eval_on_one_task(tmp_path_factory, tmp_path, caps
             "4",
             "--data",
             str(demonstrations),
-            "--output-dir",
+            "--output",
             str(output),
             "--no-progress",
         ]
@@ -123,7 +126,7 @@ def test_camera_images_flow_through_collect_train_and_closed_loop(tmp_path_facto
             TASK,
             "--episodes",
             "1",
-            "--output-dir",
+            "--output",
             str(tmp_path / "eval"),
             "--no-progress",
         ]

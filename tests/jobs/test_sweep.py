@@ -18,7 +18,7 @@ from snapflow.jobs.sweep.planning import train_job
 from snapflow.jobs.sweep.results import TableResult, markdown_blocks, tables_markdown
 from snapflow.policies.minivla import MiniVLAConfig
 from snapflow.policies.mlp import MLPPolicyConfig
-from snapflow.training.recipes import STUDENT_TRAINING, TEACHER_TRAINING
+from snapflow.training.config import STUDENT_TRAINING, TEACHER_TRAINING
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY_POLICY = "{ prefix_width = 32, expert_width = 32, num_layers = 1, num_heads = 2, head_dim = 16 }"
@@ -404,3 +404,16 @@ def test_a_sweep_runs_caches_reruns_a_changed_student_and_writes_its_tables_into
     assert not (runs / "meanflow" / "seed-0" / "left-over.txt").exists(), "a stale run starts from an empty folder"
     assert (runs / "teacher" / "seed-0" / "left-over.txt").exists(), "the teacher did not run again"
     assert read_record(train_job(load_sweep(config_path), "meanflow", 0))["config"]["distill"]["alpha"] == 0.7
+
+
+def test_a_sweep_into_an_output_dir_another_process_holds_is_refused_before_any_job(tmp_path, capsys):
+    from tests.locking import held_by_another_process
+
+    runs = tmp_path / "runs"
+    with held_by_another_process(runs, "snapflow sweep") as holder:
+        assert main(["sweep", str(write_config(tmp_path)), "--no-progress"]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        f"snapflow sweep: error: {runs} is in use by another snapflow command (pid {holder.pid}, snapflow sweep); "
+        "wait for it to finish or give the sweep another output_dir"
+    ]
+    assert [path.name for path in runs.iterdir()] == [".snapflow.lock"], "no job started"

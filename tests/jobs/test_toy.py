@@ -11,7 +11,8 @@ import torch
 
 from snapflow.cli import main
 from snapflow.data.toy_mixture import ConditionalGaussianMixture
-from snapflow.jobs.toy import ToyConfig, run_toy_experiment
+from snapflow.jobs.toy import run_toy_experiment
+from snapflow.jobs.toy_config import ToyConfig
 from tests.evaluation.figures import CYCLE, assert_figure, tint_share
 
 
@@ -39,9 +40,7 @@ def test_snapflow_one_step_halves_the_naive_one_step_distance():
 
 @pytest.mark.slow
 def test_cli_prints_the_table_and_writes_png_and_json(tmp_path, capsys):
-    code = main(
-        ["toy", "--teacher-steps", "30", "--distill-steps", "30", "--no-progress", "--output-dir", str(tmp_path)]
-    )
+    code = main(["toy", "--teacher-steps", "30", "--distill-steps", "30", "--no-progress", "--output", str(tmp_path)])
     assert code == 0
     printed = capsys.readouterr().out
     results = json.loads((tmp_path / "toy_results.json").read_text())

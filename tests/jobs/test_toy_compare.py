@@ -12,8 +12,8 @@ import pytest
 
 from snapflow.cli import main
 from snapflow.jobs.runner import is_done
-from snapflow.jobs.toy import ToyConfig
 from snapflow.jobs.toy_compare import ToyJob, compare_targets
+from snapflow.jobs.toy_config import ToyConfig
 from snapflow.training.distill import TargetOption
 
 RESULTS = Path(__file__).resolve().parents[2] / "docs" / "results"
@@ -55,8 +55,9 @@ def test_a_finished_comparison_reruns_nothing_and_rewrites_its_table_byte_for_by
 
 
 def test_a_target_option_without_steps_is_refused(tmp_path, capsys):
-    assert main(["toy-compare", "--targets", "euler", "--output-dir", str(tmp_path), "--no-progress"]) == 2
-    assert "TARGET:STEPS" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as refusal:  # argparse's own refusal, before anything runs
+        main(["toy-compare", "--targets", "euler", "--output", str(tmp_path), "--no-progress"])
+    assert refusal.value.code == 2 and "TARGET:STEPS" in capsys.readouterr().err
 
 
 @pytest.mark.slow

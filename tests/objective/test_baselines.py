@@ -8,7 +8,8 @@ import pytest
 import torch
 
 from snapflow.flow import UniformTimeSampler
-from snapflow.jobs.toy import ToyConfig, run_toy_experiment
+from snapflow.jobs.toy import run_toy_experiment
+from snapflow.jobs.toy_config import ToyConfig
 from snapflow.objective import ConsistencyDistillationObjective, MeanFlowObjective, SnapFlowObjective
 from snapflow.training.distill import DistillSettings
 

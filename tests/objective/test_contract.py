@@ -19,7 +19,7 @@ from snapflow.flow import interpolate
 from snapflow.nn import SnapFlowPolicy
 from snapflow.objective import OBJECTIVES, LossOutput, TwoBranchObjective, make_objective
 from snapflow.policies.minivla import MiniVLA, MiniVLAConfig, MiniVLAProcessor
-from snapflow.policies.processor import NormalizationStats
+from snapflow.policies.normalization import NormalizationStats
 from tests.helpers import ACTION_DIM, CHUNK, OBSERVATION_DIM, RecordingPolicy, make_model, randomise_target_time
 
 MINIVLA = MiniVLAConfig(

@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from snapflow.flow import SamplingMode, UniformTimeSampler, euler_sample
-from snapflow.jobs.toy import ToyConfig, run_toy_experiment
+from snapflow.jobs.toy import run_toy_experiment
+from snapflow.jobs.toy_config import ToyConfig
 from snapflow.objective import BootstrappedSnapFlowObjective, SnapFlowObjective, euler_shortcut_target
 from snapflow.objective.snapflow import stage_at
 from snapflow.training.distill import DistillSettings

@@ -23,7 +23,8 @@ from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import make_model, make_processor
 from snapflow.policies.minivla import MiniVLAConfig
 from snapflow.policies.mlp import MLPPolicyConfig
-from snapflow.policies.processor import NormalizationStats, Processor
+from snapflow.policies.normalization import NormalizationStats
+from snapflow.policies.processor import Processor
 from tests.helpers import randomise_target_time
 
 INSTRUCTIONS = ["reach the goal", "push the puck"]

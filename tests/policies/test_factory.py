@@ -22,7 +22,7 @@ from snapflow.policies.factory import (
 )
 from snapflow.policies.minivla import MiniVLA, MiniVLAConfig, MiniVLAProcessor
 from snapflow.policies.mlp import MLPFlowModel, MLPPolicyConfig, MLPProcessor
-from snapflow.policies.processor import NormalizationStats
+from snapflow.policies.normalization import NormalizationStats
 from snapflow.protocol import TimeEmbeddingModel
 
 MT10 = list(MT10_INSTRUCTIONS.values())

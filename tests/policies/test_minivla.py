@@ -12,7 +12,7 @@ from snapflow.flow import UniformTimeSampler
 from snapflow.nn import SnapFlowPolicy
 from snapflow.objective import SnapFlowObjective
 from snapflow.policies.minivla import MiniVLA, MiniVLAConfig, MiniVLAProcessor
-from snapflow.policies.processor import NormalizationStats
+from snapflow.policies.normalization import NormalizationStats
 
 CONFIG = MiniVLAConfig(
     state_dim=6,

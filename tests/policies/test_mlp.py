@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from snapflow.policies.mlp import MLPFlowModel, MLPPolicyConfig, MLPProcessor
-from snapflow.policies.processor import NormalizationStats
+from snapflow.policies.normalization import NormalizationStats
 from snapflow.protocol import TimeEmbeddingModel
 
 INSTRUCTIONS = ["reach the goal", "push the puck", "open the door"]

@@ -12,7 +12,7 @@ import numpy as np
 
 from snapflow.data.demonstrations import Demonstrations, Episode
 from snapflow.policies.minivla import MiniVLAConfig
-from snapflow.training.trainer import TrainConfig
+from snapflow.training.config import TrainConfig
 
 TINY = MiniVLAConfig(chunk_length=4, prefix_width=32, expert_width=32, num_layers=1, num_heads=2, head_dim=16)
 TASK = "drawer-close-v3"

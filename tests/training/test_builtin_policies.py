@@ -123,7 +123,7 @@ def test_a_built_in_policy_trains_saves_loads_and_evaluates_through_the_same_com
                 "4",
                 "--data",
                 str(data),
-                "--output-dir",
+                "--output",
                 str(output),
                 "--no-progress",
             ]
@@ -169,7 +169,7 @@ def test_a_built_in_policy_trains_saves_loads_and_evaluates_through_the_same_com
                 "--repeats",
                 "2",
                 "--no-profile",
-                "--output-dir",
+                "--output",
                 str(bench),
             ]
         )

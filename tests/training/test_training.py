@@ -115,6 +115,82 @@ def test_a_kill_in_the_middle_of_a_checkpoint_write_loses_nothing_and_resume_mat
     assert not list((run / "checkpoints").glob(".*.partial-*")), "the killed writer's leftovers are cleared"
 
 
+def _files(directory) -> dict[str, tuple[int, int]]:
+    """Every file under ``directory`` with its size and modification time."""
+    return {
+        path.relative_to(directory).as_posix(): (path.stat().st_size, path.stat().st_mtime_ns)
+        for path in sorted(directory.rglob("*"))
+        if path.is_file()
+    }
+
+
+@pytest.mark.slow
+def test_a_command_into_a_run_another_holds_is_refused_and_the_run_resumes_once_its_holder_is_killed(
+    demonstrations, tmp_path
+):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    run = tmp_path / "run"
+    # 700 steps: the CLI checkpoints every 500, so the holder can be caught with a checkpoint behind it and steps to go
+    train = [sys.executable, "-m", "snapflow.cli", "train", "--policy", "mlp", "--data", str(demonstrations)]
+    train += ["--output", str(run), "--steps", "700", "--batch-size", "8", "--chunk-length", "4", "--no-progress"]
+    distill_into_it = [sys.executable, "-m", "snapflow.cli", "distill", "--teacher", str(run)]
+    distill_into_it += ["--data", str(demonstrations), "--output", str(run), "--no-progress"]
+    environment = {**os.environ, "OMP_NUM_THREADS": "1"}  # tiny steps: more threads only fight over shared cores
+    log = tmp_path / "holder.log"
+    with log.open("w") as output:
+        holder = subprocess.Popen(train, cwd=root, env=environment, stdout=output, stderr=subprocess.STDOUT)
+
+    def stop_holder_once(ready) -> None:
+        deadline = time.monotonic() + 300
+        while not ready():
+            assert holder.poll() is None and time.monotonic() < deadline, log.read_text()
+            time.sleep(0.01)
+        os.kill(holder.pid, signal.SIGSTOP)  # frozen mid-run, holding the run
+
+    def holds_the_lock() -> bool:  # the holder writes its pid only once it has the lock
+        try:
+            return json.loads((run / ".snapflow.lock").read_text())["pid"] == holder.pid
+        except (OSError, ValueError):
+            return False
+
+    def refused(command: list[str]) -> None:
+        before = _files(run)
+        process = subprocess.run(command, cwd=root, env=environment, capture_output=True, text=True, timeout=300)
+        assert process.returncode == 2, process.stderr
+        assert process.stderr.splitlines() == [
+            f"snapflow {command[3]}: error: {run} is in use by another snapflow command (pid {holder.pid}, snapflow "
+            "train); wait for it to finish or choose another --output"
+        ]
+        assert _files(run) == before, "a refused command wrote nothing"
+
+    try:
+        stop_holder_once(holds_the_lock)
+        assert not (run / "latest.json").exists(), "caught before its first checkpoint: the race of issue 16"
+        refused(train)
+        os.kill(holder.pid, signal.SIGCONT)
+        stop_holder_once((run / "latest.json").is_file)
+        assert json.loads((run / "latest.json").read_text()) == {"checkpoint": "checkpoints/step_0000500"}
+        refused(distill_into_it)
+    finally:
+        holder.kill()  # SIGKILL, stopped or not
+        holder.wait()
+    assert holder.returncode == -signal.SIGKILL
+    resumed = subprocess.run(
+        train + ["--resume"], cwd=root, env=environment, capture_output=True, text=True, timeout=300
+    )
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"resuming {run} at step 500" in resumed.stdout and "teacher trained to step 700" in resumed.stdout
+    assert json.loads((run / "latest.json").read_text()) == {"checkpoint": "checkpoints/step_0000700"}
+    assert json.loads((run / "history.json").read_text())["step"] == 700
+
+
 def test_resume_refuses_changed_settings_and_fresh_runs_refuse_to_overwrite(demonstrations, tmp_path):
     train_teacher(demonstrations, tmp_path / "run", TINY, train_config(3), progress=False)
     with pytest.raises(CheckpointError, match=r"training settings differ from the checkpoint's in \['learning_rate'\]"):

@@ -16,7 +16,8 @@ from typing import Any
 
 import torch
 
-from snapflow.flow.solver import SamplingMode, euler_sample, sample_actions
+from snapflow.flow.modes import SamplingMode
+from snapflow.flow.solver import euler_sample, sample_actions
 from snapflow.protocol import FlowPolicy
 
 

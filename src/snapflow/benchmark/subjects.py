@@ -7,7 +7,6 @@ depend on the values, so a user can time pi0.5 or SmolVLA before downloading or 
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -16,13 +15,15 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from snapflow.adapters.hub import check_source, local_folder
+from snapflow.benchmark.architectures import architectures
+from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, SamplingMode
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
 from snapflow.policies.checkpoint import LATEST, POLICY_CONFIG, LoadedPolicy, load_policy, policy_metadata
 from snapflow.policies.factory import POLICIES, default_config, make_model, make_processor, policy_type
-from snapflow.policies.processor import NormalizationStats
+from snapflow.policies.normalization import NormalizationStats
 from snapflow.protocol import map_tensors
 
-LEROBOT_ARCHITECTURES = ("pi0", "pi05", "smolvla")
 # the paper's LIBERO setting for the LeRobot architectures: two 224-pixel cameras, an 8-D state, 7-D actions
 LIBERO_CAMERAS = ("observation.images.image", "observation.images.image2")
 LIBERO_STATE_DIM, LIBERO_ACTION_DIM = 8, 7
@@ -30,11 +31,15 @@ LIBERO_STATE_DIM, LIBERO_ACTION_DIM = 8, 7
 
 @dataclass
 class BenchSubject:
+    """A policy with its batch-1 inputs; ``one_step`` is its 1-NFE mode: SnapFlow's jump, or the naive step for a
+    teacher checkpoint (no target-time embedding)."""
+
     name: str
     policy: nn.Module
     observation: Any
     noise: Tensor
     details: dict[str, Any] = field(default_factory=dict)
+    one_step: SamplingMode = SNAPFLOW_1
 
 
 def _parameter_count(module: nn.Module) -> int:
@@ -69,6 +74,8 @@ def builtin_subject(
             "policy_type": loaded.metadata["policy"],
             "config": processor.config.to_dict(),
         },
+        # without phi_s (a teacher checkpoint) the one step is the naive one, timed and named as such
+        SNAPFLOW_1 if loaded.policy.target_time_embedding is not None else NAIVE_1,
     )
 
 
@@ -153,6 +160,7 @@ def lerobot_architecture(policy_type: str, device: torch.device, vlm: str | None
     SmolVLA reads its VLM's config and processor from ``vlm`` (default: LeRobot's, a hub id); with
     ``load_vlm_weights=False`` no weights are downloaded.
     """
+    from huggingface_hub.constants import CONFIG_NAME
     from lerobot.configs.types import FeatureType, PolicyFeature
     from lerobot.policies.factory import get_policy_class, make_policy_config
 
@@ -170,12 +178,9 @@ def lerobot_architecture(policy_type: str, device: torch.device, vlm: str | None
         {"load_vlm_weights": False, **({"vlm_model_name": vlm} if vlm else {})} if policy_type == "smolvla" else {}
     )
     config = make_policy_config(policy_type, device=str(device), push_to_hub=False, **features, **extra)
+    if policy_type == "smolvla":  # named in one line before the build reads the VLM's config and processor
+        check_source(config.vlm_model_name, CONFIG_NAME, "a VLM for SmolVLA")
     return get_policy_class(policy_type)(config)
-
-
-def architectures() -> tuple[str, ...]:
-    """What ``--architecture`` accepts: every built-in policy, then LeRobot's."""
-    return (*POLICIES, *LEROBOT_ARCHITECTURES)
 
 
 def make_subject(
@@ -198,27 +203,22 @@ def make_subject(
             device,
             dtype,
         )
-    local = Path(policy)
-    if (local / POLICY_CONFIG).is_file() or (local / LATEST).is_file():  # what resolve_checkpoint accepts
-        loaded = load_policy(policy)
+    folder = local_folder(policy)  # None: a hub id; a mistyped folder is named here, never looked up on the hub
+    if folder is not None and ((folder / POLICY_CONFIG).is_file() or (folder / LATEST).is_file()):
+        loaded = load_policy(folder)  # what resolve_checkpoint accepts
         return builtin_subject(loaded, f"{loaded.metadata['policy']} ({policy})", device, dtype)
-    if not local.exists() and not re.fullmatch(r"[\w.-]+/[\w.-]+", policy):
-        raise ValueError(
-            f"{policy} does not exist (a checkpoint or run folder, a distilled LeRobot folder, or a hub id org/name)"
-        )
     try:
         from snapflow.adapters.lerobot import load_distilled, load_pretrained_policy
         from snapflow.adapters.lerobot.checkpoint import SNAPFLOW_MARKER
     except ImportError as error:  # LeRobot is an optional extra
         raise ValueError(f"{policy} is not a built-in checkpoint, and {error}") from None
 
-    loaded = load_distilled(local) if (local / SNAPFLOW_MARKER).is_file() else load_pretrained_policy(policy)
+    distilled = folder is not None and (folder / SNAPFLOW_MARKER).is_file()
+    loaded = load_distilled(folder) if distilled else load_pretrained_policy(policy)
     return lerobot_subject(loaded, policy, device, dtype)
 
 
 __all__ = [
-    "LEROBOT_ARCHITECTURES",
-    "architectures",
     "BenchSubject",
     "builtin_subject",
     "random_builtin_policy",

@@ -20,12 +20,13 @@ from snapflow.data.chunks import split_chunk_data
 from snapflow.data.demonstrations import Demonstrations
 from snapflow.flow.time_sampling import TimeSampler
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
-from snapflow.objective.snapflow import target_stages
+from snapflow.objective.options import target_stages
 from snapflow.policies.checkpoint import load_policy
 from snapflow.reporting.machine import machine
 from snapflow.reporting.tables import markdown_table
+from snapflow.training.config import STUDENT_TRAINING
 from snapflow.training.distill import TargetOption
-from snapflow.training.recipes import STUDENT_TRAINING, TIME_SAMPLER
+from snapflow.training.recipes import TIME_SAMPLER
 from snapflow.training.trainer import ObjectiveModule, train_step
 
 

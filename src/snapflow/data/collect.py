@@ -8,10 +8,23 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from snapflow.data.demonstrations import Demonstrations, Episode
+from snapflow.data.demonstrations import META_FILE, Demonstrations, Episode
 from snapflow.envs.base import Benchmark
+from snapflow.reporting.locks import hold_run_lock
 
 EPISODES_PER_TASK = 30  # successful expert episodes per task (Meta-World has 50 training variations a task)
+
+
+def check_collection(benchmark: Benchmark, tasks: list[str], episodes_per_task: int) -> int:
+    """Refuse unknown tasks and more episodes than the benchmark has training variations (loading the simulator, so
+    a missing one is found here); returns that number of variations."""
+    benchmark.check_tasks(tasks)
+    available = benchmark.num_variations("train")
+    if not 1 <= episodes_per_task <= available:
+        raise ValueError(
+            f"episodes_per_task must be in [1, {available}] ({benchmark.name}'s training variations), got {episodes_per_task}"
+        )
+    return available
 
 
 def collect_demonstrations(
@@ -22,12 +35,7 @@ def collect_demonstrations(
     progress: bool = True,
 ) -> Demonstrations:
     """Run each task's expert on successive training variations until ``episodes_per_task`` succeed."""
-    benchmark.check_tasks(tasks)
-    available = benchmark.num_variations("train")
-    if not 1 <= episodes_per_task <= available:
-        raise ValueError(
-            f"episodes_per_task must be in [1, {available}] ({benchmark.name}'s training variations), got {episodes_per_task}"
-        )
+    available = check_collection(benchmark, tasks, episodes_per_task)
     states, actions, images, episodes = [], [], [], []
     bar = tqdm(total=len(tasks) * episodes_per_task, desc="collecting expert demonstrations", disable=not progress)
     with warnings.catch_warnings():
@@ -82,10 +90,16 @@ def collect(
     image_size: int | None = None,
     progress: bool = True,
 ) -> Demonstrations:
-    """:func:`collect_demonstrations`, saved to ``output``."""
-    demonstrations = collect_demonstrations(benchmark, tasks, episodes_per_task, image_size, progress)
-    demonstrations.save(output)
+    """:func:`collect_demonstrations`, saved to ``output`` (never over earlier demonstrations), which is held from the first
+    episode to the last file: another process collecting into it is refused with
+    :class:`~snapflow.reporting.locks.RunLockedError`."""
+    check_collection(benchmark, tasks, episodes_per_task)  # before the output folder is created
+    with hold_run_lock(output, "snapflow collect"):
+        if (Path(output) / META_FILE).is_file():
+            raise FileExistsError(f"{output} already holds demonstrations; choose another --output")
+        demonstrations = collect_demonstrations(benchmark, tasks, episodes_per_task, image_size, progress)
+        demonstrations.save(output)
     return demonstrations
 
 
-__all__ = ["EPISODES_PER_TASK", "collect_demonstrations", "collect"]
+__all__ = ["EPISODES_PER_TASK", "check_collection", "collect_demonstrations", "collect"]

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from snapflow.envs.factory import DEFAULT_BENCHMARK
-from snapflow.policies.processor import NormalizationStats
+from snapflow.policies.normalization import NormalizationStats
 from snapflow.reporting.files import atomic_write, write_json
 
 FORMAT = "snapflow-demonstrations"
@@ -101,6 +101,8 @@ class Demonstrations:
 
     def split(self, val_fraction: float) -> tuple[list[int], list[int]]:
         """Hold out the last ``val_fraction`` of each task's episodes (at least one when a task has two)."""
+        if not 0 <= val_fraction < 1:
+            raise ValueError(f"the validation fraction must be in [0, 1), got {val_fraction}")
         train, val = [], []
         for task in self.tasks:
             ids = [i for i, episode in enumerate(self.episodes) if episode.task == task]

@@ -11,7 +11,8 @@ from tqdm.auto import tqdm
 
 from snapflow.envs.base import Benchmark
 from snapflow.evaluation.results import EpisodeResult
-from snapflow.flow.solver import SamplingMode, sample_actions
+from snapflow.flow.modes import SamplingMode
+from snapflow.flow.solver import sample_actions
 from snapflow.policies.processor import Processor
 from snapflow.protocol import FlowPolicy
 

@@ -11,7 +11,7 @@ from typing import Any
 import torch
 
 from snapflow.adapters.lerobot.checkpoint import load_distilled
-from snapflow.flow.solver import SamplingMode
+from snapflow.flow.modes import SamplingMode
 from snapflow.inference.compile import CompileMode, compile_policy
 from snapflow.reporting.files import write_json, write_text
 from snapflow.reporting.tables import markdown_table

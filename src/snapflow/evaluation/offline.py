@@ -6,7 +6,8 @@ import torch
 
 from snapflow.data.chunks import ChunkData
 from snapflow.evaluation.results import OfflineMetrics
-from snapflow.flow.solver import SamplingMode, sample_actions
+from snapflow.flow.modes import SamplingMode
+from snapflow.flow.solver import sample_actions
 from snapflow.protocol import FlowPolicy
 
 

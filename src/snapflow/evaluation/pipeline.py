@@ -12,14 +12,13 @@ from snapflow.data.chunks import ChunkData
 from snapflow.data.demonstrations import Demonstrations
 from snapflow.envs.base import Benchmark
 from snapflow.evaluation.closed_loop import ClosedLoopEvaluator
+from snapflow.evaluation.config import N_ACT, OFFLINE_SAMPLES
 from snapflow.evaluation.offline import offline_metrics
 from snapflow.evaluation.results import EvaluationReport, EvaluationRow, success_by_task
-from snapflow.flow.solver import SamplingMode
+from snapflow.flow.modes import SamplingMode
 from snapflow.policies.checkpoint import LoadedPolicy
 
 Run = tuple[str, LoadedPolicy, SamplingMode]  # (label, policy, sampling mode)
-N_ACT = 4  # actions executed per predicted chunk before re-planning
-OFFLINE_SAMPLES = 500  # held-out chunks scored offline, as the paper's Table 2
 
 
 def evaluate(
@@ -35,7 +34,10 @@ def evaluate(
     timing: bool = True,
 ) -> EvaluationReport:
     """Closed-loop success, offline metrics (when ``data`` is given) and, with ``timing``, batch-1 latency for each
-    (label, policy, mode); latency speedups are relative to the first entry."""
+    (label, policy, mode); latency speedups are relative to the first entry. A jump mode (``snapflow-N``) on a
+    policy never distilled is refused before anything runs."""
+    for _, loaded, mode in runs:
+        loaded.check_mode(mode)
     evaluator = ClosedLoopEvaluator(benchmark, tasks, episodes_per_task, runs[0][1].processor.image_size)
     demonstrations = Demonstrations.load(data) if data is not None else None
     held_out: dict[Path, ChunkData | None] = {}  # per checkpoint: its modes share one set of held-out chunks
@@ -74,4 +76,4 @@ def checkpoint_latency(runs: list[Run], warmup: int = 10, repeats: int = 50) -> 
     return add_speedups(rows)
 
 
-__all__ = ["N_ACT", "OFFLINE_SAMPLES", "Run", "evaluate", "checkpoint_latency"]
+__all__ = ["Run", "evaluate", "checkpoint_latency"]

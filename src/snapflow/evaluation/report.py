@@ -6,6 +6,7 @@ from pathlib import Path
 
 from snapflow.envs.factory import make_benchmark
 from snapflow.evaluation.results import EvaluationReport
+from snapflow.flow.modes import SamplingMode
 from snapflow.reporting.figures import pyplot, save_figure
 from snapflow.reporting.files import write_json, write_text
 from snapflow.reporting.machine import machine_description
@@ -25,6 +26,10 @@ def markdown_report(report: EvaluationReport) -> str:
         f"# SnapFlow on {make_benchmark(report.env).title}",
         f"{len(report.tasks)} task(s), {report.episodes_per_task} episodes per task on evaluation variations no demonstration saw, "
         f"{report.n_act} actions executed per predicted chunk.",
+        "\n".join(
+            f"- **{label}**: {SamplingMode.parse(row.mode).description} (`{row.policy}`)."
+            for label, row in report.rows.items()
+        ),
         "## Closed-loop success",
         markdown_table(["task", *labels], success_rows),
     ]

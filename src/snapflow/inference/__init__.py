@@ -1,5 +1,10 @@
 """Inference-time speed: the deployment fast paths, applied to any FlowPolicy (built-in or LeRobot adapter)."""
 
-from snapflow.inference.compile import COMPILE_MODES, compile_policy
+from snapflow._lazy import lazy_exports
 
-__all__ = ["COMPILE_MODES", "compile_policy"]
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "snapflow.inference.compile": ["COMPILE_MODES", "compile_policy"],
+    },
+)

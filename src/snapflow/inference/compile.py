@@ -8,10 +8,10 @@ chunk and stays eager.
 
 from __future__ import annotations
 
-from typing import Literal, get_args
+from typing import TYPE_CHECKING, Literal, get_args
 
-import torch
-from torch import nn
+if TYPE_CHECKING:
+    from torch import nn
 
 CompileMode = Literal["default", "reduce-overhead", "max-autotune"]
 COMPILE_MODES: tuple[str, ...] = get_args(CompileMode)
@@ -21,6 +21,8 @@ def compile_policy(policy: nn.Module, mode: CompileMode = "default") -> nn.Modul
     """Compile ``policy.velocity`` in place (``reduce-overhead`` captures it in a CUDA graph on a GPU); returns ``policy``."""
     if mode not in COMPILE_MODES:
         raise ValueError(f"unknown compile mode {mode!r}; choose one of {', '.join(COMPILE_MODES)}")
+    import torch  # here, not at import: the CLI lists the modes before torch loads
+
     policy.velocity = torch.compile(policy.velocity, mode=mode, dynamic=False)
     return policy
 

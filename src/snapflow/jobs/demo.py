@@ -10,16 +10,18 @@ from snapflow.data.collect import EPISODES_PER_TASK, collect
 from snapflow.data.demonstrations import META_FILE
 from snapflow.envs.factory import DEFAULT_BENCHMARK, make_benchmark
 from snapflow.envs.metaworld import MT10_TASKS
-from snapflow.evaluation.pipeline import N_ACT, evaluate
+from snapflow.evaluation.config import N_ACT
+from snapflow.evaluation.pipeline import evaluate
 from snapflow.evaluation.report import write_report
 from snapflow.evaluation.results import EvaluationReport
-from snapflow.flow.solver import NAIVE_1, SNAPFLOW_1, TEACHER_10
+from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, TEACHER_10
 from snapflow.policies.checkpoint import load_policy
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import policy_type
+from snapflow.reporting.locks import hold_run_lock
+from snapflow.training.config import STUDENT_TRAINING, TEACHER_TRAINING, VAL_FRACTION, TrainConfig
 from snapflow.training.distill import DistillSettings
-from snapflow.training.recipes import STUDENT_TRAINING, TEACHER_TRAINING, VAL_FRACTION, distill, train_teacher
-from snapflow.training.trainer import TrainConfig
+from snapflow.training.recipes import distill, train_teacher
 
 EVAL_EPISODES = 20  # evaluation episodes per task
 
@@ -54,40 +56,45 @@ PRESETS: dict[str, DemoPreset] = {
 def run_demo(preset: DemoPreset, output: str | Path, progress: bool = True, resume: bool = False) -> EvaluationReport:
     """collect -> train -> distill -> evaluate; writes ``report.json``, ``report.md`` and PNG plots."""
     output = Path(output)
-    benchmark = make_benchmark(preset.env)
-    timings: dict[str, float] = {}
-    started = time.perf_counter()
-    data, teacher_dir, student_dir = output / "data", output / "teacher", output / "snapflow"
-    if not (resume and (data / META_FILE).is_file()):
-        collect(benchmark, list(preset.tasks), preset.episodes_per_task, data, progress=progress)
-    timings["collect_s"] = time.perf_counter() - started
-    train_teacher(
-        data, teacher_dir, preset.policy, preset.teacher, preset.val_fraction, resume=resume, progress=progress
-    )
-    timings["teacher_s"] = time.perf_counter() - started - sum(timings.values())
-    distill(
-        teacher_dir,
-        data,
-        student_dir,
-        preset.student,
-        preset.distill,
-        preset.val_fraction,
-        resume=resume,
-        progress=progress,
-    )
-    timings["distill_s"] = time.perf_counter() - started - sum(timings.values())
-    teacher, student = load_policy(teacher_dir), load_policy(student_dir)
-    runs = [
-        ("teacher 10-NFE", teacher, TEACHER_10),
-        ("naive 1-NFE", teacher, NAIVE_1),
-        ("SnapFlow 1-NFE", student, SNAPFLOW_1),
-    ]
-    report = evaluate(runs, benchmark, list(preset.tasks), preset.eval_episodes, preset.n_act, data, progress=progress)
-    timings["evaluate_s"] = time.perf_counter() - started - sum(timings.values())
-    timings["total_s"] = time.perf_counter() - started
-    report.timings = timings
-    report.preset = {**asdict(replace(preset, policy=None)), "policy": preset.policy.to_dict()}
-    write_report(report, output)
+    if not resume and output.is_dir() and any(output.iterdir()):  # refused at once, not after re-collecting
+        raise FileExistsError(f"{output} holds a demo run; continue it with --resume, or choose another --output")
+    with hold_run_lock(output, "snapflow demo"):  # its stages lock their own folders; this, the whole demo
+        benchmark = make_benchmark(preset.env)
+        timings: dict[str, float] = {}
+        started = time.perf_counter()
+        data, teacher_dir, student_dir = output / "data", output / "teacher", output / "snapflow"
+        if not (resume and (data / META_FILE).is_file()):
+            collect(benchmark, list(preset.tasks), preset.episodes_per_task, data, progress=progress)
+        timings["collect_s"] = time.perf_counter() - started
+        train_teacher(
+            data, teacher_dir, preset.policy, preset.teacher, preset.val_fraction, resume=resume, progress=progress
+        )
+        timings["teacher_s"] = time.perf_counter() - started - sum(timings.values())
+        distill(
+            teacher_dir,
+            data,
+            student_dir,
+            preset.student,
+            preset.distill,
+            preset.val_fraction,
+            resume=resume,
+            progress=progress,
+        )
+        timings["distill_s"] = time.perf_counter() - started - sum(timings.values())
+        teacher, student = load_policy(teacher_dir), load_policy(student_dir)
+        runs = [
+            ("teacher 10-NFE", teacher, TEACHER_10),
+            ("naive 1-NFE", teacher, NAIVE_1),
+            ("SnapFlow 1-NFE", student, SNAPFLOW_1),
+        ]
+        report = evaluate(
+            runs, benchmark, list(preset.tasks), preset.eval_episodes, preset.n_act, data, progress=progress
+        )
+        timings["evaluate_s"] = time.perf_counter() - started - sum(timings.values())
+        timings["total_s"] = time.perf_counter() - started
+        report.timings = timings
+        report.preset = {**asdict(replace(preset, policy=None)), "policy": preset.policy.to_dict()}
+        write_report(report, output)
     return report
 
 

@@ -17,37 +17,18 @@ from tqdm.auto import tqdm
 
 from snapflow.data.toy_mixture import ConditionalGaussianMixture
 from snapflow.evaluation.distances import energy_distance
-from snapflow.flow.solver import NAIVE_1, SNAPFLOW_1, TEACHER_10, SamplingMode, sample_actions
+from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, TEACHER_10, SamplingMode
+from snapflow.flow.solver import sample_actions
 from snapflow.flow.time_sampling import UniformTimeSampler
+from snapflow.jobs.toy_config import ToyConfig
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
 from snapflow.objective.base import TwoBranchObjective
 from snapflow.objective.snapflow import SnapFlowObjective
 from snapflow.policies.mlp import MLPFlowModel, MLPPolicyConfig
 from snapflow.reporting.figures import pyplot, save_figure
-from snapflow.training.distill import DistillSettings, Method, Target
-from snapflow.training.trainer import ObjectiveModule, TrainConfig, train_step
-
-
-@dataclass(frozen=True)
-class ToyConfig:
-    """Sizes and schedules of the toy experiment; the defaults run in well under a minute on 2 cores."""
-
-    seed: int = 0
-    num_modes: int = 6
-    mode_radius: float = 2.0
-    teacher_steps: int = 1500
-    distill_steps: int = 3000
-    batch_size: int = 256
-    teacher_lr: float = 2e-3
-    distill_lr: float = 1e-3
-    alpha: float = 0.5
-    consistency_weight: float = 0.1
-    method: Method = "snapflow"  # or a one-step baseline
-    target: Target = "euler"  # SnapFlow's target and its steps (a list: a schedule), see DistillSettings
-    target_steps: int | tuple[int, ...] = 2
-    hidden_dim: int = 256
-    eval_contexts: int = 12
-    samples_per_context: int = 400
+from snapflow.training.config import TrainConfig
+from snapflow.training.distill import DistillSettings
+from snapflow.training.trainer import ObjectiveModule, train_step
 
 
 @dataclass
@@ -114,9 +95,10 @@ def _schedule(steps: int, learning_rate: float, batch_size: int) -> TrainConfig:
     )
 
 
-def run_toy_experiment(config: ToyConfig = ToyConfig(), progress: bool = True) -> ToyResult:
+def run_toy_experiment(config: ToyConfig | None = None, progress: bool = True) -> ToyResult:
     """Train a teacher with flow matching, distill it (SnapFlow or ``config.method``), score every sampling mode;
     the one-step jump of the distilled student is reported as ``snapflow-1`` whatever the method."""
+    config = config or ToyConfig()
     torch.manual_seed(config.seed)
     generator = torch.Generator().manual_seed(config.seed)
     mixture = ConditionalGaussianMixture(num_modes=config.num_modes, radius=config.mode_radius)

@@ -16,7 +16,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from snapflow.jobs.runner import Job, read_record, run_jobs
-from snapflow.jobs.toy import ToyConfig, run_toy_experiment
+from snapflow.jobs.toy import run_toy_experiment
+from snapflow.jobs.toy_config import ToyConfig
 from snapflow.reporting.figures import pyplot, save_figure
 from snapflow.reporting.files import write_json, write_text
 from snapflow.reporting.statistics import mean_std

@@ -1,6 +1,11 @@
 """Neural building blocks SnapFlow adds to a policy."""
 
-from snapflow.nn.snapflow_policy import SnapFlowPolicy
-from snapflow.nn.time_embedding import TargetTimeEmbedding, sinusoidal_features
+from snapflow._lazy import lazy_exports
 
-__all__ = ["SnapFlowPolicy", "TargetTimeEmbedding", "sinusoidal_features"]
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "snapflow.nn.snapflow_policy": ["SnapFlowPolicy"],
+        "snapflow.nn.time_embedding": ["TargetTimeEmbedding", "sinusoidal_features"],
+    },
+)

@@ -1,21 +1,15 @@
 """Distillation objectives: SnapFlow, and the one-step baselines it is compared with, on one base."""
 
-from snapflow.objective.base import LossOutput, OneStepRows, TwoBranchObjective
-from snapflow.objective.bootstrap import BootstrappedSnapFlowObjective
-from snapflow.objective.consistency_distillation import ConsistencyDistillationObjective
-from snapflow.objective.meanflow import MeanFlowObjective
-from snapflow.objective.registry import OBJECTIVES, make_objective
-from snapflow.objective.snapflow import SnapFlowObjective, euler_shortcut_target
+from snapflow._lazy import lazy_exports
 
-__all__ = [
-    "BootstrappedSnapFlowObjective",
-    "ConsistencyDistillationObjective",
-    "LossOutput",
-    "MeanFlowObjective",
-    "OBJECTIVES",
-    "make_objective",
-    "OneStepRows",
-    "SnapFlowObjective",
-    "TwoBranchObjective",
-    "euler_shortcut_target",
-]
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "snapflow.objective.bootstrap": ["BootstrappedSnapFlowObjective"],
+        "snapflow.objective.consistency_distillation": ["ConsistencyDistillationObjective"],
+        "snapflow.objective.base": ["LossOutput", "OneStepRows", "TwoBranchObjective"],
+        "snapflow.objective.meanflow": ["MeanFlowObjective"],
+        "snapflow.objective.registry": ["OBJECTIVES", "make_objective"],
+        "snapflow.objective.snapflow": ["SnapFlowObjective", "euler_shortcut_target"],
+    },
+)

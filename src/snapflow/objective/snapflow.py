@@ -19,19 +19,18 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal, get_args
+from typing import Any
 
 import torch
 from torch import Tensor
 
+from snapflow.flow.modes import SamplingMode
 from snapflow.flow.path import conditional_velocity
-from snapflow.flow.solver import SamplingMode, VelocityFn, euler_sample
+from snapflow.flow.solver import VelocityFn, euler_sample
 from snapflow.flow.time_sampling import BetaTimeSampler, TimeSampler
 from snapflow.objective.base import OneStepRows, TwoBranchObjective
+from snapflow.objective.options import TEACHER_VELOCITIES, TeacherVelocity, target_stages
 from snapflow.protocol import Context, FlowPolicy
-
-TeacherVelocity = Literal["marginal", "conditional"]
-TEACHER_VELOCITIES: tuple[str, ...] = get_args(TeacherVelocity)
 
 
 def euler_shortcut_target(velocity: VelocityFn, x_1: Tensor, steps: int = 2, clamp: float | None = None) -> Tensor:
@@ -43,11 +42,6 @@ def euler_shortcut_target(velocity: VelocityFn, x_1: Tensor, steps: int = 2, cla
     teacher = velocity if clamp is None else (lambda x, t, s: velocity(x, t, s).clamp(-clamp, clamp))
     with torch.no_grad():
         return x_1 - euler_sample(teacher, x_1, SamplingMode(steps, jump=False))
-
-
-def target_stages(target_steps: int | Sequence[int]) -> tuple[int, ...]:
-    """``target_steps`` as a schedule: one stage for a fixed K."""
-    return (target_steps,) if isinstance(target_steps, int) else tuple(target_steps)
 
 
 def stage_at(stages: Sequence[int], progress: float) -> int:
@@ -119,9 +113,6 @@ class SnapFlowObjective(TwoBranchObjective):
 
 __all__ = [
     "SnapFlowObjective",
-    "TEACHER_VELOCITIES",
-    "TeacherVelocity",
     "euler_shortcut_target",
     "stage_at",
-    "target_stages",
 ]

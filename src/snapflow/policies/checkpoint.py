@@ -17,9 +17,11 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 from torch import nn
 
+from snapflow.flow.modes import SamplingMode
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
 from snapflow.policies.factory import make_model, make_processor, policy_type, policy_type_of
-from snapflow.policies.processor import NormalizationStats, Processor
+from snapflow.policies.normalization import NormalizationStats
+from snapflow.policies.processor import Processor
 from snapflow.reporting.files import write_json
 
 POLICY_WEIGHTS, POLICY_CONFIG = "policy.safetensors", "policy.json"
@@ -38,6 +40,21 @@ class LoadedPolicy:
     processor: Processor
     metadata: dict[str, Any]
     path: Path
+
+    @property
+    def distilled(self) -> bool:
+        """Whether the policy was distilled (a student), so that its jump modes (``snapflow-N``) mean something."""
+        return "distill" in self.metadata
+
+    def check_mode(self, mode: SamplingMode) -> None:
+        """Refuse ``snapflow-N`` on a flow-matching teacher: its network has no target-time embedding and ignores
+        the target time, so the jump would be the naive step reported under SnapFlow's name."""
+        if mode.jump and not self.distilled:
+            raise CheckpointError(
+                f"{self.path} is a flow-matching teacher (never distilled, no target-time embedding): {mode.name} "
+                f"would be the naive step under SnapFlow's name; use teacher-N or naive, or distill it first "
+                f"(snapflow distill --teacher {self.path} ...)"
+            )
 
     @property
     def val_fraction(self) -> float:

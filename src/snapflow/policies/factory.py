@@ -7,41 +7,73 @@ new built-in policy is a folder ``policies/<name>/`` (configuration, modeling, p
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
-from typing import Any
-
-from torch import nn
+from typing import TYPE_CHECKING, Any
 
 from snapflow.policies.configuration import PolicyConfig
-from snapflow.policies.minivla import MiniVLA, MiniVLAConfig, MiniVLAProcessor
-from snapflow.policies.mlp import MLPFlowModel, MLPPolicyConfig, MLPProcessor
-from snapflow.policies.processor import NormalizationStats, Processor
+from snapflow.policies.minivla.configuration import MiniVLAConfig
+from snapflow.policies.mlp.configuration import MLPPolicyConfig
+
+if TYPE_CHECKING:
+    from torch import nn
+
+    from snapflow.policies.normalization import NormalizationStats
+    from snapflow.policies.processor import Processor
+
+
+def _resolve(target: type | str) -> type:
+    """A class, or ``"module:Class"`` imported now: the registry names its models without loading torch."""
+    if isinstance(target, type):
+        return target
+    module, _, name = target.partition(":")
+    return getattr(importlib.import_module(module), name)
 
 
 @dataclass(frozen=True)
 class PolicyType:
-    """One built-in policy: ``model_class(config)`` implements :class:`snapflow.protocol.TimeEmbeddingModel`."""
+    """One built-in policy: ``model_class(config)`` implements :class:`snapflow.protocol.TimeEmbeddingModel`.
+
+    The model and processor may be given as ``"module:Class"``, imported when first used, so that listing the
+    policies and reading their configurations (the CLI's choices and defaults) loads no torch."""
 
     name: str
     config_class: type[PolicyConfig]
-    model_class: type[nn.Module]
-    processor_class: type[Processor]
+    model: type | str
+    processor: type | str
+
+    @property
+    def model_class(self) -> type[nn.Module]:
+        return _resolve(self.model)
+
+    @property
+    def processor_class(self) -> type[Processor]:
+        return _resolve(self.processor)
 
 
 POLICIES: dict[str, PolicyType] = {}
 
 
-def register_policy(
-    name: str, config_class: type[PolicyConfig], model_class: type[nn.Module], processor_class: type[Processor]
-) -> None:
+def register_policy(name: str, config_class: type[PolicyConfig], model: type | str, processor: type | str) -> None:
+    """Add policy ``name``: its configuration class, and its model and processor classes (or ``"module:Class"``)."""
     if name in POLICIES:
         raise ValueError(f"a policy named {name!r} is registered already")
-    POLICIES[name] = PolicyType(name, config_class, model_class, processor_class)
+    POLICIES[name] = PolicyType(name, config_class, model, processor)
 
 
-register_policy("minivla", MiniVLAConfig, MiniVLA, MiniVLAProcessor)
-register_policy("mlp", MLPPolicyConfig, MLPFlowModel, MLPProcessor)
+register_policy(
+    "minivla",
+    MiniVLAConfig,
+    "snapflow.policies.minivla.modeling:MiniVLA",
+    "snapflow.policies.minivla.processor:MiniVLAProcessor",
+)
+register_policy(
+    "mlp",
+    MLPPolicyConfig,
+    "snapflow.policies.mlp.modeling:MLPFlowModel",
+    "snapflow.policies.mlp.processor:MLPProcessor",
+)
 
 
 def policy_type(name: str) -> PolicyType:

@@ -8,31 +8,13 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import torch
 from torch import Tensor
 
-
-@dataclass(frozen=True)
-class NormalizationStats:
-    """Per-dimension mean and std; std is floored so constant dimensions (unused object slots) stay finite."""
-
-    state_mean: list[float]
-    state_std: list[float]
-    action_mean: list[float]
-    action_std: list[float]
-
-    @classmethod
-    def from_arrays(cls, states: np.ndarray, actions: np.ndarray, min_std: float = 1e-2) -> NormalizationStats:
-        return cls(
-            states.mean(0).tolist(),
-            np.maximum(states.std(0), min_std).tolist(),
-            actions.mean(0).tolist(),
-            np.maximum(actions.std(0), min_std).tolist(),
-        )
+from snapflow.policies.normalization import NormalizationStats
 
 
 class Processor(ABC):
@@ -109,4 +91,4 @@ class Processor(ABC):
         return actions * self.action_std + self.action_mean
 
 
-__all__ = ["NormalizationStats", "Processor"]
+__all__ = ["Processor"]

@@ -1,20 +1,17 @@
 """Reporting utilities every layer may use and that use no other part of snapflow: files written whole or not at
-all, Markdown tables, PNG figures, the machine behind a figure, and summary statistics."""
+all, the one-writer lock of a run folder, Markdown tables, PNG figures, the machine behind a figure, and summary
+statistics."""
 
-from snapflow.reporting.figures import pyplot, save_figure
-from snapflow.reporting.files import atomic_write, write_json, write_text
-from snapflow.reporting.machine import machine, machine_description
-from snapflow.reporting.statistics import mean_std
-from snapflow.reporting.tables import markdown_table
+from snapflow._lazy import lazy_exports
 
-__all__ = [
-    "atomic_write",
-    "write_json",
-    "write_text",
-    "markdown_table",
-    "pyplot",
-    "save_figure",
-    "machine",
-    "machine_description",
-    "mean_std",
-]
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "snapflow.reporting.files": ["atomic_write", "write_json", "write_text"],
+        "snapflow.reporting.locks": ["RunLockedError", "hold_run_lock"],
+        "snapflow.reporting.tables": ["markdown_table"],
+        "snapflow.reporting.figures": ["pyplot", "save_figure"],
+        "snapflow.reporting.machine": ["machine", "machine_description"],
+        "snapflow.reporting.statistics": ["mean_std"],
+    },
+)

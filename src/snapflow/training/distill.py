@@ -1,14 +1,18 @@
-"""Settings of a distillation run, shared by every policy family."""
+"""Settings of a distillation run, shared by every policy family.
+
+Plain Python at import (the CLI reads these settings before torch loads); the objective is built on demand.
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
-from typing import Literal, get_args
+from typing import TYPE_CHECKING, Literal, get_args
 
-from snapflow.flow.time_sampling import BetaTimeSampler, TimeSampler
-from snapflow.objective.base import TwoBranchObjective
-from snapflow.objective.registry import make_objective, objective_options
-from snapflow.objective.snapflow import TeacherVelocity, target_stages
+from snapflow.objective.options import TeacherVelocity, target_stages
+
+if TYPE_CHECKING:
+    from snapflow.flow.time_sampling import TimeSampler
+    from snapflow.objective.base import TwoBranchObjective
 
 Method = Literal["snapflow", "consistency-distillation", "meanflow"]
 Target = Literal["euler", "bootstrap"]
@@ -50,6 +54,8 @@ class DistillSettings:
             raise ValueError(f"unknown distillation method {self.method!r}; choose one of {list(METHODS)}")
         if self.method != "snapflow" and self.target != "euler":
             raise ValueError("target is an option of the snapflow method only")
+        from snapflow.flow.time_sampling import BetaTimeSampler
+
         self.objective(BetaTimeSampler())  # the objective names what it does not take, and checks its own values
 
     @property
@@ -60,6 +66,8 @@ class DistillSettings:
     def objective(self, time_sampler: TimeSampler) -> TwoBranchObjective:
         """The chosen loss with these settings and the policy's own FM time distribution: every option the objective
         takes is passed; one it does not take must be at its default."""
+        from snapflow.objective.registry import make_objective, objective_options
+
         accepted = objective_options(self.objective_name)
         defaults = {field.name: field.default for field in fields(self)}
         options = {}
@@ -108,6 +116,11 @@ class TargetOption:
     def name(self) -> str:
         steps = self.steps if isinstance(self.steps, int) else "-".join(map(str, self.steps))
         return f"{self.target}-{steps}"
+
+    def __str__(self) -> str:
+        """The option as typed: ``euler:2,4,8``."""
+        steps = self.steps if isinstance(self.steps, int) else ",".join(map(str, self.steps))
+        return f"{self.target}:{steps}"
 
     @property
     def label(self) -> str:

@@ -3,18 +3,23 @@ safetensors checkpoints, resume). The result is also exported in LeRobot's own l
 
 from __future__ import annotations
 
+from contextlib import nullcontext
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 import torch
+from accelerate import PartialState
 
+from snapflow.adapters.hub import check_source, fetch_hub_file
 from snapflow.adapters.lerobot.checkpoint import save_distilled
 from snapflow.adapters.lerobot.data import LeRobotChunkData
 from snapflow.adapters.lerobot.registry import load_pretrained_policy, wrap_policy
 from snapflow.flow.time_sampling import BetaTimeSampler
+from snapflow.reporting.locks import hold_run_lock
+from snapflow.training.config import TrainConfig
 from snapflow.training.distill import DistillSettings
-from snapflow.training.trainer import TrainConfig, train
+from snapflow.training.trainer import train
 
 
 def paper_training() -> TrainConfig:
@@ -33,6 +38,7 @@ def paper_training() -> TrainConfig:
 
 EXPORT_DIRECTORY = "lerobot_policy"
 PREPROCESSOR_FILE = "policy_preprocessor.json"
+DATASET_INFO = "meta/info.json"  # LeRobot's INFO_PATH: the first file of a LeRobotDataset it reads
 
 
 def policy_processors(
@@ -97,9 +103,10 @@ def distill_lerobot(
 ) -> dict[str, Any]:
     """Distill a LeRobot pi0, pi0.5 or SmolVLA (hub id or local pretrained directory) on the LeRobotDataset
     ``repo_id`` at ``dataset_root`` (None: LeRobot's cache, fetched from the hub if missing);
-    ``preprocessor_overrides`` reach LeRobot's processor loader (e.g. a local tokenizer)."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
+    ``preprocessor_overrides`` reach LeRobot's processor loader (e.g. a local tokenizer).
 
+    ``output`` is held from loading to export: another process writing it is refused at once with
+    :class:`~snapflow.reporting.locks.RunLockedError`."""
     settings = settings or DistillSettings()
     config = config or paper_training()
     if not settings.freeze_prefix:
@@ -109,6 +116,36 @@ def distill_lerobot(
             "LeRobot policies are distilled with SnapFlow and its target-time embedding; "
             "the baselines and the no-phi_s ablation run on the built-in policies (snapflow train --policy ...)"
         )
+    # held here, not only by `train`, so that the export is inside the hold and a refusal comes before the loading;
+    # only the main process of a launch writes, so only it holds the folder (`train` nests inside this hold)
+    with hold_run_lock(output, "snapflow distill") if PartialState().is_main_process else nullcontext():
+        return _distill_lerobot(
+            policy_path, dataset_root, repo_id, output, config, settings, resume, progress, preprocessor_overrides
+        )
+
+
+def _distill_lerobot(
+    policy_path: str,
+    dataset_root: str | Path | None,
+    repo_id: str,
+    output: str | Path,
+    config: TrainConfig,
+    settings: DistillSettings,
+    resume: bool,
+    progress: bool,
+    preprocessor_overrides: dict[str, Any] | None,
+) -> dict[str, Any]:
+    """:func:`distill_lerobot` with the output held."""
+    from lerobot.utils.constants import HF_LEROBOT_HOME
+
+    # the dataset first, so that a wrong one is named before the policy's weights download (and before LeRobot's
+    # dataset modules import, seconds)
+    if dataset_root is not None:
+        check_source(str(dataset_root), DATASET_INFO, "a LeRobotDataset")
+    elif not (HF_LEROBOT_HOME / repo_id / DATASET_INFO).is_file():  # LeRobot reads its own cache first, offline
+        fetch_hub_file(repo_id, DATASET_INFO, "a LeRobotDataset", repo_type="dataset")
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
+
     policy = load_pretrained_policy(policy_path)
     metadata = LeRobotDatasetMetadata(repo_id, root=dataset_root)
     check_dataset_features(policy.config, metadata.features, repo_id)

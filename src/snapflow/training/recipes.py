@@ -1,7 +1,7 @@
 """Training a built-in policy on demonstrations: the flow-matching teacher, then its SnapFlow student.
 
-Each function is one pipeline stage that the CLI, the demo and the sweeps call; the default training settings
-live here, once.
+Each function is one pipeline stage that the CLI, the demo and the sweeps call; their default training settings
+are :mod:`snapflow.training.config`'s.
 """
 
 from __future__ import annotations
@@ -20,14 +20,10 @@ from snapflow.objective.snapflow import SnapFlowObjective
 from snapflow.policies.checkpoint import load_policy, policy_metadata
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import fit_processor, make_model
+from snapflow.training.config import STUDENT_TRAINING, TEACHER_TRAINING, VAL_FRACTION, TrainConfig
 from snapflow.training.distill import DistillSettings
-from snapflow.training.trainer import TrainConfig, train
+from snapflow.training.trainer import train
 
-VAL_FRACTION = 0.1  # share of each task's demonstration episodes held out for validation and offline metrics
-# A converged teacher matters (the paper: distilling an under-trained one distills noise); the student starts at
-# the teacher's final learning rate (3e-5, near the paper's 2.5e-5) so it stays in its basin.
-TEACHER_TRAINING = TrainConfig(steps=5000, learning_rate=3e-4)
-STUDENT_TRAINING = TrainConfig(steps=2000, learning_rate=3e-5, warmup_steps=50)
 # the built-in policies train on U(0, 1) flow-matching times
 TIME_SAMPLER = UniformTimeSampler()
 
@@ -103,4 +99,4 @@ def distill(
     )
 
 
-__all__ = ["VAL_FRACTION", "TEACHER_TRAINING", "STUDENT_TRAINING", "TIME_SAMPLER", "train_teacher", "distill"]
+__all__ = ["TIME_SAMPLER", "train_teacher", "distill"]

@@ -7,9 +7,9 @@ Under ``accelerate launch`` each process draws its own batches and Accelerate av
 
 from __future__ import annotations
 
-import math
 import time
-from dataclasses import asdict, dataclass
+from contextlib import nullcontext
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -22,41 +22,11 @@ from snapflow.objective.base import TwoBranchObjective
 from snapflow.policies.checkpoint import LATEST, CheckpointError
 from snapflow.protocol import map_tensors
 from snapflow.reporting.files import write_json
+from snapflow.reporting.locks import hold_run_lock
 from snapflow.training.checkpoint import mark_latest, restore_training, save_checkpoint
+from snapflow.training.config import TrainConfig
 
 HISTORY = "history.json"  # the run's losses and validation, written when training reaches its last step
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    steps: int = 3000
-    batch_size: int = 64
-    learning_rate: float = 3e-4
-    warmup_steps: int = 100
-    min_learning_rate_ratio: float = 0.1
-    weight_decay: float = 0.0
-    grad_clip: float = 1.0
-    seed: int = 0
-    log_every: int = 50
-    validate_every: int = 500
-    checkpoint_every: int = 500
-    keep_checkpoints: int = 2
-    mixed_precision: str = "no"
-
-    def __post_init__(self) -> None:
-        for name in ("steps", "batch_size", "log_every", "validate_every", "checkpoint_every", "keep_checkpoints"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"TrainConfig.{name} must be at least 1, got {getattr(self, name)}")
-        if self.learning_rate <= 0:
-            raise ValueError(f"TrainConfig.learning_rate must be positive, got {self.learning_rate}")
-
-    def learning_rate_at(self, step: int) -> float:
-        """Linear warm-up, then cosine decay to ``min_learning_rate_ratio`` of the peak."""
-        if step < self.warmup_steps:
-            return self.learning_rate * (step + 1) / self.warmup_steps
-        progress = (step - self.warmup_steps) / max(self.steps - self.warmup_steps, 1)
-        floor = self.min_learning_rate_ratio
-        return self.learning_rate * (floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * min(progress, 1.0))))
 
 
 class ObjectiveModule(nn.Module):
@@ -187,10 +157,45 @@ def train(
     ``trainable`` restricts the optimised parameters (a policy's ``expert_parameters()``: the action expert and
     phi_s); default: all.
     ``metadata`` is the policy description saved beside the weights (see ``policy_metadata``).
-    Returns the trainer state (history of losses and validation).
+    Returns the trainer state (history of losses and validation). Holds the run folder for the whole run: another
+    process training into it is refused with :class:`~snapflow.reporting.locks.RunLockedError`.
     """
     run_directory = Path(run_directory)
     accelerator = Accelerator(mixed_precision=config.mixed_precision)
+    # the teacher stage is what `snapflow train` runs; every other stage distils
+    command = "snapflow train" if metadata.get("stage") == "teacher" else "snapflow distill"
+    # only the main process writes the run, so only it holds the folder (the processes of one launch would otherwise
+    # refuse each other)
+    with hold_run_lock(run_directory, command) if accelerator.is_main_process else nullcontext():
+        return _train(
+            accelerator,
+            policy,
+            objective,
+            train_data,
+            val_data,
+            config,
+            run_directory,
+            metadata,
+            resume,
+            trainable,
+            progress,
+        )
+
+
+def _train(
+    accelerator: Accelerator,
+    policy: nn.Module,
+    objective: TwoBranchObjective,
+    train_data: ChunkSource,
+    val_data: ChunkSource | None,
+    config: TrainConfig,
+    run_directory: Path,
+    metadata: dict[str, Any],
+    resume: bool,
+    trainable: list[nn.Parameter] | None,
+    progress: bool,
+) -> dict[str, Any]:
+    """:func:`train` with the run folder held."""
     parameters = trainable if trainable is not None else list(policy.parameters())
     trainable_ids = {id(p) for p in parameters}
     for parameter in policy.parameters():

@@ -7,7 +7,9 @@ on Python >= 3.12.
 try:
     import lerobot  # noqa: F401
 except ImportError as error:  # pragma: no cover - depends on the environment
-    raise ImportError('the LeRobot adapters need LeRobot: pip install "snapflow[lerobot]"') from error
+    raise ModuleNotFoundError(
+        'the LeRobot adapters need LeRobot: pip install "snapflow[lerobot]"', name="lerobot"
+    ) from error
 
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
 from snapflow.adapters.lerobot.checkpoint import load_distilled, save_distilled

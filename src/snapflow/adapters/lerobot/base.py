@@ -20,7 +20,8 @@ from typing import Any, ClassVar
 import torch
 from torch import Tensor, nn
 
-from snapflow.flow.solver import SamplingMode, euler_sample
+from snapflow.flow.modes import SamplingMode
+from snapflow.flow.solver import euler_sample
 from snapflow.nn.time_embedding import TargetTimeEmbedding
 
 OBS_LANGUAGE_TOKENS = "observation.language.tokens"

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
 from snapflow.adapters.lerobot.registry import adapter_class
-from snapflow.flow.solver import SNAPFLOW_1, SamplingMode
+from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
 from snapflow.policies.checkpoint import CheckpointError, load_state_strict, read_tensors
 from snapflow.reporting.files import write_json
 

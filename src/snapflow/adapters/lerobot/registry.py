@@ -7,6 +7,7 @@ from importlib.metadata import version
 from packaging.version import Version
 from torch import nn
 
+from snapflow.adapters.hub import check_source
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
 from snapflow.adapters.lerobot.pi0 import PI0FlowPolicy, PI05FlowPolicy
 from snapflow.adapters.lerobot.smolvla import SmolVLAFlowPolicy
@@ -35,7 +36,11 @@ def wrap_policy(policy: nn.Module) -> LeRobotFlowPolicy:
 
 
 def load_pretrained_policy(path: str) -> nn.Module:
-    """A LeRobot policy from a hub id or a local pretrained directory, as ``lerobot-eval`` loads it."""
+    """A LeRobot policy from a hub id or a local pretrained directory, as ``lerobot-eval`` loads it; a mistyped
+    folder, an unreachable hub or an unusable repo is named in one line before anything loads."""
+    from huggingface_hub.constants import CONFIG_NAME
+
+    check_source(path, CONFIG_NAME, "a LeRobot policy")  # before LeRobot's loaders import (seconds)
     from lerobot.configs.policies import PreTrainedConfig
     from lerobot.policies.factory import get_policy_class
 

@@ -25,22 +25,13 @@ Unless a run says otherwise, teachers train with ``TEACHER_TRAINING`` and studen
 (:mod:`snapflow.training.recipes`), distilled with the paper's ``DistillSettings``.
 """
 
-from snapflow.jobs.sweep.planning import CollectJob, EvalJob, TrainJob, jobs, plan, run_sweeps
-from snapflow.jobs.sweep.results import SweepRow, TableResult, replace_block, table_results, write_results
-from snapflow.jobs.sweep.schema import SweepConfig, load_sweep
+from snapflow._lazy import lazy_exports
 
-__all__ = [
-    "SweepConfig",
-    "load_sweep",
-    "CollectJob",
-    "TrainJob",
-    "EvalJob",
-    "jobs",
-    "plan",
-    "run_sweeps",
-    "SweepRow",
-    "TableResult",
-    "table_results",
-    "write_results",
-    "replace_block",
-]
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "snapflow.jobs.sweep.schema": ["SweepConfig", "load_sweep"],
+        "snapflow.jobs.sweep.planning": ["CollectJob", "TrainJob", "EvalJob", "jobs", "plan", "run_sweeps"],
+        "snapflow.jobs.sweep.results": ["SweepRow", "TableResult", "table_results", "write_results", "replace_block"],
+    },
+)

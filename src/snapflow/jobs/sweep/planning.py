@@ -3,22 +3,25 @@ evaluate, each keyed by its full resolved settings and those of the jobs it read
 
 from __future__ import annotations
 
+from contextlib import ExitStack
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, ClassVar
 
 from snapflow.data.collect import collect
 from snapflow.envs.factory import make_benchmark
-from snapflow.evaluation.pipeline import OFFLINE_SAMPLES, evaluate
-from snapflow.flow.solver import SamplingMode
+from snapflow.evaluation.config import OFFLINE_SAMPLES
+from snapflow.evaluation.pipeline import evaluate
+from snapflow.flow.modes import SamplingMode
 from snapflow.jobs.runner import Job, is_done, run_jobs
 from snapflow.jobs.sweep.schema import DataSpec, RowSpec, SweepConfig, TableSpec
 from snapflow.policies.checkpoint import load_policy
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import policy_type_of
+from snapflow.reporting.locks import hold_run_lock
+from snapflow.training.config import VAL_FRACTION, TrainConfig
 from snapflow.training.distill import DistillSettings
-from snapflow.training.recipes import VAL_FRACTION, distill, train_teacher
-from snapflow.training.trainer import TrainConfig
+from snapflow.training.recipes import distill, train_teacher
 
 RECORD = "job.json"  # a collect or train job's record, inside the folder it fills
 
@@ -205,8 +208,19 @@ def plan(config: SweepConfig) -> list[Job]:
 
 def run_sweeps(configs: list[SweepConfig], workers: int = 1, progress: bool = True) -> dict[str, float]:
     """Run every job of the sweeps that is not done on ``workers`` processes, earlier pipeline stages first across
-    the sweeps (their jobs are the longest and unblock the others); returns each job's wall time (s)."""
-    return run_jobs([job for config in configs for job in plan(config)], workers, progress, description="sweep")
+    the sweeps (their jobs are the longest and unblock the others); returns each job's wall time (s).
+
+    Each sweep's output_dir is held from planning to the last job: a second sweep over the same folder is refused at
+    once with :class:`~snapflow.reporting.locks.RunLockedError` (the workers hold their jobs' own folders).
+    """
+    with ExitStack() as held:
+        for config in configs:
+            held.enter_context(
+                hold_run_lock(
+                    config.output_dir, "snapflow sweep", "wait for it to finish or give the sweep another output_dir"
+                )
+            )
+        return run_jobs([job for config in configs for job in plan(config)], workers, progress, description="sweep")
 
 
 __all__ = [

@@ -11,14 +11,13 @@ from typing import Any
 
 from snapflow.data.collect import EPISODES_PER_TASK
 from snapflow.envs.factory import DEFAULT_BENCHMARK, make_benchmark
-from snapflow.evaluation.pipeline import N_ACT
-from snapflow.flow.solver import SamplingMode
+from snapflow.evaluation.config import N_ACT
+from snapflow.flow.modes import SamplingMode
 from snapflow.jobs.demo import EVAL_EPISODES
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import default_config, policy_type
+from snapflow.training.config import STUDENT_TRAINING, TEACHER_TRAINING, TrainConfig
 from snapflow.training.distill import DistillSettings
-from snapflow.training.recipes import STUDENT_TRAINING, TEACHER_TRAINING
-from snapflow.training.trainer import TrainConfig
 
 DEFAULT_POLICY = "minivla"
 

@@ -1,7 +1,12 @@
 """MiniVLA: the built-in compact vision-language-action policy (configuration, modeling, processor)."""
 
-from snapflow.policies.minivla.configuration import MiniVLAConfig
-from snapflow.policies.minivla.modeling import MiniVLA
-from snapflow.policies.minivla.processor import MiniVLAProcessor
+from snapflow._lazy import lazy_exports
 
-__all__ = ["MiniVLAConfig", "MiniVLA", "MiniVLAProcessor"]
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "snapflow.policies.minivla.configuration": ["MiniVLAConfig"],
+        "snapflow.policies.minivla.modeling": ["MiniVLA"],
+        "snapflow.policies.minivla.processor": ["MiniVLAProcessor"],
+    },
+)

@@ -1,7 +1,12 @@
 """MLP flow-matching policy over a flat observation vector (configuration, modeling, processor)."""
 
-from snapflow.policies.mlp.configuration import MLPPolicyConfig
-from snapflow.policies.mlp.modeling import MLPFlowModel
-from snapflow.policies.mlp.processor import MLPProcessor
+from snapflow._lazy import lazy_exports
 
-__all__ = ["MLPPolicyConfig", "MLPFlowModel", "MLPProcessor"]
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "snapflow.policies.mlp.configuration": ["MLPPolicyConfig"],
+        "snapflow.policies.mlp.modeling": ["MLPFlowModel"],
+        "snapflow.policies.mlp.processor": ["MLPProcessor"],
+    },
+)

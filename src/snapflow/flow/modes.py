@@ -1,0 +1,74 @@
+"""Sampling modes by name: how many Euler steps, and whether each step asks for a jump (SnapFlow) or the
+instantaneous velocity (the teacher; with one step, the naive baseline). Plain Python, read by the CLI before any
+torch is loaded."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class SamplingMode:
+    """How many Euler steps to take and which target time to ask the network for.
+
+    ``jump=False``: s = t at every step (the flow-matching teacher; with one step, the naive baseline).
+    ``jump=True``: s = the next grid time, the average-velocity jumps SnapFlow trains for.
+    """
+
+    num_steps: int
+    jump: bool
+
+    def __post_init__(self) -> None:
+        if self.num_steps < 1:
+            raise ValueError(f"num_steps must be at least 1, got {self.num_steps}")
+
+    @property
+    def name(self) -> str:
+        """Canonical name, accepted back by :meth:`parse`."""
+        if self.jump:
+            return f"snapflow-{self.num_steps}"
+        return "naive-1" if self.num_steps == 1 else f"teacher-{self.num_steps}"
+
+    def __str__(self) -> str:
+        return self.name
+
+    @property
+    def description(self) -> str:
+        """What this mode computes, in one line for a report."""
+        if self.jump:
+            if self.num_steps == 1:
+                return "one jump from noise to actions with the distilled average velocity F(x_1, s=0, t=1)"
+            return f"{self.num_steps} jumps along the time grid with the distilled average velocity"
+        if self.num_steps == 1:
+            return (
+                "one Euler step of the instantaneous velocity (s = t = 1), without distillation: "
+                "the baseline a one-step method must beat"
+            )
+        return f"{self.num_steps} Euler steps of the instantaneous velocity (s = t): the flow-matching sampler"
+
+    @classmethod
+    def parse(cls, name: str) -> SamplingMode:
+        """Read ``teacher-N``, ``snapflow-N``, ``naive`` / ``naive-1`` (bare ``teacher`` = 10, ``snapflow`` = 1)."""
+        match = re.fullmatch(r"(teacher|snapflow|naive)(?:-(\d+))?", name.strip().lower())
+        if match is None:
+            raise ValueError(
+                f"unknown sampling mode {name!r}; use teacher-N, snapflow-N or naive (e.g. teacher-10, snapflow-1)"
+            )
+        kind, steps = match.group(1), match.group(2)
+        if kind == "naive":
+            if steps not in (None, "1"):
+                raise ValueError(f"naive sampling is one step by definition, got {name!r}")
+            return cls(1, jump=False)
+        if steps is not None and int(steps) < 1:
+            raise ValueError(f"sampling mode {name!r} takes no step; a mode needs at least one")
+        default_steps = 10 if kind == "teacher" else 1
+        return cls(int(steps) if steps else default_steps, jump=kind == "snapflow")
+
+
+TEACHER_10 = SamplingMode(10, jump=False)
+NAIVE_1 = SamplingMode(1, jump=False)
+SNAPFLOW_1 = SamplingMode(1, jump=True)
+
+
+__all__ = ["SamplingMode", "TEACHER_10", "NAIVE_1", "SNAPFLOW_1"]

@@ -1,0 +1,52 @@
+"""Training settings and the built-in recipes' defaults, in one place: plain Python that the CLI reads before any
+torch is loaded."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """One training run's optimisation settings: AdamW with linear warm-up and cosine decay, gradient clipping,
+    periodic validation and checkpoints."""
+
+    steps: int = 3000
+    batch_size: int = 64
+    learning_rate: float = 3e-4
+    warmup_steps: int = 100
+    min_learning_rate_ratio: float = 0.1
+    weight_decay: float = 0.0
+    grad_clip: float = 1.0
+    seed: int = 0
+    log_every: int = 50
+    validate_every: int = 500
+    checkpoint_every: int = 500
+    keep_checkpoints: int = 2
+    mixed_precision: str = "no"
+
+    def __post_init__(self) -> None:
+        for name in ("steps", "batch_size", "log_every", "validate_every", "checkpoint_every", "keep_checkpoints"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"TrainConfig.{name} must be at least 1, got {getattr(self, name)}")
+        if self.learning_rate <= 0:
+            raise ValueError(f"TrainConfig.learning_rate must be positive, got {self.learning_rate}")
+
+    def learning_rate_at(self, step: int) -> float:
+        """Linear warm-up, then cosine decay to ``min_learning_rate_ratio`` of the peak."""
+        if step < self.warmup_steps:
+            return self.learning_rate * (step + 1) / self.warmup_steps
+        progress = (step - self.warmup_steps) / max(self.steps - self.warmup_steps, 1)
+        floor = self.min_learning_rate_ratio
+        return self.learning_rate * (floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * min(progress, 1.0))))
+
+
+VAL_FRACTION = 0.1  # share of each task's demonstration episodes held out for validation and offline metrics
+# A converged teacher matters (the paper: distilling an under-trained one distills noise); the student starts at
+# the teacher's final learning rate (3e-5, near the paper's 2.5e-5) so it stays in its basin.
+TEACHER_TRAINING = TrainConfig(steps=5000, learning_rate=3e-4)
+STUDENT_TRAINING = TrainConfig(steps=2000, learning_rate=3e-5, warmup_steps=50)
+
+
+__all__ = ["TrainConfig", "VAL_FRACTION", "TEACHER_TRAINING", "STUDENT_TRAINING"]
