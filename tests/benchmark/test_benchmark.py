@@ -3,15 +3,17 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import pytest
 import torch
 
 from snapflow.benchmark.architectures import architectures
+from snapflow.benchmark.bench import run_bench
 from snapflow.benchmark.latency import LatencyReport, LatencyRow, Timing, measure_latency, time_round_robin
-from snapflow.benchmark.subjects import random_builtin_policy
+from snapflow.benchmark.subjects import builtin_subject, random_builtin_policy
 from snapflow.cli import main
-from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
+from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, SamplingMode
 from snapflow.flow.solver import sample_actions
 from snapflow.inference import compile_policy
 from snapflow.nn import SnapFlowPolicy
@@ -182,3 +184,14 @@ def test_compiled_one_pass_expert_computes_what_the_eager_one_does(student, obse
     assert torch.allclose(sample_actions(student, observation, noise, SNAPFLOW_1), eager, atol=1e-5)
     with pytest.raises(ValueError, match="unknown compile mode 'fastest'"):
         compile_policy(student, "fastest")
+
+
+def test_a_teacher_checkpoint_is_timed_at_its_naive_one_step_not_under_snapflows_name(tmp_path):
+    """A teacher (no phi_s) has no jump to time: its 1-NFE row is the naive step, named so; a student's is SnapFlow's."""
+    student = random_builtin_policy("mlp")
+    teacher = replace(student, policy=SnapFlowPolicy(student.policy.model, target_time=False))
+    assert builtin_subject(student, "student").one_step == SNAPFLOW_1
+    subject = builtin_subject(teacher, "teacher")
+    assert subject.one_step == NAIVE_1
+    report = run_bench(subject, warmup=0, repeats=1, profile=False)
+    assert list(report["latency"]["modes"]) == ["teacher-10", "teacher-5", "teacher-2", "naive-1"]
