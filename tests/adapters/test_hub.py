@@ -161,6 +161,7 @@ def test_distill_names_a_missing_hub_dataset_before_the_policy_loads(hub, tmp_pa
     arguments = ["distill", "--policy", "acme/policy", "--dataset", "acme/missing", "--output", "run"]
     _assert_one_line(_run(arguments, hub, tmp_path), "distill", "no dataset acme/missing on the Hugging Face Hub")
     assert FakeHub.requests == ["/datasets/acme/missing/resolve/main/meta/info.json"], "the policy is not fetched"
+    assert not (tmp_path / "run").exists(), "nothing is written to the output"
 
 
 def test_a_mistyped_local_policy_folder_is_named_and_never_looked_up(hub, tmp_path):
@@ -176,6 +177,7 @@ def test_a_mistyped_local_dataset_is_named_before_any_loading(hub, tmp_path):
     arguments = ["distill", "--policy", "acme/policy", "--dataset", "./data/pusht", "--output", "run"]
     _assert_one_line(_run(arguments, hub, tmp_path), "distill", "no folder ./data/pusht; hub ids are owner/name")
     assert FakeHub.requests == []
+    assert not (tmp_path / "run").exists()
 
 
 FETCH = """

@@ -116,6 +116,14 @@ def distill_lerobot(
             "LeRobot policies are distilled with SnapFlow and its target-time embedding; "
             "the baselines and the no-phi_s ablation run on the built-in policies (snapflow train --policy ...)"
         )
+    from lerobot.utils.constants import HF_LEROBOT_HOME
+
+    # the dataset first, so that a wrong one is named before the policy's weights download (and before LeRobot's
+    # dataset modules import, seconds), and before the output folder is created
+    if dataset_root is not None:
+        check_source(str(dataset_root), DATASET_INFO, "a LeRobotDataset")
+    elif not (HF_LEROBOT_HOME / repo_id / DATASET_INFO).is_file():  # LeRobot reads its own cache first, offline
+        fetch_hub_file(repo_id, DATASET_INFO, "a LeRobotDataset", repo_type="dataset")
     # held here, not only by `train`, so that the export is inside the hold and a refusal comes before the loading;
     # only the main process of a launch writes, so only it holds the folder (`train` nests inside this hold)
     with hold_run_lock(output, "snapflow distill") if PartialState().is_main_process else nullcontext():
@@ -136,14 +144,6 @@ def _distill_lerobot(
     preprocessor_overrides: dict[str, Any] | None,
 ) -> dict[str, Any]:
     """:func:`distill_lerobot` with the output held."""
-    from lerobot.utils.constants import HF_LEROBOT_HOME
-
-    # the dataset first, so that a wrong one is named before the policy's weights download (and before LeRobot's
-    # dataset modules import, seconds)
-    if dataset_root is not None:
-        check_source(str(dataset_root), DATASET_INFO, "a LeRobotDataset")
-    elif not (HF_LEROBOT_HOME / repo_id / DATASET_INFO).is_file():  # LeRobot reads its own cache first, offline
-        fetch_hub_file(repo_id, DATASET_INFO, "a LeRobotDataset", repo_type="dataset")
     from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
 
     policy = load_pretrained_policy(policy_path)
