@@ -266,6 +266,10 @@ def test_the_committed_results_render_to_the_committed_markdown_byte_for_byte(mo
         ("runs = 3\n", "[runs]: expected a table"),
         ('[runs.teacher]\n[[tables]]\nname = "t"\nrows = 3\n', "rows must be a list"),
         ('[runs.teacher]\n[[tables]]\nname = "t"\nrows = [3]\n', "row: expected a table"),
+        (
+            '[runs.teacher]\n[[tables]]\nname = "t"\nreference = "y"\nrows = [{ label = "x", run = "teacher", mode = "naive" }]\n',
+            "reference 'y' is not one of its rows",
+        ),
     ],
 )
 def test_a_bad_sweep_config_is_refused_with_its_section_named(tmp_path, capsys, mistake, message):
@@ -371,6 +375,24 @@ def test_a_sweep_runs_caches_reruns_a_changed_student_and_writes_its_tables_into
         )
         assert 0 <= row["offline"]["mse"] and -1 <= row["offline"]["cosine"] <= 1
         assert all(seconds > 0 for seconds in row["training_s"])
+    teacher_row, student_row = headline
+    assert "difference" not in teacher_row, "the first row is the reference"
+    assert student_row["difference"]["reference"] == "teacher 10-NFE" and student_row["difference"]["cells"] == 4
+    for row in headline:  # the interval brackets the pooled rate
+        low, high = row["success_interval"]
+        assert 0 <= low <= 100 * row["successes"] / row["episodes"] <= high <= 100
+    cells = {  # (seed, task) success of each row from the cached records: the paired difference is their mean
+        run: [
+            100
+            * json.loads((tmp_path / "runs" / "evals" / run / f"seed-{seed}" / name).read_text())["success"][task][
+                "success_rate"
+            ]
+            for seed in (0, 1)
+            for task in load_sweep(config_path).data.tasks
+        ]
+        for run, name in (("teacher", "teacher-10_nact4_eps2.json"), ("snapflow", "snapflow-1_nact4_eps2.json"))
+    }
+    assert student_row["difference"]["mean"] == pytest.approx(sum(cells["snapflow"]) / 4 - sum(cells["teacher"]) / 4)
     for seed in (0, 1):  # the table's numbers are the cached evaluation records'
         cached = json.loads(
             (tmp_path / "runs" / "evals" / "teacher" / f"seed-{seed}" / "teacher-10_nact4_eps2.json").read_text()

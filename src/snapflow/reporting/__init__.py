@@ -12,6 +12,6 @@ __getattr__, __dir__, __all__ = lazy_exports(
         "snapflow.reporting.tables": ["markdown_table"],
         "snapflow.reporting.figures": ["pyplot", "save_figure"],
         "snapflow.reporting.machine": ["machine", "machine_description"],
-        "snapflow.reporting.statistics": ["mean_std"],
+        "snapflow.reporting.statistics": ["mean_std", "wilson_interval", "paired_difference"],
     },
 )

@@ -18,7 +18,8 @@ Config layout (see ``configs/sweeps/*.toml``)::
     [runs.teacher]                      # a teacher: policy = {type = "minivla" | "mlp", fields of its config},
                                         # train = {TrainConfig fields}
     [runs.snapflow]                     # a student: teacher = "teacher", distill = {DistillSettings fields}, train
-    [[tables]]                          # name, title, episodes_per_task, n_act, seeds, per_task, x_label
+    [[tables]]                          # name, title, episodes_per_task, n_act, seeds, per_task, x_label,
+                                        # reference (the row the others are compared with, paired)
     rows = [{label = "...", run = "snapflow", mode = "snapflow-1", n_act = 4, series = "...", x = 1}]
 
 Unless a run says otherwise, teachers train with ``TEACHER_TRAINING`` and students with ``STUDENT_TRAINING``

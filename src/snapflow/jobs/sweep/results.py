@@ -18,7 +18,7 @@ from snapflow.jobs.sweep.planning import eval_job
 from snapflow.jobs.sweep.schema import RowSpec, SweepConfig, TableSpec
 from snapflow.reporting.figures import pyplot, save_figure
 from snapflow.reporting.files import write_json, write_text
-from snapflow.reporting.statistics import mean_std
+from snapflow.reporting.statistics import mean_std, paired_difference, wilson_interval
 from snapflow.reporting.tables import markdown_table
 from snapflow.training.trainer import HISTORY
 
@@ -32,6 +32,18 @@ class OfflineSummary:
     mse_p95: float
     cosine: float
     samples: int
+
+
+@dataclass(frozen=True)
+class Difference:
+    """A row's success minus the table's reference row's, in points, paired over (seed, task) cells (the same
+    evaluation variations): the mean and its 95% bootstrap interval."""
+
+    reference: str
+    mean: float
+    low: float
+    high: float
+    cells: int
 
 
 @dataclass(frozen=True)
@@ -57,16 +69,26 @@ class SweepRow:
     training_s: list[float]  # the run's and, for a student, its teacher's
     step_s: list[float]  # the run's own seconds per training step
     offline: OfflineSummary | None = None
+    success_interval: tuple[float, float] | None = None  # 95% Wilson interval of the pooled episodes, percent
+    difference: Difference | None = None  # against the table's reference row (None for the reference itself)
 
     def to_dict(self) -> dict[str, Any]:
         row = asdict(self)
-        if self.offline is None:
-            del row["offline"]
+        for optional in ("offline", "success_interval", "difference"):
+            if row[optional] is None:
+                del row[optional]
         return row
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> SweepRow:
-        return cls(**{**data, "offline": OfflineSummary(**data["offline"]) if "offline" in data else None})
+        return cls(
+            **{
+                **data,
+                "offline": OfflineSummary(**data["offline"]) if "offline" in data else None,
+                "success_interval": tuple(data["success_interval"]) if "success_interval" in data else None,
+                "difference": Difference(**data["difference"]) if "difference" in data else None,
+            }
+        )
 
 
 @dataclass(frozen=True)
@@ -113,11 +135,25 @@ def _step_seconds(config: SweepConfig, run: str, seed: int) -> float:
     return history["wall_time_s"] / history["step"]
 
 
+def _cells(config: SweepConfig, evals: list[EvaluationRow]) -> list[float]:
+    """Success percent per (seed, task): the units a paired comparison matches across rows."""
+    return [100 * e.success[task].success_rate for e in evals for task in config.data.tasks]
+
+
 def table_results(config: SweepConfig, table: TableSpec) -> TableResult:
     """The table's rows from the cached evaluations; a FileNotFoundError names the first one not done."""
     rows = []
+    reference = table.reference_row
+    reference_cells = _cells(config, [_evaluation(config, table, reference, seed) for seed in table.seeds])
     for row in table.rows:
         evals = [_evaluation(config, table, row, seed) for seed in table.seeds]
+        successes = sum(e.success["mean"].successes for e in evals)
+        episodes = sum(e.success["mean"].episodes for e in evals)
+        low, high = wilson_interval(successes, episodes)
+        difference = None
+        if row is not reference:
+            cells = _cells(config, evals)
+            difference = Difference(reference.label, *paired_difference(cells, reference_cells), cells=len(cells))
         rates = [100 * e.success["mean"].success_rate for e in evals]
         mean, std = mean_std(rates)
         offline = None
@@ -140,8 +176,8 @@ def table_results(config: SweepConfig, table: TableSpec) -> TableResult:
                 success_mean=mean,
                 success_std=std,
                 success_per_seed=rates,
-                successes=sum(e.success["mean"].successes for e in evals),
-                episodes=sum(e.success["mean"].episodes for e in evals),
+                successes=successes,
+                episodes=episodes,
                 per_task={
                     task: float(np.mean([100 * e.success[task].success_rate for e in evals]))
                     for task in config.data.tasks
@@ -150,9 +186,19 @@ def table_results(config: SweepConfig, table: TableSpec) -> TableResult:
                 training_s=[_training_seconds(config, row.run, seed) for seed in table.seeds],
                 step_s=[_step_seconds(config, row.run, seed) for seed in table.seeds],
                 offline=offline,
+                success_interval=(100 * low, 100 * high),
+                difference=difference,
             )
         )
     return TableResult(table.name, table.title, table.episodes_per_task, list(table.seeds), table.x_label, rows)
+
+
+def _interval_cells(row: SweepRow) -> list[str]:
+    interval = "{:.1f}-{:.1f}".format(*row.success_interval) if row.success_interval else "-"
+    if row.difference is None:
+        return [interval, "reference"]
+    difference = row.difference
+    return [interval, f"{difference.mean:+.1f} ({difference.low:+.1f}, {difference.high:+.1f})"]
 
 
 def markdown_rows(config: SweepConfig, result: TableResult, command: str) -> str:
@@ -178,6 +224,9 @@ def markdown_rows(config: SweepConfig, result: TableResult, command: str) -> str
         "cosine",
         "s / training step",
     ]
+    intervals = any(row.success_interval for row in rows)  # results made before intervals render as they were
+    if intervals:
+        header[6:6] = ["95% interval", "paired Δ (95% interval)"]
     cells = []
     for row in rows:
         offline = row.offline
@@ -192,6 +241,7 @@ def markdown_rows(config: SweepConfig, result: TableResult, command: str) -> str
                 f"{row.success_mean:.1f} ± {row.success_std:.1f}",
                 " / ".join(f"{rate:.1f}" for rate in row.success_per_seed),
                 f"{row.successes} / {row.episodes}",
+                *(_interval_cells(row) if intervals else []),
                 *metrics,
                 f"{np.median(row.step_s):.3f}",
             ]
@@ -202,6 +252,14 @@ def markdown_rows(config: SweepConfig, result: TableResult, command: str) -> str
             "",
             f"Offline metrics: mean over seeds of {rows[0].offline.samples} held-out demonstration chunks per seed "
             "(normalised actions), the same chunks and noise for every row.",
+        ]
+    if any(row.difference for row in rows):
+        difference = next(row.difference for row in rows if row.difference)
+        lines += [
+            "",
+            "95% interval: Wilson score interval of the pooled episodes. Paired Δ: success minus the reference row's "
+            f"({difference.reference}) in points, averaged over the {difference.cells} (seed, task) cells both rows ran "
+            "on the same variations, with a 95% bootstrap interval over those cells.",
         ]
     lines += [
         "",
@@ -217,16 +275,24 @@ def markdown_per_task(config: SweepConfig, result: TableResult) -> str:
     return markdown_table(["task", *(row.label for row in result.rows)], cells)
 
 
+def _error_bar(row: SweepRow) -> tuple[float, float]:
+    """Below and above the mean: to the 95% Wilson interval's ends, or one std where a row predates intervals."""
+    if row.success_interval is None:
+        return row.success_std, row.success_std
+    low, high = row.success_interval
+    return max(row.success_mean - low, 0.0), max(high - row.success_mean, 0.0)
+
+
 def plot_table(result: TableResult, path: Path) -> None:
-    """Success (mean ± std over seeds): lines over ``x`` when the rows carry one, bars otherwise."""
+    """Success with its 95% interval: lines over ``x`` when the rows carry one, bars otherwise."""
     plt = pyplot()
     rows = result.rows
     figure, axis = plt.subplots(figsize=(6.4, 3.8))
     if all(row.x is not None for row in rows):
         for series in dict.fromkeys(row.series for row in rows):
-            points = sorted((row.x, row.success_mean, row.success_std) for row in rows if row.series == series)
-            xs, means, stds = zip(*points, strict=True)
-            axis.errorbar(xs, means, yerr=stds, marker="o", capsize=3, label=series or "")
+            points = sorted((row.x, row.success_mean, *_error_bar(row)) for row in rows if row.series == series)
+            xs, means, below, above = zip(*points, strict=True)
+            axis.errorbar(xs, means, yerr=[below, above], marker="o", capsize=3, label=series or "")
         axis.set_xlabel(result.x_label or "x")
         if any(row.series for row in rows):
             axis.legend()
@@ -235,12 +301,13 @@ def plot_table(result: TableResult, path: Path) -> None:
         axis.bar(
             positions,
             [row.success_mean for row in rows],
-            yerr=[row.success_std for row in rows],
+            yerr=np.array([_error_bar(row) for row in rows]).T,
             capsize=4,
             color="#4c72b0",
         )
         axis.set_xticks(positions, [row.label for row in rows], rotation=20, ha="right")
-    axis.set_ylabel("MT10 success % (mean ± std over seeds)")
+    interval = all(row.success_interval for row in rows)
+    axis.set_ylabel("MT10 success % (95% Wilson interval)" if interval else "MT10 success % (mean ± std over seeds)")
     title = f"{result.title} ({len(result.seeds)} seed(s), {result.episodes_per_task} episodes per task)"
     axis.set_title(title, fontsize=9)
     axis.grid(alpha=0.3)

@@ -64,6 +64,11 @@ class TableSpec:
     episodes_per_task: int
     per_task: bool = False
     x_label: str | None = None
+    reference: str | None = None  # the row every other is compared with, paired (default: the first)
+
+    @property
+    def reference_row(self) -> RowSpec:
+        return next(row for row in self.rows if row.label == (self.reference or self.rows[0].label))
 
 
 @dataclass(frozen=True)
@@ -191,7 +196,7 @@ def _tables(path: Path, raw: Any, seeds: tuple[int, ...], runs: dict[str, RunSpe
     if not isinstance(raw, list):
         raise ValueError(f"{path}: tables must be a list of [[tables]] entries")
     tables = []
-    allowed = {"name", "title", "rows", "seeds", "episodes_per_task", "n_act", "per_task", "x_label"}
+    allowed = {"name", "title", "rows", "seeds", "episodes_per_task", "n_act", "per_task", "x_label", "reference"}
     for index, entry in enumerate(raw):
         section = f"[[tables]] #{index + 1}"
         _checked(section, entry, allowed, frozenset({"name", "rows"}))
@@ -221,6 +226,9 @@ def _tables(path: Path, raw: Any, seeds: tuple[int, ...], runs: dict[str, RunSpe
                 raise ValueError(f"{section}: row {row['label']!r}: {error}") from None
             n_act = row.get("n_act", entry.get("n_act", N_ACT))
             rows.append(RowSpec(row["label"], row["run"], mode, n_act, row.get("series"), row.get("x")))
+        reference = entry.get("reference")
+        if reference is not None and reference not in [row.label for row in rows]:
+            raise ValueError(f"{section}: reference {reference!r} is not one of its rows {[row.label for row in rows]}")
         tables.append(
             TableSpec(
                 entry["name"],
@@ -230,6 +238,7 @@ def _tables(path: Path, raw: Any, seeds: tuple[int, ...], runs: dict[str, RunSpe
                 entry.get("episodes_per_task", EVAL_EPISODES),
                 entry.get("per_task", False),
                 entry.get("x_label"),
+                reference,
             )
         )
     return tuple(tables)
