@@ -271,6 +271,7 @@ def _distill(args: argparse.Namespace) -> int:
         target_time=not args.no_target_time,
         target=args.target,
         target_steps=args.target_steps,
+        intermediate_jumps=args.intermediate_jumps,
     )
     if lerobot:
         from snapflow.adapters.hub import local_folder
@@ -659,6 +660,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="snapflow's consistency target from the model's marginal velocity, or eps - a (ablation)",
     )
     distill.add_argument("--no-target-time", action="store_true", help="ablation: no target-time embedding phi_s")
+    distill.add_argument(
+        "--intermediate-jumps",
+        type=SHARE,
+        default=_default(DistillSettings, "intermediate_jumps"),
+        help="share of the one-step rows that jump between inner times t -> s instead of 1 -> 0",
+    )
     _add_objective_options(distill, DistillSettings)
 
     evaluate = _command(

@@ -7,6 +7,7 @@ import torch
 
 from snapflow.flow import UniformTimeSampler
 from snapflow.objective import SnapFlowObjective, euler_shortcut_target
+from snapflow.objective.snapflow import jump_target
 from tests.helpers import RecordingPolicy
 
 
@@ -141,3 +142,49 @@ def test_given_noise_and_time_shapes_are_checked(student, batch):
         objective(student, observation, actions, noise=torch.randn(6, 3, 3))
     with pytest.raises(ValueError, match="time must have shape"):
         objective(student, observation, actions, time=torch.rand(6))
+
+
+def test_jump_target_is_the_k_step_euler_average_written_out_for_a_linear_field():
+    """For v(x) = c x each Euler step scales x by (1 - c dt), so the K velocities average to
+    x_t c (1 - (1 - c dt)^K) / (K c dt) with dt = (t - s) / K; at (1, 0) it is the paper's shortcut."""
+    c, steps = 0.8, 4
+    x_t = torch.randn(3, 2, 2)
+    t, s = torch.tensor([1.0, 0.7, 0.4]), torch.tensor([0.0, 0.2, 0.35])
+    dt = (t - s)[:, None, None] / steps
+    expected = x_t * c * (1 - (1 - c * dt) ** steps) / (steps * c * dt)
+    field = lambda x, time, target: c * x  # noqa: E731
+    assert torch.allclose(jump_target(field, x_t, t, s, steps), expected, atol=1e-6)
+    assert torch.allclose(
+        jump_target(field, x_t[:1], t[:1], s[:1], steps), euler_shortcut_target(field, x_t[:1], steps)
+    )
+
+
+def test_intermediate_jumps_start_on_the_path_and_regress_the_euler_average_between_their_times(student, batch):
+    """The first share of the one-step rows jump t -> s with 0 <= s < t <= 1 from x_t = (1 - t) a + t eps onto the
+    K-step Euler average of the model's own velocities; the others are the paper's 1 -> 0 rows, unchanged."""
+    observation, actions = batch
+    context = student.encode(observation)
+    noise = torch.randn_like(actions)
+    objective = SnapFlowObjective(0.5, 0.1, UniformTimeSampler(), intermediate_jumps=0.5)
+    rows = objective.one_step_rows(student, observation, context, actions, noise, torch.Generator().manual_seed(3), 0)
+    inner = 3
+    t, s = rows.t[:inner], rows.s[:inner]
+    assert ((0 <= s) & (s < t) & (t <= 1)).all()
+    assert torch.allclose(rows.x[:inner], (1 - t[:, None, None]) * actions[:inner] + t[:, None, None] * noise[:inner])
+    velocity = lambda x, time, target: student.velocity(x, time, target, context[:inner])  # noqa: E731
+    with torch.no_grad():
+        x, total = rows.x[:inner], 0
+        for k in range(2):
+            time = t - (t - s) * k / 2
+            v = velocity(x, time, time)
+            total = total + v
+            x = x - ((t - s) / 2)[:, None, None] * v
+    by_hand = total / 2
+    assert torch.allclose(rows.target[:inner], by_hand, atol=1e-6)
+    paper = SnapFlowObjective(0.5, 0.1, UniformTimeSampler()).one_step_rows(
+        student, observation, context, actions, noise, None, 0
+    )
+    assert torch.equal(rows.x[inner:], paper.x[inner:]) and torch.equal(rows.t[inner:], paper.t[inner:])
+    assert torch.allclose(rows.target[inner:], paper.target[inner:], atol=1e-6)
+    with pytest.raises(ValueError, match="intermediate_jumps must be in"):
+        SnapFlowObjective(intermediate_jumps=1.5)

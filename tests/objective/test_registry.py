@@ -28,7 +28,12 @@ def test_registry_maps_names_to_the_objective_classes():
 def test_options_are_the_constructor_fields():
     """An objective's options are its dataclass's init fields: the shared three plus its own (never private state)."""
     shared = {"alpha", "consistency_weight", "time_sampler"}
-    assert objective_options("snapflow") == shared | {"teacher_velocity_clamp", "teacher_velocity", "target_steps"}
+    assert objective_options("snapflow") == shared | {
+        "teacher_velocity_clamp",
+        "teacher_velocity",
+        "target_steps",
+        "intermediate_jumps",
+    }
     assert objective_options("snapflow-bootstrap") == shared | {"target_steps"}
     assert objective_options("consistency-distillation") == shared | {"num_intervals", "ema_decay"}
     assert objective_options("meanflow") == shared | {"adaptive_power"}

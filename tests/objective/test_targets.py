@@ -114,12 +114,19 @@ def test_bootstrapped_target_with_two_steps_is_snapflow(student, batch):
         ),
         ({"method": "meanflow", "target_steps": 4}, "target_steps is not an option of the meanflow objective"),
         ({"method": "meanflow", "target": "bootstrap"}, "target is an option of the snapflow method only"),
+        ({"method": "meanflow", "intermediate_jumps": 0.5}, "intermediate_jumps is not an option of the meanflow"),
+        ({"intermediate_jumps": 2.0}, "intermediate_jumps must be in"),
     ],
 )
 def test_bad_target_settings_are_named(settings, message):
     """Target settings the objectives cannot honour are ValueErrors saying why."""
     with pytest.raises(ValueError, match=message):
         DistillSettings(**settings)
+
+
+def test_intermediate_jumps_reach_the_snapflow_objective_from_the_settings():
+    objective = DistillSettings(intermediate_jumps=0.25).objective(UniformTimeSampler())
+    assert isinstance(objective, SnapFlowObjective) and objective.intermediate_jumps == 0.25
 
 
 @pytest.mark.slow

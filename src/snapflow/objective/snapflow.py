@@ -25,10 +25,10 @@ import torch
 from torch import Tensor
 
 from snapflow.flow.modes import SamplingMode
-from snapflow.flow.path import conditional_velocity
+from snapflow.flow.path import conditional_velocity, euler_step, interpolate
 from snapflow.flow.solver import VelocityFn, euler_sample
 from snapflow.flow.time_sampling import BetaTimeSampler, TimeSampler
-from snapflow.objective.base import OneStepRows, TwoBranchObjective
+from snapflow.objective.base import OneStepRows, TwoBranchObjective, uniform
 from snapflow.objective.options import TEACHER_VELOCITIES, TeacherVelocity, target_stages
 from snapflow.protocol import Context, FlowPolicy
 
@@ -42,6 +42,23 @@ def euler_shortcut_target(velocity: VelocityFn, x_1: Tensor, steps: int = 2, cla
     teacher = velocity if clamp is None else (lambda x, t, s: velocity(x, t, s).clamp(-clamp, clamp))
     with torch.no_grad():
         return x_1 - euler_sample(teacher, x_1, SamplingMode(steps, jump=False))
+
+
+def jump_target(
+    velocity: VelocityFn, x_t: Tensor, t: Tensor, s: Tensor, steps: int = 2, clamp: float | None = None
+) -> Tensor:
+    """Average of the ``steps`` Euler velocities of the model's own marginal field from time ``t`` down to ``s``
+    (per row): the average velocity of the jump t -> s that the K-step Euler solver takes. At (t, s) = (1, 0) it is
+    :func:`euler_shortcut_target`. Computed without gradient; ``clamp`` bounds each velocity to +-clamp."""
+    teacher = velocity if clamp is None else (lambda x, time, _: velocity(x, time, time).clamp(-clamp, clamp))
+    with torch.no_grad():
+        x, total = x_t, torch.zeros_like(x_t)
+        for k in range(steps):
+            time, next_time = t - (t - s) * k / steps, t - (t - s) * (k + 1) / steps
+            v = teacher(x, time, time)
+            total = total + v
+            x = euler_step(x, v, time, next_time)
+        return total / steps
 
 
 def stage_at(stages: Sequence[int], progress: float) -> int:
@@ -63,6 +80,9 @@ class SnapFlowObjective(TwoBranchObjective):
             its K-step average is eps - a again, so the jump regresses the conditional mean of the actions).
         target_steps: K, the Euler steps the target averages (2: the paper), or a schedule of K that
             splits training into equal stages, e.g. ``(2, 4, 8)``; each step costs one no-grad pass.
+        intermediate_jumps: share of the one-step rows that jump between two inner times instead of 1 -> 0:
+            t ~ U(0, 1), s ~ U(0, t), from x_t on the path between the demonstration and its noise, onto the K-step
+            Euler average of the teacher velocities from t to s (0: the paper, every row jumps from pure noise).
     """
 
     alpha: float = 0.5
@@ -71,9 +91,12 @@ class SnapFlowObjective(TwoBranchObjective):
     teacher_velocity_clamp: float | None = None
     teacher_velocity: TeacherVelocity = "marginal"
     target_steps: int | tuple[int, ...] = 2
+    intermediate_jumps: float = 0.0
 
     def __post_init__(self) -> None:
         self._check_weights()
+        if not 0 <= self.intermediate_jumps <= 1:
+            raise ValueError(f"intermediate_jumps must be in [0, 1], got {self.intermediate_jumps}")
         if self.teacher_velocity_clamp is not None and self.teacher_velocity_clamp <= 0:
             raise ValueError(f"teacher_velocity_clamp must be positive, got {self.teacher_velocity_clamp}")
         if self.teacher_velocity not in TEACHER_VELOCITIES:
@@ -99,20 +122,30 @@ class SnapFlowObjective(TwoBranchObjective):
         generator: torch.Generator | None,
         progress: float,
     ) -> OneStepRows:
-        """The jump t = 1 -> s = 0 from x_1 = eps onto the K-step Euler shortcut of the teacher velocities."""
-        if self.teacher_velocity == "conditional":
-            target = conditional_velocity(actions, noise)
-        else:
-            steps = self.schedule(progress)["target_steps"]
-            target = euler_shortcut_target(
-                lambda x, t, s: policy.velocity(x, t, s, context), noise, steps, self.teacher_velocity_clamp
-            )
-        ones = torch.ones(noise.shape[0], device=noise.device)
-        return OneStepRows(noise, ones, torch.zeros_like(ones), target)
+        """The jump t = 1 -> s = 0 from x_1 = eps onto the K-step Euler shortcut of the teacher velocities; the
+        first ``intermediate_jumps`` share of the rows jump between inner times instead."""
+        rows = noise.shape[0]
+        inner = round(self.intermediate_jumps * rows)
+        t = torch.ones(rows, device=noise.device)
+        s = torch.zeros_like(t)
+        x = noise
+        if inner:
+            t_inner = 1 - uniform(inner, generator, t)  # in (0, 1]
+            s_inner = t_inner * uniform(inner, generator, t)
+            t, s = torch.cat([t_inner, t[inner:]]), torch.cat([s_inner, s[inner:]])
+            x = torch.cat([interpolate(actions[:inner], noise[:inner], t_inner), noise[inner:]])
+        if self.teacher_velocity == "conditional":  # the straight path's average velocity over any jump
+            return OneStepRows(x, t, s, conditional_velocity(actions, noise))
+        steps = self.schedule(progress)["target_steps"]
+        velocity = lambda x, t, s: policy.velocity(x, t, s, context)  # noqa: E731
+        if inner:  # per-row times; the 1 -> 0 rows get the paper's target up to rounding
+            return OneStepRows(x, t, s, jump_target(velocity, x, t, s, steps, self.teacher_velocity_clamp))
+        return OneStepRows(x, t, s, euler_shortcut_target(velocity, noise, steps, self.teacher_velocity_clamp))
 
 
 __all__ = [
     "SnapFlowObjective",
     "euler_shortcut_target",
+    "jump_target",
     "stage_at",
 ]

@@ -19,7 +19,7 @@ Target = Literal["euler", "bootstrap"]
 METHODS: tuple[str, ...] = get_args(Method)
 TARGETS: tuple[str, ...] = get_args(Target)
 # the settings that reach the objective as keyword options (alpha and lambda reach every objective)
-OBJECTIVE_OPTIONS = ("teacher_velocity_clamp", "teacher_velocity", "target_steps")
+OBJECTIVE_OPTIONS = ("teacher_velocity_clamp", "teacher_velocity", "target_steps", "intermediate_jumps")
 
 
 @dataclass(frozen=True)
@@ -32,7 +32,8 @@ class DistillSettings:
     SnapFlow's target is ``target="euler"`` (the average of ``target_steps`` Euler velocities; a list of
     them is a schedule over equal stages of training) or ``target="bootstrap"`` (built from the model's own
     half-jumps, reaching ``target_steps`` Euler steps at three passes per row; see
-    :mod:`snapflow.objective.bootstrap`). An option the chosen objective does not take must keep its default.
+    :mod:`snapflow.objective.bootstrap`). ``intermediate_jumps`` is the share of SnapFlow's one-step rows that jump
+    between inner times (t, s) instead of 1 -> 0. An option the chosen objective does not take must keep its default.
     """
 
     alpha: float = 0.5
@@ -44,6 +45,7 @@ class DistillSettings:
     target_time: bool = True
     target: Target = "euler"
     target_steps: int | tuple[int, ...] = 2
+    intermediate_jumps: float = 0.0
 
     def __post_init__(self) -> None:
         if isinstance(self.target_steps, list):  # as read from TOML or JSON
