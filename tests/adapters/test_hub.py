@@ -46,7 +46,7 @@ FAST_S = 15.0
 class FakeHub(BaseHTTPRequestHandler):
     """``/[datasets/]owner/<name>/resolve/main/<file>``: the answer ``ANSWERS`` gives ``name``, else the file."""
 
-    requests: list[str] = []
+    requests: list[str] = []  # the repo files asked for (huggingface_hub 1.x also calls /api/ endpoints of its own)
 
     def do_HEAD(self) -> None:
         self._answer(body=False)
@@ -55,7 +55,8 @@ class FakeHub(BaseHTTPRequestHandler):
         self._answer(body=True)
 
     def _answer(self, body: bool) -> None:
-        FakeHub.requests.append(self.path)
+        if "/resolve/" in self.path:
+            FakeHub.requests.append(self.path)
         parts = self.path.removeprefix("/datasets").split("/")
         status, headers = ANSWERS.get(parts[2], (200, {"X-Repo-Commit": COMMIT, "ETag": '"config"'}))
         self.send_response(status)
