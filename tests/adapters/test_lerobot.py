@@ -159,10 +159,13 @@ def test_distilling_into_an_output_another_process_holds_is_refused_before_anyth
     from snapflow.training.lerobot import distill_lerobot
     from tests.locking import held_by_another_process
 
+    dataset = tmp_path / "dataset"
+    (dataset / "meta").mkdir(parents=True)
+    (dataset / "meta" / "info.json").write_text("{}")  # a dataset folder, checked first (a wrong one writes nothing)
     with held_by_another_process(tmp_path / "run", "snapflow distill") as holder:
         with pytest.raises(RunLockedError, match=rf"\(pid {holder.pid}, snapflow distill\)"):
-            # neither the policy nor the dataset exists: the refusal comes first
-            distill_lerobot(str(tmp_path / "no-policy"), tmp_path / "no-dataset", "local/none", tmp_path / "run")
+            # the policy does not exist and the dataset is empty: the refusal comes before either loads
+            distill_lerobot(str(tmp_path / "no-policy"), dataset, "local/none", tmp_path / "run")
 
 
 @pytest.mark.slow
