@@ -270,6 +270,15 @@ def test_the_committed_results_render_to_the_committed_markdown_byte_for_byte(mo
             '[runs.teacher]\n[[tables]]\nname = "t"\nreference = "y"\nrows = [{ label = "x", run = "teacher", mode = "naive" }]\n',
             "reference 'y' is not one of its rows",
         ),
+        ("[data]\nepisodes_per_task = 0\n", "[data]: episodes_per_task must be an integer of at least 1, got 0"),
+        (
+            '[runs.teacher]\n[[tables]]\nname = "t"\nepisodes_per_task = 0\nrows = [{ label = "x", run = "teacher", mode = "naive" }]\n',
+            "episodes_per_task must be an integer of at least 1, got 0",
+        ),
+        (
+            '[runs.teacher]\n[[tables]]\nname = "t"\nrows = [{ label = "x", run = "teacher", mode = "naive", n_act = 0 }]\n',
+            "row 'x': n_act must be an integer of at least 1, got 0",
+        ),
     ],
 )
 def test_a_bad_sweep_config_is_refused_with_its_section_named(tmp_path, capsys, mistake, message):

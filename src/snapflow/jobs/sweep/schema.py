@@ -127,6 +127,13 @@ def _seeds(section: str, value: Any) -> tuple[int, ...]:
     return tuple(value)
 
 
+def _count(section: str, name: str, value: Any) -> int:
+    """A count (episodes, actions per chunk, image size): an integer of at least 1, never a silent default."""
+    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+        raise ValueError(f"{section}: {name} must be an integer of at least 1, got {value!r}")
+    return value
+
+
 def _data(raw: Any) -> DataSpec:
     entry = dict(_checked("[data]", raw, _field_names(DataSpec)))
     try:
@@ -138,6 +145,9 @@ def _data(raw: Any) -> DataSpec:
         entry["tasks"] = benchmark.tasks if tasks == "all" else tuple(benchmark.check_tasks(list(tasks)))
     except (TypeError, ValueError) as error:
         raise ValueError(f"[data] tasks: {error}") from None
+    for name in ("episodes_per_task", "image_size"):
+        if entry.get(name) is not None:
+            _count("[data]", name, entry[name])
     return _dataclass_from("[data]", DataSpec(), entry)
 
 
@@ -224,7 +234,7 @@ def _tables(path: Path, raw: Any, seeds: tuple[int, ...], runs: dict[str, RunSpe
                 mode = SamplingMode.parse(row["mode"])
             except ValueError as error:
                 raise ValueError(f"{section}: row {row['label']!r}: {error}") from None
-            n_act = row.get("n_act", entry.get("n_act", N_ACT))
+            n_act = _count(f"{section}: row {row['label']!r}", "n_act", row.get("n_act", entry.get("n_act", N_ACT)))
             rows.append(RowSpec(row["label"], row["run"], mode, n_act, row.get("series"), row.get("x")))
         reference = entry.get("reference")
         if reference is not None and reference not in [row.label for row in rows]:
@@ -235,7 +245,7 @@ def _tables(path: Path, raw: Any, seeds: tuple[int, ...], runs: dict[str, RunSpe
                 entry.get("title", entry["name"]),
                 tuple(rows),
                 table_seeds,
-                entry.get("episodes_per_task", EVAL_EPISODES),
+                _count(section, "episodes_per_task", entry.get("episodes_per_task", EVAL_EPISODES)),
                 entry.get("per_task", False),
                 entry.get("x_label"),
                 reference,
