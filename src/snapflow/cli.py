@@ -44,7 +44,6 @@ TRAINING_OPTIONS = {
 }
 # the pip extra that installs each optional module a command may need
 EXTRAS = {"lerobot": "lerobot", "metaworld": "metaworld", "mujoco": "metaworld"}
-LATEST_CHECKPOINT = "latest.json"  # what a run folder holds once it has a checkpoint (snapflow.policies.checkpoint)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -103,25 +102,21 @@ def _validation_share(text: str) -> float:
     return value
 
 
-def _modes(text: str) -> list[SamplingMode]:
-    try:
-        return [SamplingMode.parse(name) for name in text.split(",")]
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(str(error)) from None
+def _argument_type(parse: Callable[[str], Any]) -> Callable[[str], Any]:
+    """An argparse type from a parser of the API: its ValueError becomes argparse's one-line refusal."""
+
+    def convert(text: str) -> Any:
+        try:
+            return parse(text)
+        except ValueError as error:
+            raise argparse.ArgumentTypeError(str(error)) from None
+
+    return convert
 
 
-def _target_steps(value: str) -> int | tuple[int, ...]:
-    try:
-        return parse_target_steps(value)
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(str(error)) from None
-
-
-def _target_option(value: str) -> TargetOption:
-    try:
-        return TargetOption.parse(value)
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(str(error)) from None
+_modes = _argument_type(lambda text: [SamplingMode.parse(name) for name in text.split(",")])
+_target_steps = _argument_type(parse_target_steps)
+_target_option = _argument_type(TargetOption.parse)
 
 
 def _default(cls: type, name: str) -> Any:
@@ -438,7 +433,9 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def _training_interrupted(args: argparse.Namespace) -> str:
-    latest = Path(args.output) / LATEST_CHECKPOINT
+    from snapflow.policies.checkpoint import LATEST  # imported at the interrupt: the parser loads no torch
+
+    latest = Path(args.output) / LATEST
     if latest.is_file():
         checkpoint = json.loads(latest.read_text()).get("checkpoint", "?")
         return f"interrupted; {args.output} keeps its last checkpoint ({checkpoint}): run the same command with --resume to continue"
