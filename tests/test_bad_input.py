@@ -380,6 +380,11 @@ ARGUMENT_MISTAKES = {
     "zero checkpoint interval": (["train", "--data", "d", "--checkpoint-every", "0"], "--checkpoint-every"),
     "validation share above 1": (["train", "--data", "d", "--val-fraction", "1.5"], "--val-fraction", "at most 1"),
     "nothing left to train on": (["train", "--data", "d", "--val-fraction", "1"], "--val-fraction", "below 1"),
+    "an average that never moves": (
+        ["distill", "--teacher", "t", "--data", "d", "--ema-decay", "1"],
+        "--ema-decay",
+        "below 1",
+    ),
     "no teacher steps": (["toy", "--teacher-steps", "0"], "--teacher-steps", "at least 1"),
     "negative lambda": (["distill", "--teacher", "t", "--data", "d", "--lambda", "-1"], "--lambda", "at least 0"),
     "alpha above 1": (["distill", "--teacher", "t", "--data", "d", "--alpha", "1.5"], "--alpha", "at most 1"),

@@ -150,7 +150,8 @@ def _check_writable(output: str | Path) -> None:
 
 
 def _train_config(args: argparse.Namespace, base: TrainConfig) -> TrainConfig:
-    return replace(base, **{name: getattr(args, name) for name in TRAINING_OPTIONS if getattr(args, name) is not None})
+    chosen = {name: getattr(args, name) for name in (*TRAINING_OPTIONS, "ema_decay") if getattr(args, name) is not None}
+    return replace(base, **chosen)
 
 
 def _toy(args: argparse.Namespace) -> int:
@@ -491,6 +492,13 @@ def _add_training_options(
             if base is not None
             else f"{help} (default: {getattr(STUDENT_TRAINING, name)} for a built-in teacher, the paper's for LeRobot)",
         )
+    parser.add_argument(
+        "--ema-decay",
+        type=_number(float, 0, 1, strict=True),
+        default=base.ema_decay if base is not None else None,
+        help="save an exponential moving average of the trained weights with this decay (e.g. 0.999) as each "
+        "checkpoint's policy; the raw weights are kept beside it for --resume (default: off)",
+    )
     parser.add_argument("--resume", action="store_true", help="continue from the run's latest checkpoint")
 
 

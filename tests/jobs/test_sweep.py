@@ -18,6 +18,7 @@ from snapflow.jobs.sweep.planning import train_job
 from snapflow.jobs.sweep.results import TableResult, markdown_blocks, tables_markdown
 from snapflow.policies.minivla import MiniVLAConfig
 from snapflow.policies.mlp import MLPPolicyConfig
+from snapflow.reporting.records import as_record
 from snapflow.training.config import STUDENT_TRAINING, TEACHER_TRAINING
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -34,6 +35,7 @@ def write_config(
     teacher_policy: str = TINY_POLICY,
     teacher_train: str = TINY_TRAIN,
     snapflow_distill: str = "{ target_steps = [2, 4] }",
+    snapflow_train: str = TINY_TRAIN,
     meanflow_distill: str = '{ method = "meanflow" }',
 ) -> Path:
     path = directory / "tiny.toml"
@@ -54,7 +56,7 @@ train = {teacher_train}
 [runs.snapflow]
 teacher = "teacher"
 distill = {snapflow_distill}
-train = {TINY_TRAIN}
+train = {snapflow_train}
 [runs.meanflow]
 teacher = "teacher"
 distill = {meanflow_distill}
@@ -159,6 +161,17 @@ def test_changing_a_teacher_replans_it_every_student_of_it_and_all_their_evaluat
     assert finish(tmp_path, **change) == ALL_TRAINS | ALL_EVALS
 
 
+def test_an_option_added_later_replans_only_the_runs_that_set_it(tmp_path):
+    """Records of runs that leave an added option (here the weight average) at its default, as every record written
+    before it existed does, stay done; a run that sets it trains again, with its evaluations."""
+    assert finish(tmp_path, snapflow_train=TINY_TRAIN.replace(" }", ", ema_decay = 0.99 }")) == {
+        ("train", "snapflow", 0),
+        ("train", "snapflow", 1),
+        ("eval", "snapflow", 0, "snapflow-1"),
+        ("eval", "snapflow", 1, "snapflow-1"),
+    }
+
+
 def test_a_default_written_out_changes_nothing(tmp_path):
     """The settings are the resolved ones: giving a default explicitly is the same run."""
     assert finish(tmp_path, teacher_policy=TINY_POLICY.replace("}", ", chunk_length = 8 }")) == set()
@@ -177,8 +190,9 @@ def test_job_settings_are_complete_and_keys_follow_the_dependencies(tmp_path):
     config = load_sweep(write_config(tmp_path))
     by_name = {next(iter(names([job]))): job for job in jobs(config)}
     teacher, student = by_name[("train", "teacher", 0)], by_name[("train", "snapflow", 1)]
-    assert teacher.settings()["train"] == {**asdict(TEACHER_TRAINING), **teacher.settings()["train"]}
-    assert set(teacher.settings()["train"]) == set(asdict(TEACHER_TRAINING))  # every field, defaults included
+    # every field, defaults included, but an option added later while it is off (see reporting.records)
+    assert set(teacher.settings()["train"]) == set(asdict(TEACHER_TRAINING)) - {"ema_decay"}
+    assert teacher.settings()["train"] == {**as_record(TEACHER_TRAINING), **teacher.settings()["train"]}
     assert teacher.settings()["policy"] == {"type": "minivla", **asdict(config.runs["teacher"].policy)}
     assert student.settings()["train"]["learning_rate"] == STUDENT_TRAINING.learning_rate
     assert student.settings()["distill"]["target_steps"] == (2, 4) and student.settings()["train"]["seed"] == 1

@@ -9,7 +9,7 @@ the no-grad passes its target costs per one-step row, and the seconds per step.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -20,6 +20,7 @@ from snapflow.jobs.toy import run_toy_experiment
 from snapflow.jobs.toy_config import ToyConfig
 from snapflow.reporting.figures import pyplot, save_figure
 from snapflow.reporting.files import write_json, write_text
+from snapflow.reporting.records import as_record
 from snapflow.reporting.statistics import mean_std
 from snapflow.reporting.tables import markdown_table
 from snapflow.training.distill import TargetOption
@@ -35,7 +36,7 @@ class ToyJob(Job):
     path: Path
 
     def settings(self) -> dict[str, Any]:
-        return asdict(self.config)
+        return as_record(self.config)
 
     @property
     def record_path(self) -> Path:
@@ -99,7 +100,7 @@ def compare_targets(
             }
         )
     summary: dict[str, Any] = {
-        "config": {**asdict(base), "seed": None, "target": None, "target_steps": None},
+        "config": {**as_record(base), "seed": None, "target": None, "target_steps": None},
         "seeds": seeds,
     }
     for name in ("teacher-10", "naive-1"):  # one teacher per seed, whatever the target

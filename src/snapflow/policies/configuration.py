@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
-from dataclasses import MISSING, asdict, dataclass, fields
+from dataclasses import MISSING, dataclass, fields
 from typing import Any, TypeVar
+
+from snapflow.reporting.records import as_record
 
 Config = TypeVar("Config", bound="PolicyConfig")
 
@@ -28,7 +30,7 @@ class PolicyConfig:
                 raise ValueError(f"{name}.{field.name} must be at least 1, got {value}")
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        return as_record(self)
 
     @classmethod
     def from_dict(cls: type[Config], data: dict[str, Any]) -> Config:

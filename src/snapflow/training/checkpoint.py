@@ -1,5 +1,6 @@
 """Training checkpoints: the policy's files (:mod:`snapflow.policies.checkpoint`) plus ``optimizer.safetensors`` and
-``trainer_state.json``, written atomically.
+``trainer_state.json``, written atomically. A run that averages its weights (``TrainConfig.ema_decay``) saves the
+average as the policy and the raw trained weights in ``training_weights.safetensors``, which resuming continues from.
 
 A checkpoint is assembled in a temporary directory and renamed into place, and the run's ``latest.json`` is
 switched only after that, so a kill at any moment leaves the last good checkpoint whole.
@@ -29,6 +30,7 @@ from snapflow.policies.checkpoint import (
 from snapflow.reporting.files import write_json
 
 OPTIMIZER_STATE, TRAINER_STATE = "optimizer.safetensors", "trainer_state.json"
+TRAINING_WEIGHTS = "training_weights.safetensors"
 
 
 def optimizer_tensors(optimizer: torch.optim.Optimizer) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
@@ -64,12 +66,27 @@ def restore_optimizer(optimizer: torch.optim.Optimizer, directory: Path) -> None
         ) from None
 
 
-def restore_training(run_directory: Path, policy: nn.Module, optimizer: torch.optim.Optimizer) -> dict[str, Any]:
-    """Load the latest checkpoint of a run into ``policy`` and ``optimizer``; return its trainer state."""
+def restore_training(
+    run_directory: Path, policy: nn.Module, optimizer: torch.optim.Optimizer
+) -> tuple[dict[str, Any], dict[str, torch.Tensor] | None]:
+    """Load the latest checkpoint of a run into ``policy`` and ``optimizer`` (the raw trained weights where it
+    saved an average as the policy); return its trainer state and that average by parameter name (None if none)."""
     checkpoint = resolve_checkpoint(run_directory)
     load_state_strict(policy, read_tensors(checkpoint / POLICY_WEIGHTS), checkpoint / POLICY_WEIGHTS)
     restore_optimizer(optimizer, checkpoint)
-    return {key: value for key, value in read_json(checkpoint / TRAINER_STATE).items() if key != "optimizer"}
+    state = {key: value for key, value in read_json(checkpoint / TRAINER_STATE).items() if key != "optimizer"}
+    if not (checkpoint / TRAINING_WEIGHTS).is_file():
+        return state, None
+    raw = read_tensors(checkpoint / TRAINING_WEIGHTS)
+    parameters = dict(policy.named_parameters())
+    unknown = sorted(set(raw) - set(parameters))
+    if unknown:
+        raise CheckpointError(f"{checkpoint / TRAINING_WEIGHTS} names parameters the policy lacks: {unknown[:5]}")
+    average = {name: parameters[name].detach().clone() for name in raw}
+    with torch.no_grad():
+        for name, value in raw.items():
+            parameters[name].copy_(value)
+    return state, average
 
 
 def save_checkpoint(
@@ -78,8 +95,10 @@ def save_checkpoint(
     metadata: dict[str, Any],
     optimizer: torch.optim.Optimizer | None = None,
     trainer_state: dict[str, Any] | None = None,
+    training_weights: dict[str, torch.Tensor] | None = None,
 ) -> Path:
-    """Write a checkpoint directory atomically (temporary sibling, then rename)."""
+    """Write a checkpoint directory atomically (temporary sibling, then rename); ``training_weights``: the raw
+    trained weights by parameter name, where ``policy`` holds their average."""
     directory = Path(directory)
     temporary = directory.parent / f".{directory.name}.partial-{os.getpid()}"
     for stale in directory.parent.glob(f".{directory.name}.partial-*"):  # left by a writer that was killed
@@ -90,6 +109,8 @@ def save_checkpoint(
         tensors, optimizer_meta = optimizer_tensors(optimizer)
         save_file({k: v.cpu() for k, v in tensors.items()}, temporary / OPTIMIZER_STATE)
         write_json(temporary / TRAINER_STATE, {**(trainer_state or {}), "optimizer": optimizer_meta})
+    if training_weights is not None:
+        save_file({k: v.detach().cpu().contiguous() for k, v in training_weights.items()}, temporary / TRAINING_WEIGHTS)
     if directory.exists():  # re-saving the same name: move the old one aside first, drop it after the swap
         retired = directory.parent / f".{directory.name}.retired-{os.getpid()}"
         os.replace(directory, retired)
@@ -109,4 +130,11 @@ def mark_latest(run_directory: Path, checkpoint: Path, keep: int) -> None:
             shutil.rmtree(old)
 
 
-__all__ = ["OPTIMIZER_STATE", "TRAINER_STATE", "save_checkpoint", "mark_latest", "restore_training"]
+__all__ = [
+    "OPTIMIZER_STATE",
+    "TRAINER_STATE",
+    "TRAINING_WEIGHTS",
+    "save_checkpoint",
+    "mark_latest",
+    "restore_training",
+]

@@ -6,11 +6,18 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from snapflow.reporting.records import added_option
+
 
 @dataclass(frozen=True)
 class TrainConfig:
     """One training run's optimisation settings: AdamW with linear warm-up and cosine decay, gradient clipping,
-    periodic validation and checkpoints."""
+    periodic validation and checkpoints.
+
+    ``ema_decay``: keep an exponential moving average of the trained weights (see
+    :class:`snapflow.training.ema.WeightAverage`) and save it as each checkpoint's policy, the raw weights beside it
+    for resuming; None trains and saves the raw weights only.
+    """
 
     steps: int = 3000
     batch_size: int = 64
@@ -25,6 +32,7 @@ class TrainConfig:
     checkpoint_every: int = 500
     keep_checkpoints: int = 2
     mixed_precision: str = "no"
+    ema_decay: float | None = added_option(None)
 
     def __post_init__(self) -> None:
         for name in ("steps", "batch_size", "log_every", "validate_every", "checkpoint_every", "keep_checkpoints"):
@@ -32,6 +40,8 @@ class TrainConfig:
                 raise ValueError(f"TrainConfig.{name} must be at least 1, got {getattr(self, name)}")
         if self.learning_rate <= 0:
             raise ValueError(f"TrainConfig.learning_rate must be positive, got {self.learning_rate}")
+        if self.ema_decay is not None and not 0 < self.ema_decay < 1:
+            raise ValueError(f"TrainConfig.ema_decay must be between 0 and 1 (exclusive), got {self.ema_decay}")
 
     def learning_rate_at(self, step: int) -> float:
         """Linear warm-up, then cosine decay to ``min_learning_rate_ratio`` of the peak."""

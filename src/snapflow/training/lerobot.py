@@ -4,7 +4,6 @@ safetensors checkpoints, resume). The result is also exported in LeRobot's own l
 from __future__ import annotations
 
 from contextlib import nullcontext
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +16,7 @@ from snapflow.adapters.lerobot.data import LeRobotChunkData
 from snapflow.adapters.lerobot.registry import load_pretrained_policy, wrap_policy
 from snapflow.flow.time_sampling import BetaTimeSampler
 from snapflow.reporting.locks import hold_run_lock
+from snapflow.reporting.records import as_record
 from snapflow.training.config import TrainConfig
 from snapflow.training.distill import DistillSettings
 from snapflow.training.trainer import train
@@ -161,7 +161,7 @@ def _distill_lerobot(
         "policy": adapter.policy_type,
         "source": str(policy_path),
         "dataset": {"repo_id": repo_id, "root": dataset_root and str(dataset_root)},
-        "distill": asdict(settings),
+        "distill": as_record(settings),
         "stage": "snapflow",
     }
     state = train(

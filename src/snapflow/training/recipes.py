@@ -6,7 +6,6 @@ are :mod:`snapflow.training.config`'s.
 
 from __future__ import annotations
 
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +19,7 @@ from snapflow.objective.snapflow import SnapFlowObjective
 from snapflow.policies.checkpoint import load_policy, policy_metadata
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import fit_processor, make_model
+from snapflow.reporting.records import as_record
 from snapflow.training.config import STUDENT_TRAINING, TEACHER_TRAINING, VAL_FRACTION, TrainConfig
 from snapflow.training.distill import DistillSettings
 from snapflow.training.trainer import train
@@ -81,7 +81,7 @@ def distill(
         loaded.processor,
         stage="snapflow",
         teacher=str(loaded.path),
-        distill=asdict(settings),
+        distill=as_record(settings),
         data={"path": str(data), "val_fraction": val_fraction, "env": demonstrations.env},
     )
     trainable = policy.expert_parameters() if settings.freeze_prefix else None

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import time
 from contextlib import nullcontext
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -23,8 +22,10 @@ from snapflow.policies.checkpoint import LATEST, CheckpointError
 from snapflow.protocol import map_tensors
 from snapflow.reporting.files import write_json
 from snapflow.reporting.locks import hold_run_lock
+from snapflow.reporting.records import as_record
 from snapflow.training.checkpoint import mark_latest, restore_training, save_checkpoint
 from snapflow.training.config import TrainConfig
+from snapflow.training.ema import WeightAverage
 
 HISTORY = "history.json"  # the run's losses and validation, written when training reaches its last step
 
@@ -201,21 +202,27 @@ def _train(
     for parameter in policy.parameters():
         parameter.requires_grad_(id(parameter) in trainable_ids)
     optimizer = torch.optim.AdamW(parameters, lr=config.learning_rate, weight_decay=config.weight_decay)
+    average = None
+    if config.ema_decay is not None:
+        average = WeightAverage(
+            {name: p for name, p in policy.named_parameters() if id(p) in trainable_ids}, config.ema_decay
+        )
 
-    state: dict[str, Any] = {
-        "step": 0,
-        "history": [],
-        "validation": [],
-        "train_config": asdict(config),
-        "wall_time_s": 0.0,
-    }
+    recorded = as_record(config)
+    state: dict[str, Any] = {"step": 0, "history": [], "validation": [], "train_config": recorded, "wall_time_s": 0.0}
     if resume and (run_directory / LATEST).is_file():
-        state = restore_training(run_directory, policy, optimizer)
-        if state["train_config"] != asdict(config):
-            changed = sorted(k for k in asdict(config) if state["train_config"].get(k) != asdict(config)[k])
+        state, saved_average = restore_training(run_directory, policy, optimizer)
+        if state["train_config"] != recorded:
+            changed = sorted(
+                k
+                for k in recorded.keys() | state["train_config"].keys()
+                if state["train_config"].get(k) != recorded.get(k)
+            )
             raise CheckpointError(
                 f"cannot resume {run_directory}: training settings differ from the checkpoint's in {changed}"
             )
+        if average is not None and saved_average is not None:
+            average.average = saved_average
         accelerator.print(f"resuming {run_directory} at step {state['step']}")
     elif resume:
         accelerator.print(f"nothing to resume in {run_directory}; starting at step 0")
@@ -232,13 +239,15 @@ def _train(
     def checkpoint_now(step: int) -> None:
         if accelerator.is_main_process:
             state.update(step=step, wall_time_s=time.perf_counter() - started)
-            path = save_checkpoint(
-                run_directory / "checkpoints" / f"step_{step:07d}",
-                accelerator.unwrap_model(module).policy,
-                metadata,
-                optimizer.optimizer,
-                state,
-            )
+            with average.applied() if average is not None else nullcontext() as raw:  # evaluation reads the average
+                path = save_checkpoint(
+                    run_directory / "checkpoints" / f"step_{step:07d}",
+                    accelerator.unwrap_model(module).policy,
+                    metadata,
+                    optimizer.optimizer,
+                    state,
+                    training_weights=raw,
+                )
             mark_latest(run_directory, path, config.keep_checkpoints)
         accelerator.wait_for_everyone()
 
@@ -270,6 +279,8 @@ def _train(
                 accelerator=accelerator,
             )
         )
+        if average is not None:
+            average.update(step)
         done = step + 1
         if done % config.log_every == 0 or done == config.steps:
             mean = torch.stack(running).float().mean(0).tolist()

@@ -4,7 +4,7 @@ evaluate, each keyed by its full resolved settings and those of the jobs it read
 from __future__ import annotations
 
 from contextlib import ExitStack
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -19,6 +19,7 @@ from snapflow.policies.checkpoint import load_policy
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import policy_type_of
 from snapflow.reporting.locks import hold_run_lock
+from snapflow.reporting.records import as_record
 from snapflow.training.config import VAL_FRACTION, TrainConfig
 from snapflow.training.distill import DistillSettings
 from snapflow.training.recipes import distill, train_teacher
@@ -36,7 +37,7 @@ class CollectJob(Job):
     data: DataSpec
 
     def settings(self) -> dict[str, Any]:
-        return asdict(self.data)
+        return as_record(self.data)
 
     @property
     def record_path(self) -> Path:
@@ -86,8 +87,8 @@ class TrainJob(Job):
     def settings(self) -> dict[str, Any]:
         if self.teacher is None:
             policy = {"type": policy_type_of(self.policy).name, **self.policy.to_dict()}
-            return {"policy": policy, "train": asdict(self.train), "val_fraction": VAL_FRACTION}
-        return {"distill": asdict(self.distill), "train": asdict(self.train)}  # held-out episodes: the teacher's
+            return {"policy": policy, "train": as_record(self.train), "val_fraction": VAL_FRACTION}
+        return {"distill": as_record(self.distill), "train": as_record(self.train)}  # held-out episodes: the teacher's
 
     @property
     def dependencies(self) -> tuple[Job, ...]:
@@ -136,7 +137,7 @@ class EvalJob(Job):
 
     def settings(self) -> dict[str, Any]:
         return {
-            "mode": asdict(self.mode),
+            "mode": as_record(self.mode),
             "n_act": self.n_act,
             "episodes_per_task": self.episodes_per_task,
             "seed": self.policy.seed,

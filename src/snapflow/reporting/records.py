@@ -1,0 +1,36 @@
+"""Settings as they are recorded (job records, checkpoints' training state): a dataclass as a dict, where a field
+added after records were first written is left out while it holds its default.
+
+That default must be the behaviour from before the field existed (a lever that is off), so a record written before
+the field existed still describes a run with the new code's default: sweep caches and resumable runs stay valid when
+an option is added, and a run that sets the option is recorded with it.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import Field, field, fields, is_dataclass
+from typing import Any
+
+_ADDED = "snapflow_added_option"
+
+
+def added_option(default: Any, **kwargs: Any) -> Any:
+    """A dataclass field added after records existed: ``default`` must reproduce the behaviour from before it."""
+    return field(default=default, metadata={_ADDED: True}, **kwargs)
+
+
+def _left_out(definition: Field, value: Any) -> bool:
+    return bool(definition.metadata.get(_ADDED)) and value == definition.default
+
+
+def as_record(instance: Any) -> dict[str, Any]:
+    """``dataclasses.asdict`` of ``instance``, without the added options that hold their defaults."""
+    return {
+        definition.name: as_record(value) if is_dataclass(value) else copy.deepcopy(value)
+        for definition in fields(instance)
+        if not _left_out(definition, value := getattr(instance, definition.name))
+    }
+
+
+__all__ = ["added_option", "as_record"]
