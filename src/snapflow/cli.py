@@ -347,6 +347,40 @@ def _eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def _diagnose(args: argparse.Namespace) -> int:
+    _check_writable(args.output)
+    from snapflow.data.demonstrations import Demonstrations
+    from snapflow.evaluation.diagnosis import diagnose_task, markdown_diagnosis, write_diagnosis
+    from snapflow.policies.checkpoint import load_policy
+
+    teacher, student = load_policy(args.teacher), load_policy(args.student)
+    env = args.env or student.metadata.get("data", {}).get("env", DEFAULT_BENCHMARK)
+    (task,) = make_benchmark(env).check_tasks([args.task])
+    data = args.data or student.metadata.get("data", {}).get("path")
+    if data is None:
+        raise ValueError(f"{student.path} does not name its demonstrations; pass --data")
+    teacher_mode = SamplingMode.parse(f"teacher-{args.teacher_steps}")
+    runs = [
+        (f"teacher {args.teacher_steps}-NFE", teacher, teacher_mode),
+        ("naive 1-NFE", teacher, SamplingMode.parse("naive")),
+        ("SnapFlow 1-NFE", student, SamplingMode.parse("snapflow-1")),
+    ]
+    diagnosis = diagnose_task(
+        runs,
+        make_benchmark(env),
+        task,
+        args.episodes,
+        Demonstrations.load(data),
+        args.n_act,
+        seed=args.seed,
+        progress=not args.no_progress,
+    )
+    write_diagnosis(diagnosis, args.output)
+    print(markdown_diagnosis(diagnosis))
+    print(f"wrote diagnosis.json, diagnosis.md, phases.png and the chunk plots to {args.output}")
+    return 0
+
+
 def _eval_in_lerobot_env(args: argparse.Namespace) -> int:
     if len(args.policy) != 1:
         raise ValueError("--lerobot-env evaluates one distilled LeRobot policy directory at a time")
@@ -412,10 +446,12 @@ def _sweep(args: argparse.Namespace) -> int:
     from snapflow.jobs.sweep import load_sweep, run_sweeps, write_results
 
     configs = [load_sweep(path) for path in args.configs]
-    if not args.report_only:
-        run_sweeps(configs, args.workers, not args.no_progress)
     for config in configs:
-        write_results(config, args.document)
+        config.table_names(args.tables)  # a mistyped table is refused before anything runs
+    if not args.report_only:
+        run_sweeps([config.only(args.tables) for config in configs], args.workers, not args.no_progress)
+    for config in configs:
+        write_results(config, args.document, args.tables)
         print(f"{config.name}: wrote results.json, tables.md and PNG plots to {config.results_dir}")
     if args.document:
         print(f"updated the sweep tables in {args.document}")
@@ -728,6 +764,26 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_output(evaluate, "outputs/eval", "where report.json, report.md and the plots go")
 
+    diagnose = _command(
+        commands,
+        "diagnose",
+        "where a one-step student fails on a task: distance to the scripted expert along the episodes, and every "
+        "row's chunks at the failed moments against the nearest demonstration",
+        _diagnose,
+        _nothing_written,
+        common,
+    )
+    diagnose.add_argument("--teacher", required=True, help="the teacher's run or checkpoint directory")
+    diagnose.add_argument("--student", required=True, help="the distilled student's run or checkpoint directory")
+    diagnose.add_argument("--task", required=True, help="one task of the benchmark, e.g. peg-insert-side-v3")
+    diagnose.add_argument("--env", choices=list(BENCHMARKS), help="benchmark (default: the student's)")
+    diagnose.add_argument("--data", help="demonstrations (default: those the student was distilled on)")
+    diagnose.add_argument("--episodes", type=COUNT, default=20, help="evaluation episodes of the task")
+    diagnose.add_argument("--n-act", type=COUNT, default=N_ACT, help="actions executed per predicted chunk")
+    diagnose.add_argument("--teacher-steps", type=COUNT, default=10, help="Euler steps of the teacher row")
+    diagnose.add_argument("--seed", type=NON_NEGATIVE_COUNT, default=0, help="seed of the sampling noise")
+    _add_output(diagnose, "outputs/diagnosis", "folder for diagnosis.json, diagnosis.md and the PNGs")
+
     bench = _command(
         commands,
         "bench",
@@ -800,6 +856,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--document", help="also write the tables between their markers in this Markdown file (e.g. docs/RESULTS.md)"
     )
     sweep.add_argument("--report-only", action="store_true", help="only rebuild the results from finished runs")
+    sweep.add_argument(
+        "--tables",
+        type=lambda text: text.split(","),
+        help="comma-separated: run and rebuild only these tables; the others keep their results in results.json "
+        "(default: every table)",
+    )
 
     demo = _command(
         commands, "demo", "MT10: collect -> train -> distill -> eval, one final table", _demo, _demo_interrupted, common

@@ -5,7 +5,7 @@ real (slow: Meta-World, training, evaluation, files on disk)."""
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -15,7 +15,7 @@ from snapflow.cli import main
 from snapflow.jobs.runner import Job, is_done, read_record, run_jobs, write_record
 from snapflow.jobs.sweep import CollectJob, EvalJob, TrainJob, jobs, load_sweep, plan, replace_block, run_sweeps
 from snapflow.jobs.sweep.planning import train_job
-from snapflow.jobs.sweep.results import TableResult, markdown_blocks, tables_markdown
+from snapflow.jobs.sweep.results import TableResult, markdown_blocks, tables_markdown, write_results
 from snapflow.policies.minivla import MiniVLAConfig
 from snapflow.policies.mlp import MLPPolicyConfig
 from snapflow.reporting.records import as_record
@@ -236,6 +236,41 @@ def test_the_committed_results_render_to_the_committed_markdown_byte_for_byte(mo
         assert f"<!-- sweep:{key} -->" in document
         rewritten = replace_block(rewritten, key, body)
     assert rewritten == document
+
+
+def test_one_table_plans_only_what_it_needs(tmp_path):
+    config = load_sweep(write_config(tmp_path))
+    assert names(plan(config.only(["nfe"]))) == {
+        ("collect",),
+        ("train", "teacher", 0),
+        ("train", "meanflow", 0),
+        ("eval", "teacher", 0, "naive-1"),
+        ("eval", "teacher", 0, "teacher-2"),
+        ("eval", "meanflow", 0, "snapflow-1"),
+    }
+    assert config.only(None) == config
+    with pytest.raises(ValueError, match="no table 'headlines'; its tables are \\['headline', 'nfe'\\]"):
+        config.only(["headlines"])
+
+
+def test_rebuilding_some_tables_keeps_the_others_results_as_they_are(tmp_path, monkeypatch):
+    """With no table rebuilt, every table is read back from results.json and written out byte for byte."""
+    monkeypatch.chdir(ROOT)
+    config = load_sweep("configs/sweeps/mt10-via-points.toml")
+    copy = tmp_path / "results"
+    copy.mkdir()
+    for name in ("results.json", "tables.md"):
+        (copy / name).write_bytes((config.results_dir / name).read_bytes())
+    kept = replace(config, results_dir=copy)
+    written = write_results(kept, tables=[])
+    assert written["tables"] == json.loads((config.results_dir / "results.json").read_text())["tables"]
+    assert (copy / "tables.md").read_text() == (config.results_dir / "tables.md").read_text()
+    assert not list(copy.glob("*.png")), "no table was rebuilt, so no plot is redrawn"
+    stored = json.loads((copy / "results.json").read_text())
+    del stored["tables"]["targets"]
+    (copy / "results.json").write_text(json.dumps(stored))
+    with pytest.raises(FileNotFoundError, match="holds no table 'targets' to keep"):
+        write_results(kept, tables=["headline"])
 
 
 @pytest.mark.parametrize(

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -38,37 +37,33 @@ def collect_demonstrations(
     available = check_collection(benchmark, tasks, episodes_per_task)
     states, actions, images, episodes = [], [], [], []
     bar = tqdm(total=len(tasks) * episodes_per_task, desc="collecting expert demonstrations", disable=not progress)
-    with warnings.catch_warnings():
-        warnings.filterwarnings(
-            "ignore", message="Constant.*may be too high"
-        )  # Meta-World's experts' own clipping notice
-        for task in tasks:
-            env, expert = benchmark.make_env(task, "train", image_size), benchmark.make_expert(task)
-            kept = 0
-            for variation in range(available):
-                if kept == episodes_per_task:
-                    break
-                observation = env.reset(variation, render=True)
-                expert.reset(observation)
-                episode_states, episode_actions, episode_images, success, done = [], [], [], False, False
-                while not done:
-                    action = np.clip(expert.act(observation), -1.0, 1.0).astype(np.float32)
-                    episode_states.append(observation.state)
-                    episode_actions.append(action)
-                    if observation.image is not None:
-                        episode_images.append(observation.image)
-                    observation, success, done = env.step(action, render=image_size is not None)
-                if success:
-                    start = sum(episode.length for episode in episodes)
-                    episodes.append(Episode(task, variation, start, len(episode_actions)))
-                    states += episode_states
-                    actions += episode_actions
-                    images += episode_images
-                    kept += 1
-                    bar.update()
-            env.close()
-            if kept < episodes_per_task:
-                raise RuntimeError(f"the {task} expert succeeded on only {kept} of {available} variations")
+    for task in tasks:
+        env, expert = benchmark.make_env(task, "train", image_size), benchmark.make_expert(task)
+        kept = 0
+        for variation in range(available):
+            if kept == episodes_per_task:
+                break
+            observation = env.reset(variation, render=True)
+            expert.reset(observation)
+            episode_states, episode_actions, episode_images, success, done = [], [], [], False, False
+            while not done:
+                action = expert.act(observation)
+                episode_states.append(observation.state)
+                episode_actions.append(action)
+                if observation.image is not None:
+                    episode_images.append(observation.image)
+                observation, success, done = env.step(action, render=image_size is not None)
+            if success:
+                start = sum(episode.length for episode in episodes)
+                episodes.append(Episode(task, variation, start, len(episode_actions)))
+                states += episode_states
+                actions += episode_actions
+                images += episode_images
+                kept += 1
+                bar.update()
+        env.close()
+        if kept < episodes_per_task:
+            raise RuntimeError(f"the {task} expert succeeded on only {kept} of {available} variations")
     bar.close()
     episode_index = np.concatenate([np.full(e.length, i, dtype=np.int64) for i, e in enumerate(episodes)])
     return Demonstrations(

@@ -137,7 +137,12 @@ class ScriptedExpert:
         """Meta-World's experts are memoryless."""
 
     def act(self, observation: Observation) -> np.ndarray:
-        return np.asarray(self.policy.get_action(observation.state), dtype=np.float32)
+        """The action the environment applies: the expert's, clipped to Meta-World's [-1, 1] (the experts warn that
+        their gains exceed it; that notice is silenced)."""
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="Constant.*may be too high")
+            action = self.policy.get_action(observation.state)
+        return np.clip(np.asarray(action, dtype=np.float32), -1.0, 1.0)
 
 
 class MetaWorld(Benchmark):

@@ -4,12 +4,13 @@ environment that needs a new chunk, so inference uses every core while environme
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 
 import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from snapflow.envs.base import Benchmark
+from snapflow.envs.base import Benchmark, Observation
 from snapflow.evaluation.results import EpisodeResult
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.solver import sample_actions
@@ -41,8 +42,10 @@ class ClosedLoopEvaluator:
         n_act: int,
         seed: int = 0,
         progress: bool = True,
+        record: Callable[[int, Observation, np.ndarray], None] | None = None,
     ) -> list[EpisodeResult]:
-        """Roll out every slot to success or the step limit, re-planning a chunk every ``n_act`` actions."""
+        """Roll out every slot to success or the step limit, re-planning a chunk every ``n_act`` actions;
+        ``record(slot, observation, action)`` is called before each step (to trace episodes)."""
         chunk_length = processor.chunk_length
         if not 1 <= n_act <= chunk_length:
             raise ValueError(f"n_act must be in [1, {chunk_length}] (the policy's chunk length), got {n_act}")
@@ -68,6 +71,8 @@ class ClosedLoopEvaluator:
                 if i in results:
                     continue
                 action = queues[i].popleft()
+                if record is not None:
+                    record(i, observations[i], action)
                 # render only where the next step re-plans: the image is needed nowhere else
                 observations[i], success, done = env.step(action, render=not queues[i])
                 if done:

@@ -347,15 +347,30 @@ def tables_markdown(config: SweepConfig, results: dict[str, TableResult]) -> str
     return f"# {config.title}\n\n{tables}\n"
 
 
-def write_results(config: SweepConfig, document: str | Path | None = None) -> dict[str, Any]:
+def write_results(
+    config: SweepConfig, document: str | Path | None = None, tables: list[str] | None = None
+) -> dict[str, Any]:
     """``results.json``, ``tables.md`` and one PNG per table in the sweep's results_dir; the tables also go
     into ``document`` (between their markers) if given. Returns the content of ``results.json``.
 
-    Raises FileNotFoundError naming the first evaluation not done when the sweep has not run to the end.
+    ``tables``: rebuild only these from their evaluations; every other table is read back from the results.json
+    already there and kept as it is (a FileNotFoundError names one it lacks). Raises FileNotFoundError naming the
+    first evaluation not done when a rebuilt table has not run to the end.
     """
-    results = {table.name: table_results(config, table) for table in config.tables}
-    for name, result in results.items():
-        plot_table(result, config.results_dir / f"{name}.png")
+    rebuilt = config.table_names(tables)
+    stored = config.results_dir / "results.json"
+    earlier = json.loads(stored.read_text())["tables"] if stored.is_file() and len(rebuilt) < len(config.tables) else {}
+    for table in config.tables:
+        if table.name not in rebuilt and table.name not in earlier:
+            raise FileNotFoundError(f"{stored} holds no table {table.name!r} to keep: run it too, or the whole sweep")
+    results = {
+        table.name: table_results(config, table)
+        if table.name in rebuilt
+        else TableResult.from_dict(earlier[table.name])
+        for table in config.tables
+    }
+    for name in rebuilt:
+        plot_table(results[name], config.results_dir / f"{name}.png")
     summary = {
         "sweep": config.name,
         "title": config.title,

@@ -85,6 +85,21 @@ class SweepConfig:
     def run_dir(self, run: str, seed: int) -> Path:
         return self.output_dir / run / f"seed-{seed}"
 
+    def table_names(self, names: list[str] | None) -> list[str]:
+        """``names`` (every table if None), each checked to be one of this sweep's tables."""
+        known = [table.name for table in self.tables]
+        if names is None:
+            return known
+        unknown = [name for name in names if name not in known]
+        if unknown:
+            raise ValueError(f"{self.source}: no table {unknown[0]!r}; its tables are {known}")
+        return list(names)
+
+    def only(self, names: list[str] | None) -> SweepConfig:
+        """The sweep narrowed to the tables ``names`` (all if None): running it runs only what they need."""
+        chosen = self.table_names(names)
+        return replace(self, tables=tuple(table for table in self.tables if table.name in chosen))
+
     @property
     def data_dir(self) -> Path:
         return self.output_dir / "data"

@@ -1,0 +1,338 @@
+"""Where a one-step policy fails on a task and what its chunk gets wrong there.
+
+Each (label, policy, mode) rolls out the task's evaluation episodes closed-loop (the evaluator's one batched loop),
+and every visited state is scored against the benchmark's scripted expert: how far the executed action is from the
+expert's action at that state, by phase of the episode. The *failing phase* is where the last row (the one-step
+student) strays from the expert in the episodes it fails furthest beyond what the first row (the teacher) does there. At the states of those moments every row predicts
+its chunk for the same noise draws, beside the nearest demonstration's chunk (same task, nearest state): the figures
+show whether the one-step chunk is biased (its draws agree with each other but not with the demonstration), averages
+two ways of acting into one, or is as spread as the teacher's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from snapflow.data.demonstrations import Demonstrations
+from snapflow.envs.base import Benchmark, Observation
+from snapflow.evaluation.closed_loop import ClosedLoopEvaluator
+from snapflow.evaluation.pipeline import Run
+from snapflow.evaluation.results import EpisodeResult
+from snapflow.flow.modes import SamplingMode
+from snapflow.flow.solver import sample_actions
+from snapflow.policies.checkpoint import LoadedPolicy
+from snapflow.reporting.figures import pyplot, save_figure
+from snapflow.reporting.files import write_json, write_text
+from snapflow.reporting.tables import markdown_table
+
+PHASE_STEPS = 25  # width of an episode phase, in environment steps
+
+
+@dataclass
+class RowTrace:
+    """One row's closed-loop episodes on the task, scored against the expert."""
+
+    label: str
+    mode: str
+    successes: int
+    episodes: int
+    # mean |executed action - expert action| (Euclidean, raw action units) per phase of PHASE_STEPS steps
+    deviation_failed: list[float | None]
+    deviation_succeeded: list[float | None]
+    deviation_all: list[float | None]
+    mean_deviation: float
+
+
+@dataclass
+class ChunkComparison:
+    """Every row's chunks at one state of a failed student episode, beside the nearest demonstration's chunk."""
+
+    variation: int
+    step: int
+    state: list[float]
+    demonstration_distance: float  # between the state and the nearest demonstration state (raw units)
+    expert_action: list[float]
+    demonstration_chunk: list[list[float]]
+    chunks: dict[str, list[list[list[float]]]]  # label -> draws x chunk x action
+    error_to_demonstration: dict[str, float]  # mean squared error of the row's draws to the demonstration's chunk
+    spread: dict[str, float]  # mean standard deviation across draws
+    first_action_to_expert: dict[str, float]  # Euclidean distance of the draws' first actions to the expert's
+
+
+@dataclass
+class Diagnosis:
+    benchmark: str
+    task: str
+    episodes: int
+    n_act: int
+    phase_steps: int
+    rows: list[RowTrace]
+    # the phase where the last row's failed episodes stray from the expert furthest beyond the first row's episodes
+    failing_phase: int | None
+    comparisons: list[ChunkComparison] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def _phase_means(deviations: list[np.ndarray], phases: int) -> list[float | None]:
+    means = []
+    for phase in range(phases):
+        parts = [d[phase * PHASE_STEPS : (phase + 1) * PHASE_STEPS] for d in deviations]
+        values = np.concatenate([p for p in parts if len(p)]) if any(len(p) for p in parts) else np.empty(0)
+        means.append(float(values.mean()) if len(values) else None)
+    return means
+
+
+def _nearest_chunk(demonstrations: Demonstrations, task: str, state: np.ndarray, length: int):
+    """The chunk that follows the demonstration state of ``task`` nearest to ``state``, and the distance."""
+    rows = demonstrations.rows([i for i, e in enumerate(demonstrations.episodes) if e.task == task])
+    distances = np.linalg.norm(demonstrations.states[rows] - state, axis=1)
+    best = rows[int(distances.argmin())]
+    episode = demonstrations.episodes[demonstrations.episode_index[best]]
+    end = episode.start + episode.length
+    chunk_rows = np.minimum(best + np.arange(length), end - 1)
+    return demonstrations.actions[chunk_rows], float(distances.min())
+
+
+def _rollout(
+    evaluator: ClosedLoopEvaluator,
+    loaded: LoadedPolicy,
+    mode: SamplingMode,
+    n_act: int,
+    seed: int,
+    progress: bool,
+    episodes: int,
+) -> tuple[list[list[Observation]], list[list[np.ndarray]], list[EpisodeResult]]:
+    """The evaluator's episodes with every (observation, executed action) of each."""
+    visited: list[list[Observation]] = [[] for _ in range(episodes)]
+    executed: list[list[np.ndarray]] = [[] for _ in range(episodes)]
+
+    def record(slot: int, observation: Observation, action: np.ndarray) -> None:
+        visited[slot].append(observation)
+        executed[slot].append(np.asarray(action, dtype=np.float64))
+
+    results = evaluator.run(loaded.policy, loaded.processor, mode, n_act, seed, progress, record=record)
+    return visited, executed, results
+
+
+@torch.no_grad()
+def diagnose_task(
+    runs: list[Run],
+    benchmark: Benchmark,
+    task: str,
+    episodes: int,
+    demonstrations: Demonstrations,
+    n_act: int,
+    seed: int = 0,
+    draws: int = 8,
+    states: int = 3,
+    progress: bool = True,
+) -> Diagnosis:
+    """Trace every run on ``task``'s first ``episodes`` evaluation variations against the expert, find the failing
+    phase of the last run, and compare every run's chunks at up to ``states`` of its failed moments."""
+    for _, loaded, mode in runs:
+        loaded.check_mode(mode)
+    evaluator = ClosedLoopEvaluator(benchmark, [task], episodes, runs[0][1].processor.image_size)
+    expert = benchmark.make_expert(task)
+    traces = []  # per run: its row, and per episode the visited observations, expert actions, distances, success
+    try:
+        for label, loaded, mode in runs:
+            visited, executed, results = _rollout(evaluator, loaded, mode, n_act, seed, progress, episodes)
+            deviations, wanted = [], []
+            for slot in range(episodes):
+                expert.reset(visited[slot][0])  # then fed the visited states in order, as it would be driving
+                wanted.append(np.stack([expert.act(observation) for observation in visited[slot]]))
+                deviations.append(np.linalg.norm(np.stack(executed[slot]) - wanted[-1], axis=1))
+            success = [result.success for result in results]
+            phases = -(-max(len(d) for d in deviations) // PHASE_STEPS)
+            row = RowTrace(
+                label,
+                mode.name,
+                sum(success),
+                episodes,
+                _phase_means([d for d, ok in zip(deviations, success, strict=True) if not ok], phases),
+                _phase_means([d for d, ok in zip(deviations, success, strict=True) if ok], phases),
+                _phase_means(deviations, phases),
+                float(np.concatenate(deviations).mean()),
+            )
+            traces.append((row, visited, wanted, deviations, success))
+    finally:
+        evaluator.close()
+
+    diagnosis = Diagnosis(benchmark.name, task, episodes, n_act, PHASE_STEPS, [t[0] for t in traces], None)
+    student, visited, wanted, deviations, success = traces[-1]
+    failed = [slot for slot in range(episodes) if not success[slot]]
+    if not failed:
+        return diagnosis
+    # where the student's failed episodes stray from the expert most beyond what the first row (the teacher) does there
+    reference = traces[0][0].deviation_all
+    excess = [
+        (value - (reference[phase] if phase < len(reference) and reference[phase] is not None else 0.0), phase)
+        for phase, value in enumerate(student.deviation_failed)
+        if value is not None
+    ]
+    diagnosis.failing_phase = max(excess)[1]
+    # the moment each failed episode strays furthest, within the failing phase where it reaches it
+    moments = []
+    for slot in failed:
+        window = deviations[slot][diagnosis.failing_phase * PHASE_STEPS : (diagnosis.failing_phase + 1) * PHASE_STEPS]
+        if len(window):
+            moments.append((float(window.max()), slot, diagnosis.failing_phase * PHASE_STEPS + int(window.argmax())))
+    generator = torch.Generator().manual_seed(seed)
+    processor = runs[0][1].processor
+    for _, slot, step in sorted(moments, reverse=True)[:states]:
+        observation = visited[slot][step]
+        expert_action = wanted[slot][step]
+        reference, distance = _nearest_chunk(demonstrations, task, observation.state, processor.chunk_length)
+        noise = torch.randn(draws, processor.chunk_length, processor.action_dim, generator=generator)
+        comparison = ChunkComparison(
+            slot,  # the evaluator's slots of one task are its evaluation variations in order
+            step,
+            observation.state.tolist(),
+            distance,
+            expert_action.tolist(),
+            reference.tolist(),
+            {},
+            {},
+            {},
+            {},
+        )
+        for label, loaded, mode in runs:
+            batch = loaded.processor.observation(
+                np.repeat(observation.state[None], draws, 0),
+                [observation.instruction] * draws,
+                np.repeat(observation.image[None], draws, 0) if loaded.processor.image_size else None,
+            )
+            chunks = loaded.processor.unnormalize_actions(sample_actions(loaded.policy, batch, noise, mode)).numpy()
+            comparison.chunks[label] = chunks.tolist()
+            comparison.error_to_demonstration[label] = float(((chunks - reference[None]) ** 2).mean())
+            comparison.spread[label] = float(chunks.std(0).mean())
+            comparison.first_action_to_expert[label] = float(
+                np.linalg.norm(chunks[:, 0] - expert_action, axis=1).mean()
+            )
+        diagnosis.comparisons.append(comparison)
+    return diagnosis
+
+
+def plot_phases(diagnosis: Diagnosis, path: Path) -> Path:
+    """Mean distance to the expert's action by episode phase, per row: failed episodes solid, successful dashed."""
+    plt = pyplot()
+    figure, axis = plt.subplots(figsize=(7, 3.8))
+    for index, row in enumerate(diagnosis.rows):
+        color = f"C{index}"
+        for values, style, kind in (
+            (row.deviation_failed, "-", "failed"),
+            (row.deviation_succeeded, "--", "succeeded"),
+        ):
+            points = [(p * diagnosis.phase_steps, v) for p, v in enumerate(values) if v is not None]
+            if points:
+                axis.plot(
+                    *zip(*points, strict=True),
+                    style,
+                    color=color,
+                    marker="o",
+                    markersize=3,
+                    label=f"{row.label} ({kind}; {row.successes}/{row.episodes} succeed)",
+                )
+    if diagnosis.failing_phase is not None:
+        start = diagnosis.failing_phase * diagnosis.phase_steps
+        axis.axvspan(start, start + diagnosis.phase_steps, color="0.9", zorder=0, label="failing phase")
+    axis.set_xlabel("environment step (start of the phase)")
+    axis.set_ylabel("|action - expert action|")
+    axis.set_title(f"{diagnosis.task}: distance to the scripted expert along the episode", fontsize=10)
+    axis.legend(fontsize=7)
+    figure.tight_layout()
+    return save_figure(figure, path)
+
+
+ACTION_NAMES = ("x", "y", "z", "gripper")
+
+
+def plot_chunks(diagnosis: Diagnosis, comparison: ChunkComparison, path: Path) -> Path:
+    """Each row's chunk draws per action dimension at one failed moment, the nearest demonstration's chunk in black
+    and the expert's action at the state as a star."""
+    plt = pyplot()
+    dims = len(comparison.expert_action)
+    figure, axes = plt.subplots(1, dims, figsize=(3.2 * dims, 3.2), squeeze=False)
+    for dim, axis in enumerate(axes[0]):
+        for index, (label, chunks) in enumerate(comparison.chunks.items()):
+            values = np.asarray(chunks)[:, :, dim]
+            for draw, line in enumerate(values):
+                axis.plot(line, color=f"C{index}", alpha=0.5, linewidth=1, label=label if draw == 0 else None)
+        axis.plot(
+            np.asarray(comparison.demonstration_chunk)[:, dim],
+            color="black",
+            linewidth=2,
+            label="nearest demonstration",
+        )
+        axis.plot([0], [comparison.expert_action[dim]], "k*", markersize=10, label="expert at the state")
+        axis.set_title(ACTION_NAMES[dim] if dim < len(ACTION_NAMES) else f"action {dim}", fontsize=9)
+        axis.set_xlabel("chunk step")
+    axes[0][0].legend(fontsize=6)
+    figure.suptitle(
+        f"{diagnosis.task}, evaluation episode {comparison.variation}, step {comparison.step}: predicted chunks",
+        fontsize=10,
+    )
+    figure.tight_layout()
+    return save_figure(figure, path)
+
+
+def markdown_diagnosis(diagnosis: Diagnosis) -> str:
+    """The rows' success and distance to the expert, and the chunk comparison at each failed moment."""
+    lines = [
+        f"# {diagnosis.task}: where the one-step policy fails",
+        "",
+        f"{diagnosis.benchmark}, {diagnosis.episodes} evaluation episodes, n_act {diagnosis.n_act}. Distance to the "
+        "expert: Euclidean distance between the executed action and the scripted expert's action at the same state.",
+        "",
+        markdown_table(
+            ["row", "mode", "successes", "mean distance to the expert"],
+            [[r.label, r.mode, f"{r.successes} / {r.episodes}", f"{r.mean_deviation:.3f}"] for r in diagnosis.rows],
+        ),
+        "",
+    ]
+    if diagnosis.failing_phase is None:
+        lines.append(f"{diagnosis.rows[-1].label} fails no episode.")
+        return "\n".join(lines) + "\n"
+    start = diagnosis.failing_phase * diagnosis.phase_steps
+    lines += [f"Failing phase of {diagnosis.rows[-1].label}: steps {start}-{start + diagnosis.phase_steps - 1}.", ""]
+    for comparison in diagnosis.comparisons:
+        lines += [
+            f"## Episode {comparison.variation}, step {comparison.step} (nearest demonstration state at "
+            f"{comparison.demonstration_distance:.3f})",
+            "",
+            markdown_table(
+                ["row", "MSE to the demonstration's chunk", "spread across draws", "first action to the expert"],
+                [
+                    [
+                        label,
+                        f"{comparison.error_to_demonstration[label]:.4f}",
+                        f"{comparison.spread[label]:.4f}",
+                        f"{comparison.first_action_to_expert[label]:.3f}",
+                    ]
+                    for label in comparison.chunks
+                ],
+            ),
+            "",
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def write_diagnosis(diagnosis: Diagnosis, output: str | Path) -> list[Path]:
+    """``diagnosis.json``, ``diagnosis.md``, ``phases.png`` and one ``chunks-<i>.png`` per compared moment."""
+    output = Path(output)
+    output.mkdir(parents=True, exist_ok=True)
+    write_json(output / "diagnosis.json", diagnosis.to_dict())
+    write_text(output / "diagnosis.md", markdown_diagnosis(diagnosis))
+    paths = [plot_phases(diagnosis, output / "phases.png")]
+    paths += [plot_chunks(diagnosis, c, output / f"chunks-{i}.png") for i, c in enumerate(diagnosis.comparisons)]
+    return paths
+
+
+__all__ = ["ChunkComparison", "Diagnosis", "RowTrace", "diagnose_task", "markdown_diagnosis", "write_diagnosis"]
