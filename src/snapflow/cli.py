@@ -31,8 +31,8 @@ from snapflow.objective.options import TEACHER_VELOCITIES
 from snapflow.policies.factory import POLICIES
 from snapflow.reporting.files import write_json, write_text
 from snapflow.reporting.tables import markdown_table
-from snapflow.training.config import STUDENT_TRAINING, TEACHER_TRAINING, VAL_FRACTION, TrainConfig
-from snapflow.training.distill import METHODS, TARGETS, DistillSettings, TargetOption, parse_target_steps
+from snapflow.training.config import TEACHER_TRAINING, VAL_FRACTION, TrainConfig
+from snapflow.training.distill import DEFAULT_RECIPE, METHODS, RECIPES, TARGETS, TargetOption, parse_target_steps
 
 # TrainConfig fields every training command takes, with their help
 TRAINING_OPTIONS = {
@@ -257,18 +257,21 @@ def _distill(args: argparse.Namespace) -> int:
     if not (built_in or lerobot):
         raise ValueError("give either --teacher and --data (a built-in policy) or --policy and --dataset (LeRobot)")
     _check_writable(args.output)
-    settings = DistillSettings(
-        alpha=args.alpha,
-        consistency_weight=args.consistency_weight,
-        teacher_velocity_clamp=args.clamp,
-        freeze_prefix=not args.train_prefix,
-        method=args.method,
-        teacher_velocity=args.teacher_velocity,
-        target_time=not args.no_target_time,
-        target=args.target,
-        target_steps=args.target_steps,
-        intermediate_jumps=args.intermediate_jumps,
-    )
+    # snapflow's recipe is measured on built-in policies; a LeRobot policy starts from the paper's unless told
+    recipe = RECIPES[args.recipe or (DEFAULT_RECIPE if built_in else "paper")]
+    chosen = {
+        "alpha": args.alpha,
+        "consistency_weight": args.consistency_weight,
+        "teacher_velocity_clamp": args.clamp,
+        "freeze_prefix": False if args.train_prefix else None,
+        "method": args.method,
+        "teacher_velocity": args.teacher_velocity,
+        "target_time": False if args.no_target_time else None,
+        "target": args.target,
+        "target_steps": args.target_steps,
+        "intermediate_jumps": args.intermediate_jumps,
+    }
+    settings = replace(recipe.distill, **{name: value for name, value in chosen.items() if value is not None})
     if lerobot:
         from snapflow.adapters.hub import local_folder
 
@@ -298,7 +301,7 @@ def _distill(args: argparse.Namespace) -> int:
         args.teacher,
         args.data,
         args.output,
-        _train_config(args, STUDENT_TRAINING),
+        _train_config(args, recipe.train),
         settings,
         resume=args.resume,
         progress=not args.no_progress,
@@ -461,9 +464,10 @@ def _sweep(args: argparse.Namespace) -> int:
 def _demo(args: argparse.Namespace) -> int:
     _check_writable(args.output)
     from snapflow.evaluation.report import markdown_report
-    from snapflow.jobs.demo import PRESETS, run_demo
+    from snapflow.jobs.demo import PRESETS, run_demo, with_recipe
 
-    report = run_demo(PRESETS["full" if args.full else "fast"], args.output, not args.no_progress, args.resume)
+    preset = PRESETS["full" if args.full else "fast"]
+    report = run_demo(with_recipe(preset, args.recipe), args.output, not args.no_progress, args.resume)
     print(markdown_report(report))
     print(f"wrote report.json, report.md and PNG plots to {args.output}")
     return 0
@@ -524,9 +528,7 @@ def _add_training_options(
             f"--{name.replace('_', '-')}",
             type=POSITIVE if kind is float else (NON_NEGATIVE_COUNT if name == "seed" else COUNT),
             default=getattr(base, name) if base is not None else None,
-            help=help
-            if base is not None
-            else f"{help} (default: {getattr(STUDENT_TRAINING, name)} for a built-in teacher, the paper's for LeRobot)",
+            help=help if base is not None else f"{help} (default: the recipe's; for LeRobot the paper's training)",
         )
     parser.add_argument(
         "--ema-decay",
@@ -538,34 +540,37 @@ def _add_training_options(
     parser.add_argument("--resume", action="store_true", help="continue from the run's latest checkpoint")
 
 
-def _add_objective_options(parser: argparse.ArgumentParser, cls: type) -> None:
+def _add_objective_options(parser: argparse.ArgumentParser, cls: type | None) -> None:
     """``--method``, ``--lambda``, ``--target`` and ``--target-steps`` with the defaults of the dataclass ``cls``
-    (DistillSettings or ToyConfig)."""
+    (ToyConfig), or none (None: the distill recipe's)."""
+    recipe = "" if cls else " (default: the recipe's)"
     parser.add_argument(
         "--method",
         choices=METHODS,
-        default=_default(cls, "method"),
-        help="distillation objective (the others are baselines)",
+        default=_default(cls, "method") if cls else None,
+        help="distillation objective (the others are baselines)" + recipe,
     )
     parser.add_argument(
         "--consistency-weight",
         "--lambda",
         type=NON_NEGATIVE,
-        default=_default(cls, "consistency_weight"),
+        default=_default(cls, "consistency_weight") if cls else None,
         dest="consistency_weight",
-        help="lambda, the weight of the one-step (consistency) loss",
+        help="lambda, the weight of the one-step (consistency) loss" + recipe,
     )
     parser.add_argument(
         "--target",
         choices=TARGETS,
-        default=_default(cls, "target"),
-        help="SnapFlow's one-step target: the average of Euler velocities, or bootstrapped from the model's own half-jumps",
+        default=_default(cls, "target") if cls else None,
+        help="SnapFlow's one-step target: the average of Euler velocities, or bootstrapped from the model's own half-jumps"
+        + recipe,
     )
     parser.add_argument(
         "--target-steps",
         type=_target_steps,
-        default=_default(cls, "target_steps"),
-        help="Euler steps the target spans (2: the paper); a schedule such as 2,4,8 splits training into equal stages",
+        default=_default(cls, "target_steps") if cls else None,
+        help="Euler steps the target spans (2: the paper); a schedule such as 2,4,8 splits training into equal stages"
+        + recipe,
     )
 
 
@@ -676,20 +681,25 @@ def build_parser() -> argparse.ArgumentParser:
         _training_interrupted,
         common,
     )
-    # no parser defaults: a built-in teacher trains with STUDENT_TRAINING, a LeRobot policy with the paper's settings
+    # no parser defaults: the recipe's, and a LeRobot policy trains with the paper's settings
     _add_training_options(distill, None, data_required=False)
+    distill.add_argument(
+        "--recipe",
+        choices=list(RECIPES),
+        help="the student's settings, each overridden by the options below: "
+        + "; ".join(f"{name}: {recipe.summary}" for name, recipe in RECIPES.items())
+        + f" (default: {DEFAULT_RECIPE} for a built-in teacher, paper for a LeRobot policy)",
+    )
     distill.add_argument("--teacher", help="teacher run or checkpoint directory (built-in policy)")
     distill.add_argument("--policy", help="LeRobot pi0, pi0.5 or SmolVLA: hub id or local pretrained directory")
     distill.add_argument("--dataset", help="LeRobotDataset: root directory on disk, or repo id")
     distill.add_argument("--repo-id", help="repo id of a dataset given as a directory (default: local/<folder name>)")
-    distill.add_argument(
-        "--alpha", type=SHARE, default=_default(DistillSettings, "alpha"), help="flow-matching share of each batch"
-    )
+    distill.add_argument("--alpha", type=SHARE, default=None, help="flow-matching share of each batch")
     distill.add_argument(
         "--clamp",
         type=POSITIVE,
-        default=_default(DistillSettings, "teacher_velocity_clamp"),
-        help="bound on the no-grad teacher velocities (default: none)",
+        default=None,
+        help="bound on the no-grad teacher velocities (default: the recipe's, none in both)",
     )
     distill.add_argument(
         "--train-prefix", action="store_true", help="also train the prefix encoder (frozen by default)"
@@ -697,17 +707,18 @@ def build_parser() -> argparse.ArgumentParser:
     distill.add_argument(
         "--teacher-velocity",
         choices=TEACHER_VELOCITIES,
-        default=_default(DistillSettings, "teacher_velocity"),
-        help="snapflow's consistency target from the model's marginal velocity, or eps - a (ablation)",
+        default=None,
+        help="snapflow's consistency target from the model's marginal velocity, or eps - a (ablation; default: the "
+        "recipe's)",
     )
     distill.add_argument("--no-target-time", action="store_true", help="ablation: no target-time embedding phi_s")
     distill.add_argument(
         "--intermediate-jumps",
         type=SHARE,
-        default=_default(DistillSettings, "intermediate_jumps"),
-        help="share of the one-step rows that jump between inner times t -> s instead of 1 -> 0",
+        default=None,
+        help="share of the one-step rows that jump between inner times t -> s instead of 1 -> 0 (default: the recipe's)",
     )
-    _add_objective_options(distill, DistillSettings)
+    _add_objective_options(distill, None)
 
     evaluate = _command(
         commands,
@@ -867,6 +878,12 @@ def build_parser() -> argparse.ArgumentParser:
         commands, "demo", "MT10: collect -> train -> distill -> eval, one final table", _demo, _demo_interrupted, common
     )
     demo.add_argument("--full", action="store_true", help="stronger, longer preset")
+    demo.add_argument(
+        "--recipe",
+        choices=list(RECIPES),
+        default=DEFAULT_RECIPE,
+        help="the student's recipe: " + "; ".join(f"{name}: {recipe.summary}" for name, recipe in RECIPES.items()),
+    )
     demo.add_argument("--resume", action="store_true", help="continue an interrupted demo in the same output directory")
     _add_output(demo, "outputs/demo", "where the data, runs, report and plots go")
     return parser

@@ -29,6 +29,7 @@ from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, TEACHER_10, SamplingMode
 from snapflow.flow.solver import sample_actions
 from snapflow.policies.checkpoint import load_policy
 from snapflow.policies.factory import default_config
+from snapflow.reporting.statistics import wilson_interval
 from snapflow.training.distill import DistillSettings
 from snapflow.training.recipes import distill, train_teacher
 from tests.evaluation.figures import CYCLE, assert_figure
@@ -115,6 +116,36 @@ def test_success_is_counted_per_task_and_averaged_over_tasks():
     results = [EpisodeResult("a", 0, True, 5), EpisodeResult("a", 1, False, 9), EpisodeResult("b", 0, True, 3)]
     table = success_by_task(results)
     assert table == {"a": SuccessCount(1, 2, 0.5), "b": SuccessCount(1, 1, 1.0), "mean": SuccessCount(2, 3, 0.75)}
+
+
+def test_a_report_gives_each_rows_wilson_interval_and_its_paired_difference_from_the_first():
+    def row(counts: list[int]) -> EvaluationRow:
+        results = [
+            EpisodeResult(task, episode, episode < successes, 10)
+            for task, successes in zip(("a", "b", "c"), counts, strict=True)
+            for episode in range(20)
+        ]
+        return EvaluationRow("p", "teacher-10", 10, success_by_task(results), 1.0)
+
+    report = EvaluationReport(
+        "metaworld", ["a", "b", "c"], 20, 4, {"teacher": row([10, 15, 20]), "student": row([11, 16, 20])}
+    )
+    intervals = report.intervals()
+    assert set(intervals["teacher"]) == {"success", "low", "high"}, "the first row is the reference"
+    low, high = wilson_interval(45, 60)
+    assert intervals["teacher"]["success"] == pytest.approx(75.0)
+    assert (intervals["teacher"]["low"], intervals["teacher"]["high"]) == pytest.approx((100 * low, 100 * high))
+    student = intervals["student"]
+    assert student["difference"] == pytest.approx((5 + 5 + 0) / 3)  # per task: +1/20, +1/20, 0
+    assert student["difference_low"] <= student["difference"] <= student["difference_high"]
+    # 5 points above the teacher on every task: the paired interval is exactly [5, 5]
+    constant = EvaluationReport(
+        "metaworld", ["a", "b", "c"], 20, 4, {"teacher": row([10, 15, 18]), "student": row([11, 16, 19])}
+    )
+    shifted = constant.intervals()["student"]
+    assert [shifted[key] for key in ("difference", "difference_low", "difference_high")] == pytest.approx([5.0] * 3)
+    assert report.to_dict()["intervals"] == intervals
+    assert "points from teacher [95% paired bootstrap]" in markdown_report(report)
 
 
 def test_closed_loop_replans_every_n_act_actions_in_one_batch_and_scores_each_episode(scripted, runs):

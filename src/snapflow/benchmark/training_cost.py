@@ -24,7 +24,7 @@ from snapflow.objective.options import target_stages
 from snapflow.policies.checkpoint import load_policy
 from snapflow.reporting.machine import machine
 from snapflow.reporting.tables import markdown_table
-from snapflow.training.config import STUDENT_TRAINING
+from snapflow.training.config import PAPER_STUDENT_TRAINING
 from snapflow.training.distill import TargetOption
 from snapflow.training.recipes import TIME_SAMPLER
 from snapflow.training.trainer import ObjectiveModule, train_step
@@ -39,7 +39,7 @@ def time_training_steps(
     freeze_prefix: bool = True,
     warmup: int = 5,
     repeats: int = 30,
-    learning_rate: float = STUDENT_TRAINING.learning_rate,
+    learning_rate: float = PAPER_STUDENT_TRAINING.learning_rate,
 ) -> dict[str, Any]:
     """Median and P90 seconds of one training step (:func:`snapflow.training.trainer.train_step`) per option; with
     ``freeze_prefix`` the optimiser updates the student's ``expert_parameters()``, as ``snapflow distill`` does.

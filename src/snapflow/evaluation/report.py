@@ -13,6 +13,28 @@ from snapflow.reporting.machine import machine_description
 from snapflow.reporting.tables import markdown_table
 
 
+def _intervals_markdown(report: EvaluationReport) -> str:
+    """Each row's mean with its 95% Wilson interval, and its paired difference from the first row."""
+    intervals = report.intervals()
+    reference = next(iter(report.rows))
+    rows = [
+        [
+            label,
+            f"{entry['success']:.1f}% [{entry['low']:.1f}, {entry['high']:.1f}]",
+            f"{entry['difference']:+.1f} [{entry['difference_low']:+.1f}, {entry['difference_high']:+.1f}]"
+            if "difference" in entry
+            else "reference",
+        ]
+        for label, entry in intervals.items()
+    ]
+    episodes = report.rows[reference].success["mean"].episodes
+    return (
+        markdown_table(["row", "mean success [95% Wilson]", f"points from {reference} [95% paired bootstrap]"], rows)
+        + f"\n\nIntervals: Wilson over the {episodes} pooled episodes of a row; the difference is paired over the "
+        f"{len(report.tasks)} tasks (every row runs the same evaluation variations), resampled 10,000 times."
+    )
+
+
 def markdown_report(report: EvaluationReport) -> str:
     labels = list(report.rows)
     success_rows = []
@@ -32,6 +54,7 @@ def markdown_report(report: EvaluationReport) -> str:
         ),
         "## Closed-loop success",
         markdown_table(["task", *labels], success_rows),
+        _intervals_markdown(report),
     ]
     offline = {label: row.offline for label, row in report.rows.items() if row.offline is not None}
     if offline:

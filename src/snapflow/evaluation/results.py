@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from snapflow.benchmark.latency import LatencyRow
+from snapflow.reporting.statistics import paired_difference, wilson_interval
 
 
 @dataclass(frozen=True)
@@ -98,6 +99,28 @@ class EvaluationReport:
     preset: dict[str, Any] = field(default_factory=dict)
     machine: str | None = None
 
+    def intervals(self) -> dict[str, dict[str, float]]:
+        """Per row: mean success (%), its 95% Wilson interval over the pooled episodes and, for every row after the
+        first, its difference from the first row in points, paired over tasks (both rows run the same evaluation
+        variations of each task) with a 95% percentile-bootstrap interval."""
+        labels = list(self.rows)
+        reference = [self.rows[labels[0]].success[task].success_rate for task in self.tasks]
+        result = {}
+        for label, row in self.rows.items():
+            mean = row.success["mean"]
+            low, high = wilson_interval(mean.successes, mean.episodes)
+            entry = {"success": 100 * mean.success_rate, "low": 100 * low, "high": 100 * high}
+            if label != labels[0]:
+                rates = [row.success[task].success_rate for task in self.tasks]
+                difference, d_low, d_high = paired_difference(rates, reference)
+                entry |= {
+                    "difference": 100 * difference,
+                    "difference_low": 100 * d_low,
+                    "difference_high": 100 * d_high,
+                }
+            result[label] = entry
+        return result
+
     def to_dict(self) -> dict[str, Any]:
         report: dict[str, Any] = {
             "env": self.env,
@@ -105,6 +128,7 @@ class EvaluationReport:
             "episodes_per_task": self.episodes_per_task,
             "n_act": self.n_act,
             "rows": {label: row.to_dict() for label, row in self.rows.items()},
+            "intervals": self.intervals(),
         }
         if self.latency:
             report["latency"] = {label: row.to_dict() for label, row in self.latency.items()}

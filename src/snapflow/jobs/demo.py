@@ -19,8 +19,8 @@ from snapflow.policies.checkpoint import load_policy
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import policy_type
 from snapflow.reporting.locks import hold_run_lock
-from snapflow.training.config import STUDENT_TRAINING, TEACHER_TRAINING, VAL_FRACTION, TrainConfig
-from snapflow.training.distill import DistillSettings
+from snapflow.training.config import TEACHER_TRAINING, VAL_FRACTION, TrainConfig
+from snapflow.training.distill import DEFAULT_RECIPE, RECIPES, DistillSettings
 from snapflow.training.recipes import distill, train_teacher
 
 EVAL_EPISODES = 20  # evaluation episodes per task
@@ -36,8 +36,8 @@ class DemoPreset:
     val_fraction: float = VAL_FRACTION
     policy: PolicyConfig = field(default_factory=lambda: policy_type("minivla").config_class())
     teacher: TrainConfig = TEACHER_TRAINING
-    student: TrainConfig = STUDENT_TRAINING
-    distill: DistillSettings = field(default_factory=DistillSettings)
+    student: TrainConfig = RECIPES[DEFAULT_RECIPE].train
+    distill: DistillSettings = RECIPES[DEFAULT_RECIPE].distill
     eval_episodes: int = EVAL_EPISODES
     n_act: int = N_ACT
 
@@ -47,10 +47,22 @@ PRESETS: dict[str, DemoPreset] = {
     "full": DemoPreset(
         episodes_per_task=50,
         teacher=replace(TEACHER_TRAINING, steps=10000),
-        student=replace(STUDENT_TRAINING, steps=4000, warmup_steps=100),
+        student=replace(RECIPES[DEFAULT_RECIPE].train, steps=2 * RECIPES[DEFAULT_RECIPE].train.steps, warmup_steps=100),
         eval_episodes=50,
     ),
 }
+
+
+def with_recipe(preset: DemoPreset, recipe: str) -> DemoPreset:
+    """``preset`` with the student of another recipe (:data:`~snapflow.training.distill.RECIPES`), at the preset's
+    share of that recipe's steps (the full preset trains twice as long)."""
+    scale = preset.student.steps / RECIPES[DEFAULT_RECIPE].train.steps
+    train = RECIPES[recipe].train
+    return replace(
+        preset,
+        student=replace(train, steps=round(scale * train.steps), warmup_steps=preset.student.warmup_steps),
+        distill=RECIPES[recipe].distill,
+    )
 
 
 def run_demo(preset: DemoPreset, output: str | Path, progress: bool = True, resume: bool = False) -> EvaluationReport:
@@ -98,4 +110,4 @@ def run_demo(preset: DemoPreset, output: str | Path, progress: bool = True, resu
     return report
 
 
-__all__ = ["DemoPreset", "PRESETS", "EVAL_EPISODES", "run_demo"]
+__all__ = ["DemoPreset", "PRESETS", "EVAL_EPISODES", "run_demo", "with_recipe"]

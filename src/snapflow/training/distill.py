@@ -6,9 +6,10 @@ Plain Python at import (the CLI reads these settings before torch loads); the ob
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
-from typing import TYPE_CHECKING, Literal, get_args
+from typing import TYPE_CHECKING, Any, Literal, get_args
 
 from snapflow.objective.options import TeacherVelocity, target_stages
+from snapflow.training.config import PAPER_STUDENT_TRAINING, TrainConfig
 
 if TYPE_CHECKING:
     from snapflow.flow.time_sampling import TimeSampler
@@ -143,4 +144,43 @@ class TargetOption:
         return sum(stages) / len(stages)
 
 
-__all__ = ["DistillSettings", "METHODS", "TARGETS", "TargetOption", "parse_target_steps"]
+@dataclass(frozen=True)
+class Recipe:
+    """A named way to distil a built-in teacher: the student's optimisation and the distillation settings. Every
+    option given beside a recipe (a CLI flag, a sweep run's ``train`` / ``distill`` keys) overrides its value."""
+
+    summary: str
+    train: TrainConfig
+    distill_options: dict[str, Any]  # DistillSettings fields; built on use, as the settings check with torch
+
+    @property
+    def distill(self) -> DistillSettings:
+        return DistillSettings(**self.distill_options)
+
+
+RECIPES: dict[str, Recipe] = {
+    "snapflow": Recipe(
+        "snapflow's recipe (docs/RESULTS.md, 'One step as good as ten'): the paper's objective with lambda 1, "
+        "8000 steps at lr 3e-5",
+        replace(PAPER_STUDENT_TRAINING, steps=8000),
+        {"consistency_weight": 1.0},
+    ),
+    "paper": Recipe(
+        "the paper's settings: alpha 0.5, lambda 0.1, two-step Euler target, prefix frozen; 2000 steps at lr 3e-5",
+        PAPER_STUDENT_TRAINING,
+        {},
+    ),
+}
+DEFAULT_RECIPE = "snapflow"
+
+
+__all__ = [
+    "DEFAULT_RECIPE",
+    "DistillSettings",
+    "METHODS",
+    "RECIPES",
+    "Recipe",
+    "TARGETS",
+    "TargetOption",
+    "parse_target_steps",
+]

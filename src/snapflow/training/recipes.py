@@ -20,8 +20,8 @@ from snapflow.policies.checkpoint import load_policy, policy_metadata
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import fit_processor, make_model
 from snapflow.reporting.records import as_record
-from snapflow.training.config import STUDENT_TRAINING, TEACHER_TRAINING, VAL_FRACTION, TrainConfig
-from snapflow.training.distill import DistillSettings
+from snapflow.training.config import TEACHER_TRAINING, VAL_FRACTION, TrainConfig
+from snapflow.training.distill import DEFAULT_RECIPE, RECIPES, DistillSettings
 from snapflow.training.trainer import train
 
 # the built-in policies train on U(0, 1) flow-matching times
@@ -61,15 +61,17 @@ def distill(
     teacher: str | Path,
     data: str | Path,
     output: str | Path,
-    config: TrainConfig = STUDENT_TRAINING,
+    config: TrainConfig | None = None,
     settings: DistillSettings | None = None,
     val_fraction: float | None = None,
     resume: bool = False,
     progress: bool = True,
 ) -> dict[str, Any]:
     """SnapFlow (or a baseline, see ``DistillSettings``): the student starts as the teacher plus a zero-initialised
-    phi_s; prefix frozen by default."""
-    settings = settings or DistillSettings()
+    phi_s; prefix frozen by default. ``config`` and ``settings`` default to the default recipe's
+    (:data:`~snapflow.training.distill.RECIPES`)."""
+    recipe = RECIPES[DEFAULT_RECIPE]
+    config, settings = config or recipe.train, settings or recipe.distill
     loaded = load_policy(teacher, target_time=settings.target_time)
     demonstrations = Demonstrations.load(data)
     if val_fraction is None:

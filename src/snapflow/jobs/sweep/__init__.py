@@ -17,13 +17,15 @@ Config layout (see ``configs/sweeps/*.toml``)::
                                         # image_size
     [runs.teacher]                      # a teacher: policy = {type = "minivla" | "mlp", fields of its config},
                                         # train = {TrainConfig fields}
-    [runs.snapflow]                     # a student: teacher = "teacher", distill = {DistillSettings fields}, train
+    recipe = "paper"                    # the students' default recipe (snapflow.training.distill.RECIPES)
+    [runs.snapflow]                     # a student: teacher = "teacher", recipe, distill = {DistillSettings
+                                        # fields}, train (both override the recipe's)
     [[tables]]                          # name, title, episodes_per_task, n_act, seeds, per_task, x_label,
                                         # reference (the row the others are compared with, paired)
     rows = [{label = "...", run = "snapflow", mode = "snapflow-1", n_act = 4, series = "...", x = 1}]
 
-Unless a run says otherwise, teachers train with ``TEACHER_TRAINING`` and students with ``STUDENT_TRAINING``
-(:mod:`snapflow.training.recipes`), distilled with the paper's ``DistillSettings``.
+Unless a run says otherwise, teachers train with ``TEACHER_TRAINING`` and students with the sweep's recipe (default:
+``DEFAULT_RECIPE``), see :mod:`snapflow.training.distill`.
 """
 
 from snapflow._lazy import lazy_exports

@@ -16,8 +16,8 @@ from snapflow.flow.modes import SamplingMode
 from snapflow.jobs.demo import EVAL_EPISODES
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import default_config, policy_type
-from snapflow.training.config import STUDENT_TRAINING, TEACHER_TRAINING, TrainConfig
-from snapflow.training.distill import DistillSettings
+from snapflow.training.config import TEACHER_TRAINING, TrainConfig
+from snapflow.training.distill import DEFAULT_RECIPE, RECIPES, DistillSettings, Recipe
 
 DEFAULT_POLICY = "minivla"
 
@@ -188,23 +188,30 @@ def _policy(section: str, raw: Any, data: DataSpec) -> PolicyConfig:
         raise ValueError(f"{section}: {error}") from None
 
 
-def _runs(raw: Any, seeds: tuple[int, ...], data: DataSpec) -> dict[str, RunSpec]:
+def _recipe(section: str, name: Any) -> Recipe:
+    if name not in RECIPES:
+        raise ValueError(f"{section}: unknown recipe {name!r}; choose one of {list(RECIPES)}")
+    return RECIPES[name]
+
+
+def _runs(raw: Any, seeds: tuple[int, ...], data: DataSpec, recipe: str) -> dict[str, RunSpec]:
     if not isinstance(raw, dict):
         raise ValueError(f"[runs]: expected a table of keys, got {raw!r}")
     runs: dict[str, RunSpec] = {}
     for name, entry in raw.items():
         section = f"[runs.{name}]"
-        _checked(section, entry, {"teacher", "policy", "train", "distill", "seeds"})
+        _checked(section, entry, {"teacher", "policy", "train", "distill", "seeds", "recipe"})
         run_seeds = _seeds(section, entry.get("seeds", list(seeds)))
         if "teacher" in entry:
             if "policy" in entry:
                 raise ValueError(f"{section}: a student takes its policy from its teacher; remove 'policy'")
-            train = _dataclass_from(f"{section} train", STUDENT_TRAINING, entry.get("train", {}))
-            settings = _dataclass_from(f"{section} distill", DistillSettings(), entry.get("distill", {}))
+            base = _recipe(section, entry.get("recipe", recipe))
+            train = _dataclass_from(f"{section} train", base.train, entry.get("train", {}))
+            settings = _dataclass_from(f"{section} distill", base.distill, entry.get("distill", {}))
             runs[name] = RunSpec(name, run_seeds, train, teacher=entry["teacher"], distill=settings)
         else:
-            if "distill" in entry:
-                raise ValueError(f"{section}: 'distill' needs a 'teacher' to distill from")
+            if "distill" in entry or "recipe" in entry:
+                raise ValueError(f"{section}: 'distill' and 'recipe' need a 'teacher' to distill from")
             train = _dataclass_from(f"{section} train", TEACHER_TRAINING, entry.get("train", {}))
             runs[name] = RunSpec(name, run_seeds, train, _policy(f"{section} policy", entry.get("policy", {}), data))
     for run in runs.values():
@@ -278,14 +285,15 @@ def load_sweep(path: str | Path) -> SweepConfig:
         raw = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as error:
         raise ValueError(f"{path}: not valid TOML: {error}") from None
-    allowed = {"name", "title", "seeds", "output_dir", "results_dir", "data", "runs", "tables"}
+    allowed = {"name", "title", "seeds", "output_dir", "results_dir", "data", "runs", "tables", "recipe"}
     _checked(str(path), raw, allowed, frozenset({"name", "runs", "tables"}))
     name = raw["name"]
     if not isinstance(name, str) or not re.fullmatch(r"[a-z0-9][a-z0-9._-]*", name):
         raise ValueError(f"{path}: name must be lower-case letters, digits, '.', '_' or '-', got {name!r}")
     seeds = _seeds(f"{path}", raw.get("seeds", [0]))
     data = _data(raw.get("data", {}))
-    runs = _runs(raw["runs"], seeds, data)
+    _recipe(str(path), raw.get("recipe", DEFAULT_RECIPE))
+    runs = _runs(raw["runs"], seeds, data, raw.get("recipe", DEFAULT_RECIPE))
     return SweepConfig(
         name,
         raw.get("title", name),
