@@ -160,9 +160,9 @@ class Recipe:
 
 RECIPES: dict[str, Recipe] = {
     "snapflow": Recipe(
-        "snapflow's recipe (docs/RESULTS.md, 'One step as good as ten'): the paper's objective with lambda 1, "
-        "8000 steps at lr 3e-5",
-        replace(PAPER_STUDENT_TRAINING, steps=8000),
+        "snapflow's recipe (docs/RESULTS.md, 'One step as good as ten'): the paper's objective and budget with "
+        "lambda 1 (2000 steps at lr 3e-5)",
+        PAPER_STUDENT_TRAINING,
         {"consistency_weight": 1.0},
     ),
     "paper": Recipe(
