@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from snapflow.training.distill import Method, Target
+from snapflow.training.distill import DEFAULT_RECIPE, RECIPES, Method, Target
 
 
 @dataclass(frozen=True)
@@ -20,7 +20,7 @@ class ToyConfig:
     teacher_lr: float = 2e-3
     distill_lr: float = 1e-3
     alpha: float = 0.5
-    consistency_weight: float = 0.1
+    consistency_weight: float = RECIPES[DEFAULT_RECIPE].distill_options["consistency_weight"]  # the recipe's lambda
     method: Method = "snapflow"  # or a one-step baseline
     target: Target = "euler"  # SnapFlow's target and its steps (a list: a schedule), see DistillSettings
     target_steps: int | tuple[int, ...] = 2
