@@ -58,10 +58,12 @@ class ChunkComparison:
     demonstration_distance: float  # between the state and the nearest demonstration state (raw units)
     expert_action: list[float]
     demonstration_chunk: list[list[float]]
-    chunks: dict[str, list[list[list[float]]]]  # label -> draws x chunk x action
-    error_to_demonstration: dict[str, float]  # mean squared error of the row's draws to the demonstration's chunk
-    spread: dict[str, float]  # mean standard deviation across draws
-    first_action_to_expert: dict[str, float]  # Euclidean distance of the draws' first actions to the expert's
+    # per row label: its draws (draws x chunk x action); the mean squared error of the draws to the demonstration's
+    # chunk; their mean standard deviation across draws; the mean distance of their first actions to the expert's
+    chunks: dict[str, list[list[list[float]]]] = field(default_factory=dict)
+    error_to_demonstration: dict[str, float] = field(default_factory=dict)
+    spread: dict[str, float] = field(default_factory=dict)
+    first_action_to_expert: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -198,10 +200,6 @@ def diagnose_task(
             distance,
             expert_action.tolist(),
             reference.tolist(),
-            {},
-            {},
-            {},
-            {},
         )
         for label, loaded, mode in runs:
             batch = loaded.processor.observation(
