@@ -161,9 +161,9 @@ class Recipe:
 RECIPES: dict[str, Recipe] = {
     "snapflow": Recipe(
         "snapflow's recipe (docs/RESULTS.md, 'One step as good as ten'): the paper's objective and budget with "
-        "lambda 1 (2000 steps at lr 3e-5)",
+        "lambda 3 (2000 steps at lr 3e-5)",
         PAPER_STUDENT_TRAINING,
-        {"consistency_weight": 1.0},
+        {"consistency_weight": 3.0},
     ),
     "paper": Recipe(
         "the paper's settings: alpha 0.5, lambda 0.1, two-step Euler target, prefix frozen; 2000 steps at lr 3e-5",
