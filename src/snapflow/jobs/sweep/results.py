@@ -73,10 +73,13 @@ class SweepRow:
     difference: Difference | None = None  # against the table's reference row (None for the reference itself)
 
     def to_dict(self) -> dict[str, Any]:
+        """As results.json holds it (the interval a list), so that ``from_dict(d).to_dict() == d``."""
         row = asdict(self)
         for optional in ("offline", "success_interval", "difference"):
             if row[optional] is None:
                 del row[optional]
+        if "success_interval" in row:
+            row["success_interval"] = list(row["success_interval"])
         return row
 
     @classmethod
