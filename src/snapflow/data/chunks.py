@@ -13,6 +13,12 @@ from snapflow.policies.processor import Processor
 from snapflow.protocol import index_batch
 
 
+def chunk_rows(demonstrations: Demonstrations, rows: np.ndarray, length: int) -> np.ndarray:
+    """For each row, the rows of the ``length`` actions from it on, the episode's last repeated past its end."""
+    ends = np.array([e.start + e.length for e in demonstrations.episodes])[demonstrations.episode_index[rows]]
+    return np.minimum(rows[:, None] + np.arange(length)[None, :], ends[:, None] - 1)
+
+
 class ChunkData:
     """Sample i: the observation at one step and the next ``chunk_length`` actions, the last repeated
     past the episode's end (the robot holds its final command). Observations and actions are normalised."""
@@ -37,17 +43,8 @@ class ChunkData:
                 f"the policy expects {size}x{size}"
             )
         rows = demonstrations.rows(episodes)
-        ends = np.concatenate(
-            [
-                np.full(
-                    demonstrations.episodes[e].length,
-                    demonstrations.episodes[e].start + demonstrations.episodes[e].length,
-                )
-                for e in episodes
-            ]
-        )
-        chunk_rows = np.minimum(rows[:, None] + np.arange(processor.chunk_length)[None, :], ends[:, None] - 1)
-        self.actions = processor.normalize_actions(torch.from_numpy(demonstrations.actions[chunk_rows]))
+        following = chunk_rows(demonstrations, rows, processor.chunk_length)
+        self.actions = processor.normalize_actions(torch.from_numpy(demonstrations.actions[following]))
         instructions = [
             demonstrations.instructions[demonstrations.episodes[e].task] for e in demonstrations.episode_index[rows]
         ]
@@ -71,4 +68,4 @@ def split_chunk_data(
     ) if val_episodes else None
 
 
-__all__ = ["ChunkData", "split_chunk_data"]
+__all__ = ["ChunkData", "chunk_rows", "split_chunk_data"]

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from snapflow.data.chunks import chunk_rows
 from snapflow.data.demonstrations import Demonstrations
 from snapflow.envs.base import Benchmark, Observation
 from snapflow.evaluation.closed_loop import ClosedLoopEvaluator
@@ -96,10 +97,7 @@ def _nearest_chunk(demonstrations: Demonstrations, task: str, state: np.ndarray,
     rows = demonstrations.rows([i for i, e in enumerate(demonstrations.episodes) if e.task == task])
     distances = np.linalg.norm(demonstrations.states[rows] - state, axis=1)
     best = rows[int(distances.argmin())]
-    episode = demonstrations.episodes[demonstrations.episode_index[best]]
-    end = episode.start + episode.length
-    chunk_rows = np.minimum(best + np.arange(length), end - 1)
-    return demonstrations.actions[chunk_rows], float(distances.min())
+    return demonstrations.actions[chunk_rows(demonstrations, np.array([best]), length)[0]], float(distances.min())
 
 
 def _rollout(
