@@ -16,6 +16,16 @@ from pathlib import Path
 import torch
 
 IMAGE_SIZE, PATCH_SIZE, SCALE_FACTOR = 64, 16, 2
+# the sizes every tiny LeRobot policy shares: 4-action chunks of 4-D actions, short prompts, CPU, never pushed
+TINY_POLICY_SIZES = dict(
+    chunk_size=4,
+    n_action_steps=4,
+    max_state_dim=8,
+    max_action_dim=4,
+    tokenizer_max_length=16,
+    device="cpu",
+    push_to_hub=False,
+)
 IMAGE_TOKENS = {
     "fake_image_token": "<fake_token_around_image>",
     "image_token": "<image>",
@@ -107,13 +117,7 @@ def build_tiny_smolvla(
         num_vlm_layers=2,
         expert_width_multiplier=0.5,
         resize_imgs_with_padding=(IMAGE_SIZE, IMAGE_SIZE),
-        chunk_size=4,
-        n_action_steps=4,
-        max_state_dim=8,
-        max_action_dim=4,
-        tokenizer_max_length=16,
-        device="cpu",
-        push_to_hub=False,
+        **TINY_POLICY_SIZES,
         input_features={
             "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(state_dim,)),
             image_key: PolicyFeature(type=FeatureType.VISUAL, shape=(3, image_size, image_size)),
@@ -180,13 +184,7 @@ def build_tiny_pi(policy_type: str, seed: int = 0):
     config = make_policy_config(
         policy_type,
         image_resolution=(PI_IMAGE_SIZE, PI_IMAGE_SIZE),
-        chunk_size=4,
-        n_action_steps=4,
-        max_state_dim=8,
-        max_action_dim=4,
-        tokenizer_max_length=16,
-        device="cpu",
-        push_to_hub=False,
+        **TINY_POLICY_SIZES,
         dtype="float32",
         input_features={
             "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(6,)),
