@@ -5,6 +5,7 @@ real (slow: Meta-World, training, evaluation, files on disk)."""
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, ClassVar
@@ -394,7 +395,7 @@ class LogJob(Job):
             log.write(f"{self.value}\n")
         if self.fail:
             raise RuntimeError("the job failed on purpose")
-        return {"lines": len((self.directory / "log.txt").read_text().splitlines())}
+        return {"lines": len((self.directory / "log.txt").read_text().splitlines()), "process": os.getpid()}
 
     def describe(self) -> str:
         return f"log {self.value}"
@@ -407,13 +408,20 @@ def test_the_runner_continues_an_interrupted_job_and_restarts_a_stale_one(tmp_pa
         run_jobs([LogJob(directory, 1, fail=True)], progress=False)
     assert not is_done(LogJob(directory, 1))
     assert set(run_jobs([LogJob(directory, 1)], progress=False)) == {"log 1"}
-    assert read_record(LogJob(directory, 1)) == {"config": {"value": 1}, "lines": 2}, (
-        "same settings: its outputs were kept"
-    )
+    record = read_record(LogJob(directory, 1))
+    assert (record["config"], record["lines"]) == ({"value": 1}, 2), "same settings: its outputs were kept"
     assert run_jobs([LogJob(directory, 1)], progress=False) == {}
     run_jobs([LogJob(directory, 2)], progress=False)
     assert read_record(LogJob(directory, 2))["lines"] == 1, "other settings: its old outputs were cleared first"
     assert not is_done(LogJob(directory, 1))
+
+
+@pytest.mark.slow
+def test_every_job_runs_in_a_fresh_process_so_its_memory_goes_with_it(tmp_path):
+    jobs = [LogJob(tmp_path / f"job-{value}", value) for value in range(3)]
+    run_jobs(jobs, workers=1, progress=False)
+    processes = {read_record(job)["process"] for job in jobs}
+    assert len(processes) == 3 and os.getpid() not in processes
 
 
 @pytest.mark.slow

@@ -178,8 +178,11 @@ def run_jobs(
     times: dict[str, float] = {}
     running: dict[Future, Job] = {}
     bar = tqdm(total=len(waiting), desc=description, disable=not progress, dynamic_ncols=True)
-    # spawn: each worker imports torch afresh, with its own thread count and no inherited locks
-    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+    # spawn: each worker imports torch afresh, with its own thread count and no inherited locks; one job per process:
+    # the memory a job frees is not all handed back to the system (glibc keeps MuJoCo's), so a worker that went on to
+    # a second 500-episode evaluation reached 12.6 GB and was killed for memory
+    context = get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=context, max_tasks_per_child=1) as pool:
         while waiting or running:
             ready = [job for job in waiting if not unfinished.intersection(job.dependencies)]
             for job in ready[: workers - len(running)]:
