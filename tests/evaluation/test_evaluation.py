@@ -186,39 +186,42 @@ def test_closed_loop_replans_every_n_act_actions_in_one_batch_and_scores_each_ep
         ClosedLoopEvaluator(scripted, ["fly-v3"], 1)
 
 
-def test_more_slots_than_max_envs_run_in_waves_that_continue_one_noise_stream(scripted, runs):
+def test_more_episodes_than_max_envs_run_in_waves_on_the_same_environments_and_one_noise_stream(scripted, runs):
     _, teacher, _ = runs
     policy, processor = teacher.policy, teacher.processor
-    alive, peak = [], []
-    make_env = scripted.make_env
-
-    def counted(task, split, image_size=None):
-        alive[:] = [env for env in alive if not env.closed] + [make_env(task, split, image_size)]
-        peak.append(len(alive))
-        return alive[-1]
-
-    scripted.make_env = counted
+    actions: dict[int, list[np.ndarray]] = {}
     evaluator = ClosedLoopEvaluator(scripted, list(SYNTHETIC_TASKS), 2, image_size=None, max_envs=3)
-    results = evaluator.run(policy, processor, TEACHER_10, n_act=4, seed=3, progress=False)
+    run = evaluator.run(
+        policy,
+        processor,
+        TEACHER_10,
+        4,
+        3,
+        False,
+        record=lambda slot, _, action: actions.setdefault(slot, []).append(action),
+    )
     again = evaluator.run(policy, processor, TEACHER_10, n_act=4, seed=3, progress=False)
     evaluator.close()
-    assert [(r.task, r.variation) for r in results] == [(task, v) for task in SYNTHETIC_TASKS for v in range(2)]
-    assert results == again
-    assert max(peak) == 3 and len(scripted.envs) == 8, "waves of 3 and 1 slots, made anew in each of the two runs"
+    assert [(r.task, r.variation) for r in run] == [(task, v) for task in SYNTHETIC_TASKS for v in range(2)]
+    assert run == again
+    assert len(scripted.envs) == 2, "3 // 2 tasks: one environment per task, reset for each variation and run"
     assert all(env.closed for env in scripted.envs)
-    # by hand: wave 1 draws noise for its 3 slots at steps 0 and 4, then wave 2 for its 1 slot, from one generator
+    # by hand: wave 1 is variation 0 of both tasks (slots 0 and 2), re-planning at steps 0 and 4, then wave 2 is
+    # variation 1 (slots 1 and 3), drawing from the same generator
     generator = torch.Generator().manual_seed(3)
-    envs = scripted.envs[:4]
-    expected = []
-    for wave in (envs[:3], envs[3:]):
-        observation = processor.observation(np.stack([env.state for env in wave]), [env.instruction for env in wave])
+    expected = {}
+    for variation in range(2):
+        wave = [ScriptedEnv(task) for task in SYNTHETIC_TASKS]
+        observations = [env.reset(variation) for env in wave]
+        batch = processor.observation(np.stack([o.state for o in observations]), [o.instruction for o in observations])
         chunks = []
         for _ in range(2):
             noise = torch.randn(len(wave), processor.chunk_length, processor.action_dim, generator=generator)
-            chunks.append(processor.unnormalize_actions(sample_actions(policy, observation, noise, TEACHER_10)).numpy())
-        expected += [np.concatenate([chunks[0][row, :4], chunks[1][row, :2]]) for row in range(len(wave))]
-    for env, actions in zip(envs, expected, strict=True):
-        assert np.allclose(np.stack(env.actions), actions, atol=1e-6)
+            chunks.append(processor.unnormalize_actions(sample_actions(policy, batch, noise, TEACHER_10)).numpy())
+        for row in range(len(wave)):
+            expected[2 * row + variation] = np.concatenate([chunks[0][row, :4], chunks[1][row, :2]])
+    for slot in range(4):
+        assert np.allclose(np.stack(actions[slot]), expected[slot], atol=1e-6)
     with pytest.raises(ValueError, match="max_envs must be at least 1"):
         ClosedLoopEvaluator(scripted, ["reach-v3"], 1, max_envs=0)
 

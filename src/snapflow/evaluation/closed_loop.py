@@ -1,7 +1,7 @@
 """Closed-loop success on a benchmark: the episodes of all tasks run side by side, one batched policy call for every
 environment that needs a new chunk, so inference uses every core while environments step. At most ``max_envs``
-environments are alive at once (a Meta-World environment holds ~21 MB: 500 episodes side by side took 10.5 GB, and
-two such evaluations on one 24 GB machine were killed for memory); more episodes run in waves of ``max_envs``."""
+environments exist, made once and reset to each variation in turn: a Meta-World environment holds ~21 MB, 500
+episodes side by side took 10.5 GB, and environments made anew for each wave did not hand their memory back."""
 
 from __future__ import annotations
 
@@ -19,16 +19,15 @@ from snapflow.flow.solver import sample_actions
 from snapflow.policies.processor import Processor
 from snapflow.protocol import FlowPolicy
 
-MAX_ENVS = 200  # the demo's 200 episodes in one wave, ~4 GB of Meta-World environments
+MAX_ENVS = 200  # the demo's 200 episodes side by side, ~4 GB of Meta-World environments
 
 
 class ClosedLoopEvaluator:
     """Runs every (task, episode) slot of the benchmark's evaluation split, for one policy and mode per ``run``.
 
-    Slots run in waves of at most ``max_envs`` environments, in slot order, drawing the noise from one generator
-    across waves: results depend on ``max_envs`` only when there are more slots than it. When every slot fits in one
-    wave, its environments are kept and reused across runs (policies and modes); otherwise each wave makes its own and
-    closes them when it ends.
+    Each task gets ``max_envs // len(tasks)`` environments (at least one), made at the first run and kept for the
+    next ones: episodes run in waves of that many variations per task, every task side by side, the noise drawn
+    from one generator across waves. Results depend on ``max_envs`` only when a task has more episodes than that.
     """
 
     def __init__(
@@ -47,17 +46,28 @@ class ClosedLoopEvaluator:
             )
         if max_envs < 1:
             raise ValueError(f"max_envs must be at least 1, got {max_envs}")
-        self.benchmark, self.image_size, self.max_envs = benchmark, image_size, max_envs
+        self.benchmark, self.tasks, self.image_size = benchmark, tasks, image_size
         self.slots = [(task, variation) for task in tasks for variation in range(episodes_per_task)]
-        self._kept: list[Environment] | None = None  # the single wave's environments, reused across runs
+        self.envs_per_task = min(episodes_per_task, max(1, max_envs // len(tasks)))
+        # wave -> (slot, environment index) pairs, task-major as the slots: one wave is the old all-at-once loop
+        self.waves = [
+            [
+                (t * episodes_per_task + v, t * self.envs_per_task + v - first)
+                for t in range(len(tasks))
+                for v in range(first, min(first + self.envs_per_task, episodes_per_task))
+            ]
+            for first in range(0, episodes_per_task, self.envs_per_task)
+        ]
+        self._envs: list[Environment] = []
 
-    def _environments(self, slots: list[tuple[str, int]]) -> list[Environment]:
-        if self._kept is not None:
-            return self._kept
-        envs = [self.benchmark.make_env(task, "eval", self.image_size) for task, _ in slots]
-        if len(slots) == len(self.slots):
-            self._kept = envs
-        return envs
+    def _environments(self) -> list[Environment]:
+        if not self._envs:
+            self._envs = [
+                self.benchmark.make_env(task, "eval", self.image_size)
+                for task in self.tasks
+                for _ in range(self.envs_per_task)
+            ]
+        return self._envs
 
     @torch.no_grad()
     def run(
@@ -76,26 +86,21 @@ class ClosedLoopEvaluator:
             raise ValueError(f"n_act must be in [1, {processor.chunk_length}] (the policy's chunk length), got {n_act}")
         policy.eval()
         generator = torch.Generator().manual_seed(seed)
-        results: list[EpisodeResult] = []
+        envs = self._environments()
+        results: dict[int, EpisodeResult] = {}
         with tqdm(total=len(self.slots), desc=f"closed loop {mode.name}", disable=not progress, leave=False) as bar:
-            for start in range(0, len(self.slots), self.max_envs):
-                slots = self.slots[start : start + self.max_envs]
-                envs = self._environments(slots)
-                try:
-                    results += self._run_wave(
-                        envs, slots, start, policy, processor, mode, n_act, generator, bar.update, record
-                    )
-                finally:
-                    if envs is not self._kept:
-                        for env in envs:
-                            env.close()
-        return results
+            for wave in self.waves:
+                slots = [slot for slot, _ in wave]
+                finished = self._run_wave(
+                    [envs[env] for _, env in wave], slots, policy, processor, mode, n_act, generator, bar.update, record
+                )
+                results.update(zip(slots, finished, strict=True))
+        return [results[slot] for slot in range(len(self.slots))]
 
     def _run_wave(
         self,
         envs: list[Environment],
-        slots: list[tuple[str, int]],
-        first_slot: int,
+        slots: list[int],
         policy: FlowPolicy,
         processor: Processor,
         mode: SamplingMode,
@@ -104,7 +109,7 @@ class ClosedLoopEvaluator:
         finished: Callable[[], object],
         record: Callable[[int, Observation, np.ndarray], None] | None,
     ) -> list[EpisodeResult]:
-        observations = [env.reset(variation) for env, (_, variation) in zip(envs, slots, strict=True)]
+        observations = [env.reset(self.slots[slot][1]) for env, slot in zip(envs, slots, strict=True)]
         queues: list[deque] = [deque() for _ in envs]
         results: dict[int, EpisodeResult] = {}
         while len(results) < len(envs):
@@ -124,19 +129,18 @@ class ClosedLoopEvaluator:
                     continue
                 action = queues[i].popleft()
                 if record is not None:
-                    record(first_slot + i, observations[i], action)
+                    record(slots[i], observations[i], action)
                 # render only where the next step re-plans: the image is needed nowhere else
                 observations[i], success, done = env.step(action, render=not queues[i])
                 if done:
-                    results[i] = EpisodeResult(slots[i][0], slots[i][1], success, env.steps)
+                    results[i] = EpisodeResult(*self.slots[slots[i]], success, env.steps)
                     finished()
         return [results[i] for i in range(len(envs))]
 
     def close(self) -> None:
-        """Close the environments kept for reuse (a multi-wave evaluation keeps none)."""
-        for env in self._kept or []:
+        for env in self._envs:
             env.close()
-        self._kept = None
+        self._envs = []
 
 
 __all__ = ["MAX_ENVS", "ClosedLoopEvaluator"]
