@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import signal
 import sys
 import tempfile
 import time
@@ -44,6 +46,7 @@ TRAINING_OPTIONS = {
 }
 # the pip extra that installs each optional module a command may need
 EXTRAS = {"lerobot": "lerobot", "metaworld": "metaworld", "mujoco": "metaworld"}
+INTERRUPTED = 130  # what main returns after Ctrl-C: 128 + SIGINT, the status a shell shows for it
 
 
 class _Parser(argparse.ArgumentParser):
@@ -908,9 +911,23 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{prefix} error: {error.strerror or error}: {error.filename}", file=sys.stderr)
     except KeyboardInterrupt:
         print(f"{prefix} {args.interrupted(args)}", file=sys.stderr)
-        return 130
+        return INTERRUPTED
     return 2
 
 
+def entry_point() -> NoReturn:
+    """The ``snapflow`` command: :func:`main`, whose code becomes the exit status, except after Ctrl-C: then,
+    once the message is out, the process ends by SIGINT itself, as Unix asks of a program that cleans up after one
+    (a calling shell loop stops too; the shell shows 130). Python 3.11 does the same of its own accord when the
+    interrupt landed inside an ``exec`` of a string (dataclasses, mpmath), so one way out is also the only way."""
+    code = main()
+    if code == INTERRUPTED:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+        os.kill(os.getpid(), signal.SIGINT)
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry_point()
