@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import textwrap
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -286,6 +287,9 @@ def _error_bar(row: SweepRow) -> tuple[float, float]:
     return max(row.success_mean - low, 0.0), max(high - row.success_mean, 0.0)
 
 
+TITLE_WIDTH = 90  # characters of a plot's title per line: a longer title ran off the figure's right edge
+
+
 def plot_table(result: TableResult, path: Path) -> None:
     """Success with its 95% interval: lines over ``x`` when the rows carry one, bars otherwise."""
     plt = pyplot()
@@ -312,7 +316,7 @@ def plot_table(result: TableResult, path: Path) -> None:
     interval = all(row.success_interval for row in rows)
     axis.set_ylabel("MT10 success % (95% Wilson interval)" if interval else "MT10 success % (mean ± std over seeds)")
     title = f"{result.title} ({len(result.seeds)} seed(s), {result.episodes_per_task} episodes per task)"
-    axis.set_title(title, fontsize=9)
+    axis.set_title(textwrap.fill(title, TITLE_WIDTH), fontsize=9)
     axis.grid(alpha=0.3)
     figure.tight_layout()
     save_figure(figure, path, dpi=120)
