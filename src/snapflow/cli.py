@@ -24,6 +24,7 @@ from typing import Any, NoReturn
 
 from snapflow.benchmark.architectures import architectures
 from snapflow.data.collect import EPISODES_PER_TASK
+from snapflow.envs.base import SPLITS
 from snapflow.envs.factory import BENCHMARKS, DEFAULT_BENCHMARK, make_benchmark
 from snapflow.evaluation.config import N_ACT
 from snapflow.flow.modes import SamplingMode
@@ -46,6 +47,7 @@ TRAINING_OPTIONS = {
 }
 # the pip extra that installs each optional module a command may need
 EXTRAS = {"lerobot": "lerobot", "metaworld": "metaworld", "mujoco": "metaworld"}
+TASKS_HELP = "a set of the benchmark's tasks (metaworld: mt10, the default, or mt50) or comma-separated task names"
 INTERRUPTED = 130  # what main returns after Ctrl-C: 128 + SIGINT, the status a shell shows for it
 
 
@@ -127,13 +129,9 @@ def _default(cls: type, name: str) -> Any:
     return field.default if field.default is not MISSING else field.default_factory()
 
 
-def _tasks(benchmark_name: str, value: str) -> list[str]:
+def _tasks(benchmark_name: str, value: str | None) -> list[str]:
     benchmark = make_benchmark(benchmark_name)
-    return (
-        list(benchmark.tasks)
-        if value == "all"
-        else benchmark.check_tasks([task.strip() for task in value.split(",") if task.strip()])
-    )
+    return list(benchmark.default_tasks) if value is None else benchmark.resolve_tasks(value)
 
 
 def _check_writable(output: str | Path) -> None:
@@ -225,6 +223,20 @@ def _collect(args: argparse.Namespace) -> int:
     )
     print(
         f"wrote {len(demonstrations.episodes)} successful expert episodes ({len(demonstrations.states)} steps) to {args.output}"
+    )
+    return 0
+
+
+def _experts(args: argparse.Namespace) -> int:
+    tasks = _tasks(args.env, args.tasks)
+    _check_writable(args.output)
+    from snapflow.evaluation.experts import EXPERTS_MD, run_experts
+
+    report = run_experts(make_benchmark(args.env), tasks, args.output, args.split, args.episodes, not args.no_progress)
+    mean = report["tasks"]["mean"]
+    print(
+        f"scripted experts: {100 * mean['success_rate']:.1f}% mean success over {len(tasks)} task(s) "
+        f"({mean['successes']} / {mean['episodes']} episodes); per task in {Path(args.output) / EXPERTS_MD}"
     )
     return 0
 
@@ -644,7 +656,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=DEFAULT_BENCHMARK,
         help="benchmark; metaworld-via-points routes each episode through one of two via-points (multimodal)",
     )
-    collect.add_argument("--tasks", default="all", help="'all' or comma-separated task names")
+    collect.add_argument("--tasks", help=TASKS_HELP)
     collect.add_argument("--episodes", type=COUNT, default=EPISODES_PER_TASK, help="successful episodes per task")
     collect.add_argument(
         "--image-size",
@@ -652,6 +664,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="also store camera images of this size (rendered off-screen with MUJOCO_GL=egl or osmesa)",
     )
     _add_output(collect, None, "demonstrations directory (npz + meta.json)")
+
+    experts = _command(
+        commands, "experts", "the benchmark's scripted experts' success per task", _experts, _nothing_written, common
+    )
+    experts.add_argument("--env", choices=list(BENCHMARKS), default=DEFAULT_BENCHMARK, help="benchmark")
+    experts.add_argument("--tasks", help=TASKS_HELP)
+    experts.add_argument("--split", choices=list(SPLITS), default="eval", help="whose variations the experts run on")
+    experts.add_argument("--episodes", type=COUNT, default=50, help="episodes per task (one per variation)")
+    _add_output(experts, "outputs/experts", "where experts.json and experts.md go")
 
     train = _command(
         commands,
@@ -750,7 +771,7 @@ def build_parser() -> argparse.ArgumentParser:
         choices=list(BENCHMARKS),
         help="benchmark (default: the one the first policy's demonstrations came from)",
     )
-    evaluate.add_argument("--tasks", default="all", help="the benchmark's tasks: 'all' or comma-separated names")
+    evaluate.add_argument("--tasks", help=TASKS_HELP)
     evaluate.add_argument("--episodes", type=COUNT, default=10, help="episodes per task")
     evaluate.add_argument(
         "--n-act",

@@ -8,7 +8,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from snapflow.data.demonstrations import META_FILE, Demonstrations, Episode
-from snapflow.envs.base import Benchmark
+from snapflow.envs.base import Benchmark, Environment, Expert
 from snapflow.reporting.locks import hold_run_lock
 
 EPISODES_PER_TASK = 30  # successful expert episodes per task (Meta-World has 50 training variations a task)
@@ -24,6 +24,24 @@ def check_collection(benchmark: Benchmark, tasks: list[str], episodes_per_task: 
             f"episodes_per_task must be in [1, {available}] ({benchmark.name}'s training variations), got {episodes_per_task}"
         )
     return available
+
+
+def expert_episode(
+    env: Environment, expert: Expert, variation: int
+) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray], bool]:
+    """One episode of ``expert`` on ``variation``: the states it saw, its actions, the camera images (when ``env``
+    renders) and whether the episode succeeded."""
+    observation = env.reset(variation, render=True)
+    expert.reset(observation)
+    states, actions, images, success, done = [], [], [], False, False
+    while not done:
+        action = expert.act(observation)
+        states.append(observation.state)
+        actions.append(action)
+        if observation.image is not None:
+            images.append(observation.image)
+        observation, success, done = env.step(action, render=observation.image is not None)
+    return states, actions, images, success
 
 
 def collect_demonstrations(
@@ -43,16 +61,7 @@ def collect_demonstrations(
         for variation in range(available):
             if kept == episodes_per_task:
                 break
-            observation = env.reset(variation, render=True)
-            expert.reset(observation)
-            episode_states, episode_actions, episode_images, success, done = [], [], [], False, False
-            while not done:
-                action = expert.act(observation)
-                episode_states.append(observation.state)
-                episode_actions.append(action)
-                if observation.image is not None:
-                    episode_images.append(observation.image)
-                observation, success, done = env.step(action, render=image_size is not None)
+            episode_states, episode_actions, episode_images, success = expert_episode(env, expert, variation)
             if success:
                 start = sum(episode.length for episode in episodes)
                 episodes.append(Episode(task, variation, start, len(episode_actions)))
@@ -97,4 +106,4 @@ def collect(
     return demonstrations
 
 
-__all__ = ["EPISODES_PER_TASK", "check_collection", "collect_demonstrations", "collect"]
+__all__ = ["EPISODES_PER_TASK", "check_collection", "expert_episode", "collect_demonstrations", "collect"]

@@ -66,6 +66,17 @@ class Benchmark(ABC):
     def tasks(self) -> tuple[str, ...]:
         """Every task of the benchmark, in its canonical order."""
 
+    @property
+    def task_sets(self) -> dict[str, tuple[str, ...]]:
+        """Named sets of tasks (``--tasks mt10``); the first is the default. Unless a benchmark names its own: one
+        set, ``all``."""
+        return {"all": self.tasks}
+
+    @property
+    def default_tasks(self) -> tuple[str, ...]:
+        """The tasks of the first set of :attr:`task_sets`: what ``--tasks`` means when not given."""
+        return next(iter(self.task_sets.values()))
+
     @abstractmethod
     def instruction(self, task: str) -> str:
         """The natural-language instruction of ``task``."""
@@ -86,10 +97,22 @@ class Benchmark(ABC):
         """``tasks`` if all are tasks of this benchmark, else a ValueError listing the valid ones."""
         unknown = [task for task in tasks if task not in self.tasks]
         if unknown:
-            raise ValueError(f"unknown {self.name} task(s) {unknown}; it has {list(self.tasks)}")
+            raise ValueError(
+                f"unknown {self.name} task(s) {unknown}; give a set ({', '.join(self.task_sets)}) or tasks of "
+                f"{list(self.tasks)}"
+            )
         if not tasks:
             raise ValueError("no task given")
         return list(tasks)
+
+    def resolve_tasks(self, value: str | Sequence[str]) -> list[str]:
+        """The tasks ``value`` names: a set of :attr:`task_sets` by name, or task names (a list, or one string of
+        comma-separated names), checked by :meth:`check_tasks`."""
+        if isinstance(value, str):
+            if value in self.task_sets:
+                return list(self.task_sets[value])
+            value = [task.strip() for task in value.split(",") if task.strip()]
+        return self.check_tasks(list(value))
 
     def check_split(self, split: str) -> None:
         if split not in SPLITS:

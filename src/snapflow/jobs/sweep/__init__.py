@@ -13,7 +13,7 @@ Config layout (see ``configs/sweeps/*.toml``)::
 
     name = "mt10-state"                 # output_dir = outputs/sweeps/<name>, results in docs/results/sweeps/<name>
     seeds = [0, 1, 2]                   # default seeds of every run and table
-    [data]                              # env (snapflow.envs.factory), tasks ("all" or a list), episodes_per_task,
+    [data]                              # env (snapflow.envs.factory), tasks (a set such as "mt10", the default, or a list), episodes_per_task,
                                         # image_size
     [runs.teacher]                      # a teacher: policy = {type = "minivla" | "mlp", fields of its config},
                                         # train = {TrainConfig fields}

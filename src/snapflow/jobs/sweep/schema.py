@@ -155,9 +155,8 @@ def _data(raw: Any) -> DataSpec:
         benchmark = make_benchmark(entry.get("env", DEFAULT_BENCHMARK))
     except (TypeError, ValueError) as error:
         raise ValueError(f"[data] env: {error}") from None
-    tasks = entry.get("tasks", "all")
     try:
-        entry["tasks"] = benchmark.tasks if tasks == "all" else tuple(benchmark.check_tasks(list(tasks)))
+        entry["tasks"] = tuple(benchmark.resolve_tasks(entry["tasks"]) if "tasks" in entry else benchmark.default_tasks)
     except (TypeError, ValueError) as error:
         raise ValueError(f"[data] tasks: {error}") from None
     for name in ("episodes_per_task", "image_size"):
