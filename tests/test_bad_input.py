@@ -492,6 +492,14 @@ def test_a_second_demo_in_the_same_folder_is_refused_at_once_with_the_flag_that_
     assert [path.name for path in (tmp_path / "demo").iterdir()] == ["data"]
 
 
+def _start_interruptible(command: list[str]) -> subprocess.Popen:
+    """Start ``command`` as a foreground job would run: a shell that starts a job in the
+    background (as CI may run this suite) has it ignore SIGINT, and children inherit that."""
+    return subprocess.Popen(
+        command, stderr=subprocess.PIPE, text=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL)
+    )
+
+
 def _interrupt_when(process: subprocess.Popen, ready: Callable[[], bool]) -> str:
     """SIGINT ``process`` (Ctrl-C) once ``ready()``; its last stderr line."""
     deadline = time.monotonic() + 300
@@ -511,20 +519,18 @@ def test_ctrl_c_says_what_was_kept(tmp_path):
     data = synthetic_demonstrations().save(tmp_path / "data")
     train = [sys.executable, "-m", "snapflow.cli", "train", "--policy", "mlp", "--data", str(data), "--no-progress"]
     run = tmp_path / "early"
-    process = subprocess.Popen([*train, "--output", str(run)], stderr=subprocess.PIPE, text=True)
+    process = _start_interruptible([*train, "--output", str(run)])
     line = _interrupt_when(process, lambda: (run / ".snapflow.lock").exists())
     assert "before the first checkpoint" in line and "--resume" not in line, line
 
     run = tmp_path / "late"
-    process = subprocess.Popen(
-        [*train, "--output", str(run), "--checkpoint-every", "1"], stderr=subprocess.PIPE, text=True
-    )
+    process = _start_interruptible([*train, "--output", str(run), "--checkpoint-every", "1"])
     line = _interrupt_when(process, lambda: (run / "latest.json").exists())
     assert "keeps its last checkpoint" in line and "--resume" in line, line
 
     output = tmp_path / "demonstrations"
     collect = [sys.executable, "-m", "snapflow.cli", "collect", "--tasks", "reach-v3", "--output", str(output)]
-    process = subprocess.Popen([*collect, "--no-progress"], stderr=subprocess.PIPE, text=True)
+    process = _start_interruptible([*collect, "--no-progress"])
     line = _interrupt_when(process, lambda: (output / ".snapflow.lock").exists())
     assert "no demonstrations were saved" in line and "checkpoint" not in line, line
     assert not (output / "meta.json").exists()
