@@ -216,13 +216,23 @@ def _toy_compare(args: argparse.Namespace) -> int:
 def _collect(args: argparse.Namespace) -> int:
     tasks = _tasks(args.env, args.tasks)
     _check_writable(args.output)
+    benchmark = make_benchmark(args.env)
+    if args.lerobot_dataset:  # LeRobot's import and the root are checked before any episode runs
+        from snapflow.adapters.lerobot.dataset import check_dataset_root, write_lerobot_dataset
+
+        check_dataset_root(args.lerobot_dataset)
     from snapflow.data.collect import collect
 
-    demonstrations = collect(
-        make_benchmark(args.env), tasks, args.episodes, args.output, args.image_size, not args.no_progress
-    )
+    progress = not args.no_progress
+    demonstrations = collect(benchmark, tasks, args.episodes, args.output, args.image_size, progress)
+    if args.lerobot_dataset:
+        write_lerobot_dataset(
+            demonstrations, args.lerobot_dataset, args.repo_id, benchmark.fps, benchmark.camera, progress
+        )
+    also = f" and as a LeRobotDataset to {args.lerobot_dataset}" if args.lerobot_dataset else ""
     print(
-        f"wrote {len(demonstrations.episodes)} successful expert episodes ({len(demonstrations.states)} steps) to {args.output}"
+        f"wrote {len(demonstrations.episodes)} successful expert episodes ({len(demonstrations.states)} steps) "
+        f"to {args.output}{also}"
     )
     return 0
 
@@ -506,6 +516,10 @@ def _nothing_written(args: argparse.Namespace) -> str:
 
 
 def _collect_interrupted(args: argparse.Namespace) -> str:
+    from snapflow.data.demonstrations import META_FILE
+
+    if args.lerobot_dataset and (Path(args.output) / META_FILE).is_file():
+        return f"interrupted; the demonstrations are saved in {args.output}, no LeRobotDataset was written"
     return f"interrupted; no demonstrations were saved in {args.output}"
 
 
@@ -664,6 +678,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="also store camera images of this size (rendered off-screen with MUJOCO_GL=egl or osmesa)",
     )
     _add_output(collect, None, "demonstrations directory (npz + meta.json)")
+    collect.add_argument(
+        "--lerobot-dataset",
+        metavar="ROOT",
+        help="also write them as a LeRobotDataset at this (new) root, with LeRobot's writer (needs snapflow[lerobot])",
+    )
+    collect.add_argument("--repo-id", help="the LeRobotDataset's repo id (default: local/<ROOT's folder name>)")
 
     experts = _command(
         commands, "experts", "the benchmark's scripted experts' success per task", _experts, _nothing_written, common

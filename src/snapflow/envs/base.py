@@ -60,6 +60,8 @@ class Benchmark(ABC):
     state_dim: int
     action_dim: int
     max_episode_steps: int
+    fps: int  # control steps per simulated second (a LeRobotDataset records it)
+    camera: str  # the camera its images are rendered from
 
     @property
     @abstractmethod

@@ -95,6 +95,8 @@ TASK_SETS: dict[str, tuple[str, ...]] = {"mt10": MT10_TASKS, "mt50": MT50_TASKS}
 STATE_DIM = 39
 ACTION_DIM = 4
 MAX_EPISODE_STEPS = 500
+FPS = 80  # 5 MuJoCo steps of 2.5 ms per action, as LeRobot's Meta-World environment records it
+CAMERA = "corner"
 SPLIT_SEEDS = {"train": 0, "eval": 1}
 
 
@@ -133,7 +135,7 @@ class MetaWorldEnv(Environment):
             warnings.simplefilter("ignore")
             if image_size:
                 self._env = suite.train_classes[task](
-                    render_mode="rgb_array", camera_name="corner", width=image_size, height=image_size
+                    render_mode="rgb_array", camera_name=CAMERA, width=image_size, height=image_size
                 )
                 # Shadows and multisampling cost most of a CPU-rendered frame and add nothing at this size.
                 self._env.model.vis.quality.shadowsize = 0
@@ -195,6 +197,8 @@ class MetaWorld(Benchmark):
     state_dim = STATE_DIM
     action_dim = ACTION_DIM
     max_episode_steps = MAX_EPISODE_STEPS
+    fps = FPS
+    camera = CAMERA
 
     def __init__(self, via_points: bool = False) -> None:
         self.via_points = via_points

@@ -1,0 +1,91 @@
+"""Demonstrations as a LeRobotDataset, written by LeRobot's own writer (``LeRobotDataset.create``, ``add_frame``,
+``save_episode``, ``finalize``), so that LeRobot's statistics, loaders and tools read it like any of theirs.
+
+One demonstration is one episode; each frame holds ``observation.state`` (the benchmark's full state),
+``observation.images.<camera>`` when camera frames were collected (stored as images, not video, so no encoder is
+needed), ``action``, and the task's instruction as the frame's task."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from tqdm.auto import tqdm
+
+from snapflow.data.demonstrations import Demonstrations
+
+STATE = "observation.state"
+ACTION = "action"
+IMAGE_PREFIX = "observation.images."
+
+
+def lerobot_features(demonstrations: Demonstrations, camera: str) -> dict[str, dict[str, Any]]:
+    """The dataset's features in LeRobot's schema (dtype, shape, names)."""
+    features = {
+        STATE: {"dtype": "float32", "shape": demonstrations.states.shape[1:], "names": None},
+        ACTION: {"dtype": "float32", "shape": demonstrations.actions.shape[1:], "names": None},
+    }
+    if demonstrations.images is not None:
+        features[IMAGE_PREFIX + camera] = {
+            "dtype": "image",
+            "shape": demonstrations.images.shape[1:],
+            "names": ["height", "width", "channels"],
+        }
+    return features
+
+
+def check_dataset_root(root: str | Path) -> Path:
+    """Refuse a root that already holds something: a dataset is written once, never over another."""
+    root = Path(root)
+    if root.exists() and (not root.is_dir() or any(root.iterdir())):
+        raise FileExistsError(f"{root} already exists and is not empty; choose another LeRobotDataset root")
+    return root
+
+
+def write_lerobot_dataset(
+    demonstrations: Demonstrations,
+    root: str | Path,
+    repo_id: str | None = None,
+    fps: int = 80,
+    camera: str = "camera",
+    progress: bool = True,
+) -> Path:
+    """Write ``demonstrations`` as the LeRobotDataset ``repo_id`` (default ``local/<root's name>``) at ``root``.
+
+    It is built in a temporary folder beside ``root`` and moved there only once LeRobot has finalised it, so an
+    interrupted export leaves no half-written dataset. Returns ``root``."""
+    root = check_dataset_root(root)
+    root.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{root.name}.tmp-", dir=root.parent))
+    try:
+        dataset = LeRobotDataset.create(
+            repo_id=repo_id or f"local/{root.name}",
+            fps=fps,
+            features=lerobot_features(demonstrations, camera),
+            root=staging / "dataset",
+            use_videos=False,
+            image_writer_threads=0,  # frames are written as they are added: nothing is pending at finalize
+            image_writer_processes=0,
+        )
+        for episode in tqdm(demonstrations.episodes, desc="writing the LeRobotDataset", disable=not progress):
+            instruction = demonstrations.instructions[episode.task]
+            for row in range(episode.start, episode.start + episode.length):
+                frame = {STATE: demonstrations.states[row], ACTION: demonstrations.actions[row], "task": instruction}
+                if demonstrations.images is not None:
+                    frame[IMAGE_PREFIX + camera] = demonstrations.images[row]
+                dataset.add_frame(frame)
+            dataset.save_episode()
+        dataset.finalize()
+        if root.exists():  # an empty folder: check_dataset_root allowed it
+            root.rmdir()
+        os.replace(staging / "dataset", root)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return root
+
+
+__all__ = ["STATE", "ACTION", "IMAGE_PREFIX", "lerobot_features", "check_dataset_root", "write_lerobot_dataset"]
