@@ -15,6 +15,14 @@ from pathlib import Path
 
 import torch
 
+from snapflow.adapters.lerobot.smolvlm import (
+    IMAGE_TOKENS,
+    OTHER_SPECIAL_TOKENS,
+    ROW_COL_TOKENS,
+    write_smolvlm,
+)
+from snapflow.adapters.lerobot_config import SmolVLMSize
+
 IMAGE_SIZE, PATCH_SIZE, SCALE_FACTOR = 64, 16, 2
 # the sizes every tiny LeRobot policy shares: 4-action chunks of 4-D actions, short prompts, CPU, never pushed
 TINY_POLICY_SIZES = dict(
@@ -26,77 +34,13 @@ TINY_POLICY_SIZES = dict(
     device="cpu",
     push_to_hub=False,
 )
-IMAGE_TOKENS = {
-    "fake_image_token": "<fake_token_around_image>",
-    "image_token": "<image>",
-    "global_image_token": "<global-img>",
-    "end_of_utterance_token": "<end_of_utterance>",
-}
-OTHER_SPECIAL = ["<|im_start|>", "<|endoftext|>", "<video>"]
-ROW_COL = [f"<row_{i}_col_{j}>" for i in range(1, 5) for j in range(1, 5)]
 WORDS = "pick place push pull open close the a to cube drawer door red green blue goal robot".split()
 
 
 def write_tiny_smolvlm(directory: Path) -> Path:
-    from tokenizers import Tokenizer, normalizers, pre_tokenizers
-    from tokenizers.models import WordLevel
-    from transformers import PreTrainedTokenizerFast, SmolVLMConfig, SmolVLMImageProcessor, SmolVLMProcessor
-    from transformers.models.smolvlm.video_processing_smolvlm import SmolVLMVideoProcessor
-
-    vocabulary: dict[str, int] = {}
-    for token in ["[PAD]", "[UNK]", *OTHER_SPECIAL, *IMAGE_TOKENS.values(), *ROW_COL, *WORDS]:
-        vocabulary.setdefault(token, len(vocabulary))
-    core = Tokenizer(WordLevel(vocab=vocabulary, unk_token="[UNK]"))
-    core.normalizer = normalizers.Lowercase()
-    core.pre_tokenizer = pre_tokenizers.Whitespace()
-    specials = [*OTHER_SPECIAL[2:], *IMAGE_TOKENS.values(), *ROW_COL]
-    tokenizer = PreTrainedTokenizerFast(
-        tokenizer_object=core,
-        pad_token="[PAD]",
-        unk_token="[UNK]",
-        bos_token="<|im_start|>",
-        eos_token="<end_of_utterance>",
-        additional_special_tokens=specials,
-        extra_special_tokens=dict(IMAGE_TOKENS),
-        model_max_length=512,
-        padding_side="right",
+    return write_smolvlm(
+        directory, WORDS, SmolVLMSize(image_size=IMAGE_SIZE, patch_size=PATCH_SIZE, scale_factor=SCALE_FACTOR)
     )
-    size = {"longest_edge": IMAGE_SIZE}
-    SmolVLMProcessor(
-        image_processor=SmolVLMImageProcessor(
-            do_resize=True, size=size, do_image_splitting=False, max_image_size=size, do_pad=True
-        ),
-        tokenizer=tokenizer,
-        video_processor=SmolVLMVideoProcessor(size=size, max_image_size=size, do_image_splitting=False),
-        image_seq_len=(IMAGE_SIZE // PATCH_SIZE) ** 2 // SCALE_FACTOR**2,
-    ).save_pretrained(directory)
-    SmolVLMConfig(
-        vision_config=dict(
-            hidden_size=32,
-            intermediate_size=64,
-            num_hidden_layers=1,
-            num_attention_heads=2,
-            image_size=IMAGE_SIZE,
-            patch_size=PATCH_SIZE,
-        ),
-        text_config=dict(
-            model_type="llama",
-            hidden_size=64,
-            intermediate_size=128,
-            num_hidden_layers=2,
-            num_attention_heads=4,
-            num_key_value_heads=2,
-            head_dim=16,
-            vocab_size=len(tokenizer),
-            max_position_embeddings=256,
-            pad_token_id=tokenizer.pad_token_id,
-            tie_word_embeddings=False,
-        ),
-        scale_factor=SCALE_FACTOR,
-        image_token_id=tokenizer.convert_tokens_to_ids("<image>"),
-        pad_token_id=tokenizer.pad_token_id,
-    ).save_pretrained(directory)
-    return directory
 
 
 def build_tiny_smolvla(
@@ -204,7 +148,9 @@ def build_tiny_pi(policy_type: str, seed: int = 0):
 def tiny_batch(batch_size: int = 4, seed: int = 0) -> dict[str, torch.Tensor]:
     """What SmolVLA's pre-processor hands the model: normalised state, images in [0, 1], tokens and mask."""
     generator = torch.Generator().manual_seed(seed)
-    first_word = 2 + len(OTHER_SPECIAL) + len(IMAGE_TOKENS) + len(ROW_COL)  # after [PAD], [UNK] and the special tokens
+    first_word = (
+        2 + len(OTHER_SPECIAL_TOKENS) + len(IMAGE_TOKENS) + len(ROW_COL_TOKENS)
+    )  # after [PAD], [UNK] and the special tokens
     tokens = torch.randint(first_word, first_word + len(WORDS), (batch_size, 16), generator=generator)
     mask = torch.arange(16)[None, :] < torch.randint(3, 16, (batch_size, 1), generator=generator)
     return {

@@ -22,6 +22,7 @@ from importlib.metadata import version
 from pathlib import Path
 from typing import Any, NoReturn
 
+from snapflow.adapters.lerobot_config import LEROBOT_TEACHERS, SMOLVLM_SIZES
 from snapflow.benchmark.architectures import architectures
 from snapflow.data.collect import EPISODES_PER_TASK
 from snapflow.envs.base import SPLITS
@@ -252,12 +253,19 @@ def _experts(args: argparse.Namespace) -> int:
 
 
 def _train(args: argparse.Namespace) -> int:
+    if (args.policy in LEROBOT_TEACHERS) != bool(args.dataset) or bool(args.data) == bool(args.dataset):
+        raise ValueError(
+            f"give --data with a built-in policy ({', '.join(POLICIES)}) or --dataset with --policy "
+            f"{' / '.join(LEROBOT_TEACHERS)} (a LeRobotDataset)"
+        )
     _check_writable(args.output)
+    config = _train_config(args, TEACHER_TRAINING)
+    if args.dataset:
+        return _train_lerobot(args, config)
     from snapflow.data.demonstrations import Demonstrations
     from snapflow.policies.factory import default_config
     from snapflow.training.recipes import train_teacher
 
-    config = _train_config(args, TEACHER_TRAINING)
     demonstrations = Demonstrations.load(args.data)
     overrides = {
         name: getattr(args, name) for name in ("chunk_length", "image_size") if getattr(args, name) is not None
@@ -273,6 +281,35 @@ def _train(args: argparse.Namespace) -> int:
     )
     state = train_teacher(args.data, args.output, policy, config, args.val_fraction, args.resume, not args.no_progress)
     print(f"teacher trained to step {state['step']} in {state['wall_time_s']:.0f} s; checkpoints in {args.output}")
+    return 0
+
+
+def _train_lerobot(args: argparse.Namespace, config: TrainConfig) -> int:
+    from dataclasses import replace as replace_fields
+
+    from snapflow.adapters.hub import local_folder
+    from snapflow.training.lerobot import EXPORT_DIRECTORY, train_smolvla_teacher
+
+    root = local_folder(args.dataset)
+    size = SMOLVLM_SIZES[args.smolvlm]
+    if args.image_size:
+        size = replace_fields(size, image_size=args.image_size)
+    state = train_smolvla_teacher(
+        root,
+        (args.repo_id or f"local/{root.name}") if root else args.dataset,
+        args.output,
+        config,
+        size,
+        chunk_size=args.chunk_length or 8,
+        n_action_steps=args.n_action_steps,
+        val_fraction=args.val_fraction,
+        resume=args.resume,
+        progress=not args.no_progress,
+    )
+    print(
+        f"SmolVLA teacher trained to step {state['step']} in {state['wall_time_s']:.0f} s; "
+        f"LeRobot policy in {Path(args.output) / EXPORT_DIRECTORY}"
+    )
     return 0
 
 
@@ -346,18 +383,20 @@ def _eval(args: argparse.Namespace) -> int:
     from snapflow.evaluation.pipeline import evaluate
     from snapflow.evaluation.report import markdown_report, write_report
     from snapflow.inference.compile import compile_policy
-    from snapflow.policies.checkpoint import load_policy
 
-    loaded = {path: load_policy(path) for path in args.policy}
+    modes = dict(_policy_modes(entry, args.modes) for entry in args.policy)
+    loaded = {path: _load_evaluated(path) for path in modes}
     if args.compile:
         for policy in loaded.values():
             compile_policy(policy.policy, args.compile)
     # the benchmark the first policy's demonstrations came from, unless named
-    env = args.env or next(iter(loaded.values())).metadata.get("data", {}).get("env", DEFAULT_BENCHMARK)
+    first = next(iter(loaded.values()))
+    env = args.env or getattr(first, "metadata", {}).get("data", {}).get("env", DEFAULT_BENCHMARK)
+    names = _distinct_names(list(loaded))
     runs = [
-        (f"{mode.name}" if len(loaded) == 1 else f"{Path(path).name} {mode.name}", policy, mode)
+        (f"{mode.name}" if len(loaded) == 1 else f"{names[path]} {mode.name}", policy, mode)
         for path, policy in loaded.items()
-        for mode in args.modes
+        for mode in modes[path]
     ]
     report = evaluate(
         runs,
@@ -373,6 +412,38 @@ def _eval(args: argparse.Namespace) -> int:
     print(markdown_report(report))
     print(f"wrote report.json, report.md and PNG plots to {args.output}")
     return 0
+
+
+def _policy_modes(entry: str, default: list[SamplingMode]) -> tuple[str, list[SamplingMode]]:
+    """``PATH`` (the --modes) or ``PATH=MODES``: the sampling modes of one policy of several."""
+    path, separator, modes = entry.rpartition("=")
+    if not separator:
+        return entry, default
+    return path, [SamplingMode.parse(name) for name in modes.split(",")]
+
+
+def _distinct_names(paths: list[str]) -> dict[str, str]:
+    """Each path's last parts, as few as tell it from the others (runs/teacher/lerobot_policy and
+    runs/student/lerobot_policy: teacher/lerobot_policy, student/lerobot_policy)."""
+    parts = {path: Path(path).resolve().parts for path in paths}
+    for depth in range(1, max(len(each) for each in parts.values()) + 1):
+        names = {path: "/".join(each[-depth:]) for path, each in parts.items()}
+        if len(set(names.values())) == len(names):
+            return names
+    return {path: str(path) for path in paths}  # the same folder twice
+
+
+def _load_evaluated(path: str) -> Any:
+    """A built-in checkpoint, or a LeRobot policy folder (``config.json`` of LeRobot's layout, e.g. the
+    ``lerobot_policy/`` that `train --policy smolvla` and `distill --policy` export)."""
+    from snapflow.policies.checkpoint import LATEST, POLICY_CONFIG, load_policy
+
+    folder = Path(path)
+    if (folder / POLICY_CONFIG).is_file() or (folder / LATEST).is_file() or not (folder / "config.json").is_file():
+        return load_policy(path)  # which names what is wrong with anything else
+    from snapflow.adapters.lerobot.evaluation import load_lerobot_policy
+
+    return load_lerobot_policy(folder)
 
 
 def _diagnose(args: argparse.Namespace) -> int:
@@ -702,11 +773,26 @@ def build_parser() -> argparse.ArgumentParser:
         _training_interrupted,
         common,
     )
-    _add_training_options(train, TEACHER_TRAINING)
-    train.add_argument("--policy", choices=list(POLICIES), default=next(iter(POLICIES)), help="built-in policy")
-    train.add_argument("--chunk-length", type=COUNT, help="actions per predicted chunk (default: the policy's)")
+    _add_training_options(train, TEACHER_TRAINING, data_required=False)
+    train.add_argument(
+        "--policy",
+        choices=[*POLICIES, *LEROBOT_TEACHERS],
+        default=next(iter(POLICIES)),
+        help="built-in policy (with --data), or smolvla: LeRobot's SmolVLAPolicy from scratch (with --dataset)",
+    )
+    train.add_argument("--dataset", help="smolvla: LeRobotDataset root directory on disk, or repo id")
+    train.add_argument("--repo-id", help="repo id of a dataset given as a directory (default: local/<folder name>)")
+    train.add_argument(
+        "--smolvlm", choices=list(SMOLVLM_SIZES), default="small", help="smolvla: the size of its SmolVLM"
+    )
+    train.add_argument(
+        "--n-action-steps", type=COUNT, default=4, help="smolvla: actions LeRobot's select_action runs per chunk"
+    )
+    train.add_argument(
+        "--chunk-length", type=COUNT, help="actions per predicted chunk (default: the policy's; smolvla 8)"
+    )
     train.add_argument("--use-image", action="store_true", help="minivla: read the demonstrations' camera images")
-    train.add_argument("--image-size", type=COUNT, help="minivla with --use-image: the images' size")
+    train.add_argument("--image-size", type=COUNT, help="minivla with --use-image, smolvla: the images' size")
     train.add_argument(
         "--state-dim", type=COUNT, help="read only the leading entries of the state (4: hand and gripper; default all)"
     )
@@ -777,8 +863,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--policy",
         required=True,
         nargs="+",
-        help="run or checkpoint directories (with --lerobot-env: "
-        "one distilled LeRobot policy directory, e.g. run/lerobot_policy)",
+        help="run or checkpoint directories, or LeRobot policy folders (run/lerobot_policy); PATH=MODES runs "
+        "only those modes of that one, e.g. teacher/lerobot_policy=teacher-10,naive student/lerobot_policy=snapflow-1 "
+        "(with --lerobot-env: one distilled LeRobot policy directory)",
     )
     evaluate.add_argument(
         "--modes",

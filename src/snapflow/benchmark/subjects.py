@@ -209,11 +209,11 @@ def make_subject(
         return builtin_subject(loaded, f"{loaded.metadata['policy']} ({policy})", device, dtype)
     try:
         from snapflow.adapters.lerobot import load_distilled, load_pretrained_policy
-        from snapflow.adapters.lerobot.checkpoint import SNAPFLOW_MARKER
+        from snapflow.adapters.lerobot.checkpoint import read_marker
     except ImportError as error:  # LeRobot is an optional extra
         raise ValueError(f"{policy} is not a built-in checkpoint, and {error}") from None
 
-    distilled = folder is not None and (folder / SNAPFLOW_MARKER).is_file()
+    distilled = folder is not None and bool((read_marker(folder) or {}).get("target_time"))
     loaded = load_distilled(folder) if distilled else load_pretrained_policy(policy)
     return lerobot_subject(loaded, policy, device, dtype)
 

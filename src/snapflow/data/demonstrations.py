@@ -100,18 +100,8 @@ class Demonstrations:
         )
 
     def split(self, val_fraction: float) -> tuple[list[int], list[int]]:
-        """Hold out the last ``val_fraction`` of each task's episodes (at least one when a task has two)."""
-        if not 0 <= val_fraction < 1:
-            raise ValueError(f"the validation fraction must be in [0, 1), got {val_fraction}")
-        train, val = [], []
-        for task in self.tasks:
-            ids = [i for i, episode in enumerate(self.episodes) if episode.task == task]
-            held_out = min(
-                max(round(val_fraction * len(ids)), 1 if val_fraction > 0 and len(ids) > 1 else 0), len(ids) - 1
-            )
-            train += ids[: len(ids) - held_out]
-            val += ids[len(ids) - held_out :]
-        return train, val
+        """Hold out the last ``val_fraction`` of each task's episodes (:func:`split_episodes`)."""
+        return split_episodes([episode.task for episode in self.episodes], val_fraction)
 
     def save(self, directory: str | Path) -> Path:
         directory = Path(directory)
@@ -173,6 +163,20 @@ class Demonstrations:
         )
 
 
+def split_episodes(episode_tasks: list[str], val_fraction: float) -> tuple[list[int], list[int]]:
+    """(training, held-out) episode indices: the last ``val_fraction`` of each task's episodes held out (at least
+    one when a task has two), given each episode's task in order; the one rule for every dataset format."""
+    if not 0 <= val_fraction < 1:
+        raise ValueError(f"the validation fraction must be in [0, 1), got {val_fraction}")
+    train, val = [], []
+    for task in dict.fromkeys(episode_tasks):
+        ids = [i for i, episode_task in enumerate(episode_tasks) if episode_task == task]
+        held_out = min(max(round(val_fraction * len(ids)), 1 if val_fraction > 0 and len(ids) > 1 else 0), len(ids) - 1)
+        train += ids[: len(ids) - held_out]
+        val += ids[len(ids) - held_out :]
+    return train, val
+
+
 def _episodes(entries: Any, source: Path) -> list[Episode]:
     """Episode records from ``meta.json``, each checked field by field."""
     types = {field.name: field.type for field in fields(Episode)}
@@ -208,4 +212,13 @@ def _instructions(instructions: Any, source: Path) -> dict[str, str]:
     return instructions
 
 
-__all__ = ["Demonstrations", "DemonstrationError", "Episode", "FORMAT", "VERSION", "ARRAYS_FILE", "META_FILE"]
+__all__ = [
+    "Demonstrations",
+    "DemonstrationError",
+    "Episode",
+    "split_episodes",
+    "FORMAT",
+    "VERSION",
+    "ARRAYS_FILE",
+    "META_FILE",
+]

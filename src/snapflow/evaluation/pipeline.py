@@ -1,13 +1,17 @@
-"""Evaluate built-in checkpoints: closed-loop success per task, offline action error on held-out demonstrations,
-and batch-1 latency, per (label, policy, sampling mode), into one :class:`EvaluationReport`."""
+"""Evaluate checkpoints, built-in or LeRobot policy folders: closed-loop success per task, offline action error on
+held-out demonstrations, and batch-1 latency, per (label, policy, sampling mode), into one
+:class:`EvaluationReport`."""
 
 from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, TypeAlias
+
+import torch
 
 from snapflow.benchmark.latency import LatencyRow, add_speedups, measure_latency
-from snapflow.benchmark.subjects import builtin_subject
+from snapflow.benchmark.subjects import BenchSubject, builtin_subject, lerobot_subject
 from snapflow.data.chunks import ChunkData
 from snapflow.data.demonstrations import Demonstrations
 from snapflow.envs.base import Benchmark
@@ -18,7 +22,11 @@ from snapflow.evaluation.results import EvaluationReport, EvaluationRow, success
 from snapflow.flow.modes import SamplingMode
 from snapflow.policies.checkpoint import LoadedPolicy
 
-Run = tuple[str, LoadedPolicy, SamplingMode]  # (label, policy, sampling mode)
+if TYPE_CHECKING:  # LeRobot is an extra: a built-in evaluation never imports it
+    from snapflow.adapters.lerobot.evaluation import LoadedLeRobotPolicy
+
+Loaded: TypeAlias = "LoadedPolicy | LoadedLeRobotPolicy"
+Run = tuple[str, Loaded, SamplingMode]  # (label, policy, sampling mode)
 
 
 def evaluate(
@@ -69,11 +77,17 @@ def checkpoint_latency(runs: list[Run], warmup: int = 10, repeats: int = 50) -> 
     """Batch-1 timing of each (label, policy, mode), each row with its own policy's prefix; speedups over the first."""
     rows: dict[str, LatencyRow] = {}
     for label, loaded, mode in runs:
-        subject = builtin_subject(loaded, label)
+        subject = _subject(loaded, label)
         measured = measure_latency(subject.policy, subject.observation, subject.noise, [mode], warmup, repeats)
         rows[label] = measured.modes[mode.name]
         rows[label].prefix = measured.prefix
     return add_speedups(rows)
 
 
-__all__ = ["Run", "evaluate", "checkpoint_latency"]
+def _subject(loaded: Loaded, label: str) -> BenchSubject:
+    if isinstance(loaded, LoadedPolicy):
+        return builtin_subject(loaded, label)
+    return lerobot_subject(loaded.policy, label, torch.device("cpu"), torch.float32)
+
+
+__all__ = ["Loaded", "Run", "evaluate", "checkpoint_latency"]

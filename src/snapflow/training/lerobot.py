@@ -1,5 +1,7 @@
-"""SnapFlow distillation of a LeRobot policy on a LeRobotDataset, with the built-in trainer (Accelerate,
-safetensors checkpoints, resume). The result is also exported in LeRobot's own layout, with its processors."""
+"""LeRobot policies on a LeRobotDataset with the built-in trainer (Accelerate, safetensors checkpoints, resume):
+SnapFlow distillation of a pi0, pi0.5 or SmolVLA, and flow-matching training of a SmolVLA teacher from scratch
+(a SmolVLM of a chosen size written locally). Results are also exported in LeRobot's own layout, with its
+processors."""
 
 from __future__ import annotations
 
@@ -11,13 +13,17 @@ import torch
 from accelerate import PartialState
 
 from snapflow.adapters.hub import check_source, fetch_hub_file
-from snapflow.adapters.lerobot.checkpoint import save_distilled
+from snapflow.adapters.lerobot.checkpoint import read_marker, save_distilled, save_teacher
 from snapflow.adapters.lerobot.data import LeRobotChunkData
 from snapflow.adapters.lerobot.registry import load_pretrained_policy, wrap_policy
+from snapflow.adapters.lerobot.smolvlm import smolvla_config, words_of, write_smolvlm
+from snapflow.adapters.lerobot_config import SmolVLMSize
+from snapflow.data.demonstrations import split_episodes
 from snapflow.flow.time_sampling import BetaTimeSampler
+from snapflow.objective.snapflow import SnapFlowObjective
 from snapflow.reporting.locks import hold_run_lock
 from snapflow.reporting.records import as_record
-from snapflow.training.config import TrainConfig
+from snapflow.training.config import VAL_FRACTION, TrainConfig
 from snapflow.training.distill import DistillSettings
 from snapflow.training.trainer import train
 
@@ -37,6 +43,7 @@ def paper_training() -> TrainConfig:
 
 
 EXPORT_DIRECTORY = "lerobot_policy"
+SMOLVLM_DIRECTORY = "smolvlm"  # the teacher's SmolVLM config and tokenizer, which its exported config points at
 PREPROCESSOR_FILE = "policy_preprocessor.json"
 DATASET_INFO = "meta/info.json"  # LeRobot's INFO_PATH: the first file of a LeRobotDataset it reads
 
@@ -55,6 +62,17 @@ def policy_processors(
     return make_pre_post_processors(
         policy.config, pretrained_path=policy_path, preprocessor_overrides={**device, **(overrides or {})}
     )
+
+
+def check_dataset(dataset_root: str | Path | None, repo_id: str) -> None:
+    """Name a wrong dataset before the policy's weights download (and before LeRobot's dataset modules import,
+    seconds), and before the output folder is created."""
+    from lerobot.utils.constants import HF_LEROBOT_HOME
+
+    if dataset_root is not None:
+        check_source(str(dataset_root), DATASET_INFO, "a LeRobotDataset")
+    elif not (HF_LEROBOT_HOME / repo_id / DATASET_INFO).is_file():  # LeRobot reads its own cache first, offline
+        fetch_hub_file(repo_id, DATASET_INFO, "a LeRobotDataset", repo_type="dataset")
 
 
 def check_dataset_features(config: Any, features: dict[str, Any], repo_id: str) -> None:
@@ -100,10 +118,12 @@ def distill_lerobot(
     resume: bool = False,
     progress: bool = True,
     preprocessor_overrides: dict[str, Any] | None = None,
+    val_fraction: float | None = None,
 ) -> dict[str, Any]:
     """Distill a LeRobot pi0, pi0.5 or SmolVLA (hub id or local pretrained directory) on the LeRobotDataset
     ``repo_id`` at ``dataset_root`` (None: LeRobot's cache, fetched from the hub if missing);
-    ``preprocessor_overrides`` reach LeRobot's processor loader (e.g. a local tokenizer).
+    ``preprocessor_overrides`` reach LeRobot's processor loader (e.g. a local tokenizer). ``val_fraction`` of each
+    task's episodes is held out (default: what a teacher snapflow trained held out, else none).
 
     ``output`` is held from loading to export: another process writing it is refused at once with
     :class:`~snapflow.reporting.locks.RunLockedError`."""
@@ -116,20 +136,106 @@ def distill_lerobot(
             "LeRobot policies are distilled with SnapFlow and its target-time embedding; "
             "the baselines and the no-phi_s ablation run on the built-in policies (snapflow train --policy ...)"
         )
-    from lerobot.utils.constants import HF_LEROBOT_HOME
-
-    # the dataset first, so that a wrong one is named before the policy's weights download (and before LeRobot's
-    # dataset modules import, seconds), and before the output folder is created
-    if dataset_root is not None:
-        check_source(str(dataset_root), DATASET_INFO, "a LeRobotDataset")
-    elif not (HF_LEROBOT_HOME / repo_id / DATASET_INFO).is_file():  # LeRobot reads its own cache first, offline
-        fetch_hub_file(repo_id, DATASET_INFO, "a LeRobotDataset", repo_type="dataset")
+    check_dataset(dataset_root, repo_id)
     # held here, not only by `train`, so that the export is inside the hold and a refusal comes before the loading;
     # only the main process of a launch writes, so only it holds the folder (`train` nests inside this hold)
     with hold_run_lock(output, "snapflow distill") if PartialState().is_main_process else nullcontext():
         return _distill_lerobot(
-            policy_path, dataset_root, repo_id, output, config, settings, resume, progress, preprocessor_overrides
+            policy_path,
+            dataset_root,
+            repo_id,
+            output,
+            config,
+            settings,
+            resume,
+            progress,
+            preprocessor_overrides,
+            val_fraction,
         )
+
+
+def training_dataset(metadata: Any, dataset_root: str | Path | None, chunk_size: int, val_fraction: float) -> Any:
+    """The LeRobotDataset's training episodes (the last ``val_fraction`` of each task's held out, as for the
+    built-in policies: :func:`~snapflow.data.demonstrations.split_episodes`), each frame with its next
+    ``chunk_size`` actions (LeRobot repeats an episode's last one)."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    episodes = None
+    if val_fraction > 0:
+        episodes, _ = split_episodes([entry["tasks"][0] for entry in metadata.episodes], val_fraction)
+    chunk = [step / metadata.fps for step in range(chunk_size)]
+    return LeRobotDataset(metadata.repo_id, root=dataset_root, episodes=episodes, delta_timestamps={"action": chunk})
+
+
+def train_smolvla_teacher(
+    dataset_root: str | Path | None,
+    repo_id: str,
+    output: str | Path,
+    config: TrainConfig,
+    size: SmolVLMSize | None = None,
+    chunk_size: int = 8,
+    n_action_steps: int = 4,
+    val_fraction: float = VAL_FRACTION,
+    resume: bool = False,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """LeRobot's ``SmolVLAPolicy`` over a SmolVLM of ``size`` (default: the tiny one; config and word tokenizer of the dataset's tasks
+    written to ``output/smolvlm``; random weights), every part trained by flow matching (alpha = 1, LeRobot's
+    Beta(1.5, 1) times) on the dataset's state, images and actions, through the adapter, so the loss is LeRobot's
+    own velocity on LeRobot's own pre-processed batches. Exported as a plain SmolVLA (no phi_s) with its
+    processors in ``output/lerobot_policy``, ready for ``snapflow distill --policy``."""
+    size = size or SmolVLMSize()
+    check_dataset(dataset_root, repo_id)
+    with hold_run_lock(output, "snapflow train") if PartialState().is_main_process else nullcontext():
+        from lerobot.configs.types import FeatureType
+        from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+        from lerobot.datasets.utils import dataset_to_policy_features
+        from lerobot.policies.factory import make_pre_post_processors
+        from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
+
+        metadata = LeRobotDatasetMetadata(repo_id, root=dataset_root)
+        features = dataset_to_policy_features(metadata.features)
+        inputs = {key: feature for key, feature in features.items() if feature.type is not FeatureType.ACTION}
+        outputs = {key: feature for key, feature in features.items() if feature.type is FeatureType.ACTION}
+        if not any(feature.type is FeatureType.VISUAL for feature in inputs.values()):
+            raise ValueError(f"the dataset {repo_id} has no camera images; SmolVLA needs at least one")
+        vlm = (Path(output) / SMOLVLM_DIRECTORY).resolve()
+        if not (vlm / "config.json").is_file():  # a resumed run keeps the tokenizer its checkpoints were trained with
+            write_smolvlm(vlm, words_of(metadata.tasks.index), size)
+        torch.manual_seed(config.seed)
+        policy = SmolVLAPolicy(
+            smolvla_config(vlm, inputs, outputs, size, chunk_size=chunk_size, n_action_steps=n_action_steps)
+        )
+        dataset = training_dataset(metadata, dataset_root, chunk_size, val_fraction)
+        check_finite(dataset, [key for key, feature in features.items() if feature.type is not FeatureType.VISUAL])
+        preprocessor, postprocessor = make_pre_post_processors(policy.config, dataset_stats=metadata.stats)
+        adapter = wrap_policy(policy)
+        phi_s = set(adapter.target_time_embedding.parameters())  # stays zero: s = t on every flow-matching row
+        run_metadata = {
+            "format": "snapflow-lerobot-run",
+            "policy": adapter.policy_type,
+            "source": None,
+            "dataset": {"repo_id": repo_id, "root": dataset_root and str(dataset_root)},
+            "smolvlm": as_record(size),
+            "val_fraction": val_fraction,
+            "stage": "teacher",
+        }
+        state = train(
+            adapter,
+            SnapFlowObjective(alpha=1.0, time_sampler=BetaTimeSampler()),
+            LeRobotChunkData(dataset, preprocessor, policy),
+            None,
+            config,
+            output,
+            run_metadata,
+            resume=resume,
+            trainable=[parameter for parameter in adapter.parameters() if parameter not in phi_s],
+            progress=progress,
+        )
+        export = save_teacher(adapter, Path(output) / EXPORT_DIRECTORY, val_fraction)
+        preprocessor.save_pretrained(export)
+        postprocessor.save_pretrained(export)
+    return state
 
 
 def _distill_lerobot(
@@ -142,15 +248,17 @@ def _distill_lerobot(
     resume: bool,
     progress: bool,
     preprocessor_overrides: dict[str, Any] | None,
+    val_fraction: float | None,
 ) -> dict[str, Any]:
     """:func:`distill_lerobot` with the output held."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
+    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 
     policy = load_pretrained_policy(policy_path)
     metadata = LeRobotDatasetMetadata(repo_id, root=dataset_root)
     check_dataset_features(policy.config, metadata.features, repo_id)
-    chunk = [step / metadata.fps for step in range(policy.config.chunk_size)]
-    dataset = LeRobotDataset(repo_id, root=dataset_root, delta_timestamps={"action": chunk})
+    if val_fraction is None:  # the teacher's held-out episodes stay held out
+        val_fraction = (read_marker(policy_path) or {}).get("val_fraction", 0.0) if Path(policy_path).is_dir() else 0.0
+    dataset = training_dataset(metadata, dataset_root, policy.config.chunk_size, val_fraction)
     features = {**policy.config.input_features, **policy.config.output_features}
     check_finite(dataset, [key for key, feature in features.items() if feature.type.name != "VISUAL"])
     preprocessor, postprocessor = policy_processors(policy, policy_path, metadata.stats, preprocessor_overrides)
@@ -162,6 +270,7 @@ def _distill_lerobot(
         "source": str(policy_path),
         "dataset": {"repo_id": repo_id, "root": dataset_root and str(dataset_root)},
         "distill": as_record(settings),
+        "val_fraction": val_fraction,
         "stage": "snapflow",
     }
     state = train(
@@ -176,7 +285,7 @@ def _distill_lerobot(
         trainable=adapter.expert_parameters(),
         progress=progress,
     )
-    export = save_distilled(adapter, Path(output) / EXPORT_DIRECTORY)
+    export = save_distilled(adapter, Path(output) / EXPORT_DIRECTORY, val_fraction)
     preprocessor.save_pretrained(export)
     postprocessor.save_pretrained(export)
     return state
@@ -185,6 +294,10 @@ def _distill_lerobot(
 __all__ = [
     "paper_training",
     "EXPORT_DIRECTORY",
+    "SMOLVLM_DIRECTORY",
+    "check_dataset",
+    "training_dataset",
+    "train_smolvla_teacher",
     "check_dataset_features",
     "check_finite",
     "policy_processors",

@@ -1,5 +1,6 @@
-"""A distilled LeRobot policy on disk: LeRobot's own layout (``config.json`` + ``model.safetensors`` with phi_s
-inside) plus a marker that says which adapter rebuilds it."""
+"""LeRobot policies snapflow trained, on disk: LeRobot's own layout (``config.json`` + ``model.safetensors``, with
+phi_s inside for a distilled one) plus a marker, ``snapflow.json``: which adapter rebuilds it, whether it was
+distilled, and the share of each task's episodes its training held out (for offline metrics)."""
 
 from __future__ import annotations
 
@@ -15,12 +16,49 @@ from snapflow.reporting.files import write_json
 SNAPFLOW_MARKER = "snapflow.json"
 
 
-def save_distilled(adapter: LeRobotFlowPolicy, directory: str | Path) -> Path:
+def _write_marker(directory: Path, policy_type: str, distilled: bool, val_fraction: float) -> None:
+    marker = {
+        "format": "snapflow-lerobot",
+        "policy": policy_type,
+        "target_time": distilled,
+        "val_fraction": val_fraction,
+    }
+    write_json(directory / SNAPFLOW_MARKER, marker)
+
+
+def read_marker(directory: str | Path) -> dict | None:
+    """``snapflow.json`` of a LeRobot policy folder, or None for a policy snapflow did not train."""
+    marker = Path(directory) / SNAPFLOW_MARKER
+    if not marker.is_file():
+        return None
+    try:
+        content = json.loads(marker.read_text())
+        content["policy"], content["target_time"]
+    except (json.JSONDecodeError, KeyError, TypeError) as error:
+        raise CheckpointError(f"{marker} is corrupt ({error})") from None
+    return content
+
+
+def save_distilled(adapter: LeRobotFlowPolicy, directory: str | Path, val_fraction: float = 0.0) -> Path:
     directory = Path(directory)
     adapter.policy.save_pretrained(directory)
-    write_json(
-        directory / SNAPFLOW_MARKER, {"format": "snapflow-lerobot", "policy": adapter.policy_type, "target_time": True}
-    )
+    _write_marker(directory, adapter.policy_type, True, val_fraction)
+    return directory
+
+
+def save_teacher(adapter: LeRobotFlowPolicy, directory: str | Path, val_fraction: float) -> Path:
+    """The adapted policy as its plain LeRobot self, without phi_s (which a teacher never trains): what LeRobot's
+    ``from_pretrained`` and ``snapflow distill --policy`` load."""
+    state = {
+        name: tensor
+        for name, tensor in adapter.policy.state_dict().items()
+        if not name.startswith("model.target_time_embedding.")
+    }
+    plain = type(adapter.policy)(adapter.policy.config)
+    plain.load_state_dict(state, strict=True)
+    directory = Path(directory)
+    plain.save_pretrained(directory)
+    _write_marker(directory, adapter.policy_type, False, val_fraction)
     return directory
 
 
@@ -32,13 +70,12 @@ def load_distilled(directory: str | Path, mode: SamplingMode = SNAPFLOW_1) -> Le
     from lerobot.policies.factory import get_policy_class
 
     directory = Path(directory)
-    marker = directory / SNAPFLOW_MARKER
-    if not marker.is_file():
+    marker = read_marker(directory)
+    if marker is None:
         raise CheckpointError(f"{directory} is not a SnapFlow-distilled LeRobot policy (no {SNAPFLOW_MARKER})")
-    try:
-        policy_type = json.loads(marker.read_text())["policy"]
-    except (json.JSONDecodeError, KeyError, TypeError) as error:
-        raise CheckpointError(f"{marker} is corrupt ({error})") from None
+    if not marker["target_time"]:
+        raise CheckpointError(f"{directory} is a flow-matching teacher snapflow trained, not a distilled policy")
+    policy_type = marker["policy"]
     config = PreTrainedConfig.from_pretrained(directory)
     if config.type != policy_type:
         raise CheckpointError(f"{directory} holds a {config.type!r} config but its marker says {policy_type!r}")
@@ -48,4 +85,4 @@ def load_distilled(directory: str | Path, mode: SamplingMode = SNAPFLOW_1) -> Le
     return adapter
 
 
-__all__ = ["SNAPFLOW_MARKER", "save_distilled", "load_distilled"]
+__all__ = ["SNAPFLOW_MARKER", "read_marker", "save_distilled", "save_teacher", "load_distilled"]

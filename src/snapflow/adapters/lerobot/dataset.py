@@ -59,6 +59,10 @@ def write_lerobot_dataset(
     It is built in a temporary folder beside ``root`` and moved there only once LeRobot has finalised it, so an
     interrupted export leaves no half-written dataset. Returns ``root``."""
     root = check_dataset_root(root)
+    if not progress:  # LeRobot's writer maps each episode through Hugging Face datasets, with a bar each
+        import datasets
+
+        datasets.disable_progress_bars()
     root.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{root.name}.tmp-", dir=root.parent))
     try:

@@ -1,10 +1,14 @@
-"""`snapflow collect --lerobot-dataset`: the same Meta-World demonstrations as the npz, written by LeRobot's own
-writer, read back by LeRobot's own ``LeRobotDataset``."""
+"""LeRobot on Meta-World end to end: `snapflow collect --lerobot-dataset` writes the same demonstrations as the npz
+with LeRobot's own writer (read back by LeRobot's ``LeRobotDataset``); a SmolVLA teacher trained on it, distilled,
+and evaluated closed loop by snapflow's evaluator through LeRobot's processors (the README's chain, short form)."""
 
 from __future__ import annotations
 
+import json
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,34 +18,24 @@ pytest.importorskip("metaworld")
 
 from snapflow.data.demonstrations import Demonstrations  # noqa: E402
 
-TASKS = ["reach-v3", "button-press-topdown-v3"]
-IMAGE_SIZE = 32
+ROOT = Path(__file__).resolve().parents[2]
+IMAGE_SIZE = 32  # the short chain's
 
 
 @pytest.fixture(scope="module")
 def collected(tmp_path_factory):
-    """Two episodes of two tasks with 32-pixel images, as npz and as a LeRobotDataset, by the CLI."""
-    folder = tmp_path_factory.mktemp("collect")
-    command = [
-        sys.executable,
-        "-m",
-        "snapflow.cli",
-        "collect",
-        "--tasks",
-        ",".join(TASKS),
-        "--episodes",
-        "2",
-        "--image-size",
-        str(IMAGE_SIZE),
-        "--output",
-        str(folder / "npz"),
-        "--lerobot-dataset",
-        str(folder / "lerobot"),
-        "--no-progress",
-    ]
-    finished = subprocess.run(command, capture_output=True, text=True, timeout=600)
-    assert finished.returncode == 0, finished.stderr
-    assert "as a LeRobotDataset" in finished.stdout
+    """The README's LeRobot SmolVLA chain in its short form (scripts/lerobot-smolvla-mt10.sh, SHORT=1): two
+    tasks, two demonstrations each with 32-pixel images as npz and as a LeRobotDataset, a tiny SmolVLA teacher,
+    its student, and their evaluation."""
+    folder = tmp_path_factory.mktemp("chain")
+    finished = subprocess.run(
+        ["bash", str(ROOT / "scripts" / "lerobot-smolvla-mt10.sh"), str(folder)],
+        env={**os.environ, "SHORT": "1"},
+        capture_output=True,
+        text=True,
+        timeout=1200,
+    )
+    assert finished.returncode == 0, finished.stderr[-3000:]
     return folder
 
 
@@ -49,11 +43,11 @@ def collected(tmp_path_factory):
 def test_lerobot_reads_back_the_episodes_the_npz_holds(collected):
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    demonstrations = Demonstrations.load(collected / "npz")
+    demonstrations = Demonstrations.load(collected / "data")
     dataset = LeRobotDataset("local/lerobot", root=collected / "lerobot")
     camera = "observation.images.corner"
 
-    assert dataset.num_episodes == len(demonstrations.episodes) == 4
+    assert dataset.num_episodes == len(demonstrations.episodes) == 4  # two tasks, two demonstrations each
     assert dataset.num_frames == len(demonstrations.states)
     assert dataset.fps == 80
     assert tuple(dataset.features["observation.state"]["shape"]) == (39,)
@@ -87,3 +81,25 @@ def test_a_dataset_root_is_never_written_over(collected):
     assert not (collected / "again").exists(), "refused before any episode ran"
     assert (collected / "lerobot" / "meta" / "info.json").read_bytes() == info
     assert not list(collected.glob(".lerobot.tmp-*"))
+
+
+@pytest.mark.slow
+def test_the_chain_trains_distills_and_evaluates_a_lerobot_smolvla(collected):
+    from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
+
+    teacher, student = collected / "teacher" / "lerobot_policy", collected / "student" / "lerobot_policy"
+    assert json.loads((teacher / "snapflow.json").read_text())["target_time"] is False
+    assert json.loads((student / "snapflow.json").read_text())["target_time"] is True
+    # the teacher is a plain LeRobot SmolVLA: LeRobot's own loader takes it as it is
+    assert SmolVLAPolicy.from_pretrained(teacher).config.vlm_model_name == str(
+        collected.resolve() / "teacher" / "smolvlm"
+    )
+    report = json.loads((collected / "eval" / "report.json").read_text())
+    rows = report["rows"]
+    assert [(row["mode"]) for row in rows.values()] == ["teacher-10", "naive-1", "snapflow-1"]
+    for row in rows.values():
+        assert set(row["success"]) == {"reach-v3", "button-press-topdown-v3", "mean"}
+        assert row["success"]["mean"]["episodes"] == 2
+        assert row["offline"]["samples"] > 0
+    assert set(report["latency"]) == set(rows)
+    assert (collected / "eval" / "report.md").is_file() and list((collected / "eval").glob("*.png"))

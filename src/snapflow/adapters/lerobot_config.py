@@ -1,0 +1,41 @@
+"""Settings of the LeRobot teachers snapflow trains, in plain Python: the CLI reads them before LeRobot (or torch)
+is imported, and without LeRobot installed."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+LEROBOT_TEACHERS = ("smolvla",)  # the LeRobot policies `snapflow train --dataset` trains from scratch
+
+
+@dataclass(frozen=True)
+class SmolVLMSize:
+    """The SmolVLM's dimensions (SmolVLA's action expert is ``expert_width_multiplier`` times the text width)."""
+
+    image_size: int = 64
+    patch_size: int = 16
+    scale_factor: int = 2  # pixel shuffle: (image_size / patch_size)^2 / scale_factor^2 image tokens
+    vision_hidden: int = 32
+    vision_layers: int = 1
+    vision_heads: int = 2
+    text_hidden: int = 64
+    text_layers: int = 2
+    text_heads: int = 4
+    text_kv_heads: int = 2
+    max_positions: int = 256
+
+    @property
+    def image_tokens(self) -> int:
+        return (self.image_size // self.patch_size) ** 2 // self.scale_factor**2
+
+
+SMOLVLM_SIZES = {
+    "tiny": SmolVLMSize(),  # ~0.2M parameters: the tests' size
+    # a few million parameters, the size of the demo's built-in policy: trains to a Meta-World teacher on a CPU
+    "small": SmolVLMSize(
+        vision_hidden=64, vision_layers=2, text_hidden=192, text_layers=4, text_heads=6, text_kv_heads=2
+    ),
+}
+
+
+__all__ = ["LEROBOT_TEACHERS", "SmolVLMSize", "SMOLVLM_SIZES"]
