@@ -511,8 +511,6 @@ def _bench(args: argparse.Namespace) -> int:
     from snapflow.benchmark.bench import markdown_bench, run_bench, write_bench
     from snapflow.benchmark.subjects import make_subject
 
-    if args.threads:
-        torch.set_num_threads(args.threads)
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     dtype = {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch.float16}[args.dtype]
     subject = make_subject(args.policy, args.architecture, device, dtype, args.vlm)
@@ -525,12 +523,9 @@ def _bench(args: argparse.Namespace) -> int:
 
 def _bench_targets(args: argparse.Namespace) -> int:
     _check_writable(args.output)
-    import torch
 
     from snapflow.benchmark.training_cost import checkpoint_training_cost, markdown_training_cost
 
-    if args.threads:
-        torch.set_num_threads(args.threads)
     result = checkpoint_training_cost(args.teacher, args.data, args.targets, args.batch_size, args.warmup, args.repeats)
     table = markdown_training_cost(result)
     output = Path(args.output)
@@ -683,6 +678,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"snapflow {version('snapflow')}")
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--no-progress", action="store_true", help="hide progress bars")
+    common.add_argument(
+        "--threads",
+        type=COUNT,
+        help="torch CPU threads (default: torch's, one per core; give 1 where other jobs share the cores: "
+        "multi-threaded ops then wait on each other's time slices, ten times slower or worse)",
+    )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     toy = _command(
@@ -953,7 +954,6 @@ def build_parser() -> argparse.ArgumentParser:
         choices=COMPILE_MODES,
         help="torch.compile the one-pass action expert (reduce-overhead: CUDA-graph capture on a GPU)",
     )
-    bench.add_argument("--threads", type=COUNT, help="CPU threads (torch.set_num_threads; default: torch's choice)")
     bench.add_argument("--warmup", type=NON_NEGATIVE_COUNT, default=10, help="untimed calls of each quantity first")
     bench.add_argument("--repeats", type=COUNT, default=50, help="timed calls of each quantity, round-robin")
     bench.add_argument("--no-profile", action="store_true", help="skip the torch.profiler table of the 1-NFE path")
@@ -979,7 +979,6 @@ def build_parser() -> argparse.ArgumentParser:
     targets.add_argument("--batch-size", type=COUNT, default=64, help="training pairs per timed step")
     targets.add_argument("--warmup", type=NON_NEGATIVE_COUNT, default=5, help="untimed steps of each target first")
     targets.add_argument("--repeats", type=COUNT, default=30, help="timed steps of each target")
-    targets.add_argument("--threads", type=COUNT, help="torch CPU threads (default: torch's choice)")
     _add_output(targets, "outputs/bench-targets", "where training_cost.json and .md go")
 
     sweep = _command(
@@ -1023,6 +1022,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     prefix = f"snapflow {args.command}:"
+    if args.threads:
+        import torch
+
+        torch.set_num_threads(args.threads)
     try:
         return args.run(args)
     except (ValueError, TypeError, FileNotFoundError, FileExistsError) as error:

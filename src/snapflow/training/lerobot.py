@@ -16,7 +16,7 @@ from snapflow.adapters.hub import check_source, fetch_hub_file
 from snapflow.adapters.lerobot.checkpoint import read_marker, save_distilled, save_teacher
 from snapflow.adapters.lerobot.data import LeRobotChunkData
 from snapflow.adapters.lerobot.registry import load_pretrained_policy, wrap_policy
-from snapflow.adapters.lerobot.smolvlm import smolvla_config, words_of, write_smolvlm
+from snapflow.adapters.lerobot.smolvlm import smolvla_config, token_budget, words_of, write_smolvlm
 from snapflow.adapters.lerobot_config import SmolVLMSize
 from snapflow.data.demonstrations import split_episodes
 from snapflow.flow.time_sampling import BetaTimeSampler
@@ -199,17 +199,18 @@ def train_smolvla_teacher(
         outputs = {key: feature for key, feature in features.items() if feature.type is FeatureType.ACTION}
         if not any(feature.type is FeatureType.VISUAL for feature in inputs.values()):
             raise ValueError(f"the dataset {repo_id} has no camera images; SmolVLA needs at least one")
+        tasks = list(metadata.tasks.index)
         vlm = (Path(output) / SMOLVLM_DIRECTORY).resolve()
         if not (vlm / "config.json").is_file():  # a resumed run keeps the tokenizer its checkpoints were trained with
-            write_smolvlm(vlm, words_of(metadata.tasks.index), size)
+            write_smolvlm(vlm, words_of(tasks), size)
         torch.manual_seed(config.seed)
-        policy = SmolVLAPolicy(
-            smolvla_config(vlm, inputs, outputs, size, chunk_size=chunk_size, n_action_steps=n_action_steps)
-        )
+        sizes = dict(chunk_size=chunk_size, n_action_steps=n_action_steps, tokenizer_max_length=token_budget(tasks))
+        policy = SmolVLAPolicy(smolvla_config(vlm, inputs, outputs, size, **sizes))
         dataset = training_dataset(metadata, dataset_root, chunk_size, val_fraction)
         check_finite(dataset, [key for key, feature in features.items() if feature.type is not FeatureType.VISUAL])
         preprocessor, postprocessor = make_pre_post_processors(policy.config, dataset_stats=metadata.stats)
         adapter = wrap_policy(policy)
+        adapter.train_prefix = True
         phi_s = set(adapter.target_time_embedding.parameters())  # stays zero: s = t on every flow-matching row
         run_metadata = {
             "format": "snapflow-lerobot-run",

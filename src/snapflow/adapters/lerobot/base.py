@@ -97,6 +97,8 @@ class LeRobotFlowPolicy(nn.Module, ABC):
     def __init__(self, policy: nn.Module) -> None:
         super().__init__()
         self.policy = policy
+        #: the prefix pass keeps its graph (a teacher trained from scratch); distillation keeps the VLM frozen
+        self.train_prefix = False
         model = policy.model
         if not hasattr(model, "target_time_embedding"):
             fusion = getattr(model, self.time_fusion_layer)
@@ -121,6 +123,10 @@ class LeRobotFlowPolicy(nn.Module, ABC):
         stays frozen."""
         modules = [*self.expert_modules(), self.target_time_embedding]
         return [parameter for module in modules for parameter in module.parameters()]
+
+    def prefix_pass(self, vlm: nn.Module) -> contextlib.AbstractContextManager:
+        """How the prefix runs: :func:`frozen_prefix_pass` unless ``train_prefix``, then as it is, with gradients."""
+        return contextlib.nullcontext() if self.train_prefix else frozen_prefix_pass(vlm)
 
     @abstractmethod
     def model_inputs(self, batch: dict[str, Tensor]) -> tuple[Any, ...]:

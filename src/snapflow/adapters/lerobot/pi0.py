@@ -21,7 +21,6 @@ from snapflow.adapters.lerobot.base import (
     LeRobotFlowPolicy,
     cache_for_one_pass,
     cache_tensors,
-    frozen_prefix_pass,
     modeling_module,
     split_timestep,
 )
@@ -138,7 +137,7 @@ class PI0FlowPolicy(LeRobotFlowPolicy):
         paligemma.model.language_model.config._attn_implementation = (
             "eager"  # as LeRobot's sampler sets it for 4-D masks
         )
-        with frozen_prefix_pass(paligemma):
+        with self.prefix_pass(paligemma):
             prefix, pad_masks, att_masks = model.embed_prefix(images, image_masks, tokens, token_masks)
             _, cache = model.paligemma_with_expert.forward(
                 attention_mask=helpers.prepare_attention_masks_4d(helpers.make_att_2d_masks(pad_masks, att_masks)),

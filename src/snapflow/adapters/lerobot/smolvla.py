@@ -20,7 +20,6 @@ from snapflow.adapters.lerobot.base import (
     LeRobotFlowPolicy,
     cache_for_one_pass,
     cache_tensors,
-    frozen_prefix_pass,
     modeling_module,
     split_timestep,
 )
@@ -86,7 +85,7 @@ class SmolVLAFlowPolicy(LeRobotFlowPolicy):
         vlm = model.vlm_with_expert
         # LeRobot 0.4.4 fills its dict cache only when asked; newer versions return a DynamicCache
         extra = {"fill_kv_cache": True} if "fill_kv_cache" in inspect.signature(vlm.forward).parameters else {}
-        with frozen_prefix_pass(vlm.vlm):  # the state projection, also in the prefix, is frozen too
+        with self.prefix_pass(vlm.vlm):  # the state projection is in the prefix: frozen with it, or trained
             prefix, pad_masks, att_masks = model.embed_prefix(images, image_masks, tokens, token_masks, state=state)
             _, cache = vlm.forward(
                 attention_mask=modeling_module(model).make_att_2d_masks(pad_masks, att_masks),

@@ -8,6 +8,7 @@ config and the processor there, so a folder written by :func:`write_smolvlm` sta
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Iterable
 from pathlib import Path
@@ -25,9 +26,19 @@ OTHER_SPECIAL_TOKENS = ["<|im_start|>", "<|endoftext|>", "<video>"]
 ROW_COL_TOKENS = [f"<row_{i}_col_{j}>" for i in range(1, 5) for j in range(1, 5)]
 
 
+def _tokens(text: str) -> list[str]:
+    return re.findall(r"\w+|[^\w\s]", text.lower())  # what the word-level tokenizer splits
+
+
 def words_of(texts: Iterable[str]) -> list[str]:
     """The lower-cased words and punctuation marks of ``texts``, in order of first use: the tokenizer's vocabulary."""
-    return list(dict.fromkeys(token for text in texts for token in re.findall(r"\w+|[^\w\s]", text.lower())))
+    return list(dict.fromkeys(token for text in texts for token in _tokens(text)))
+
+
+def token_budget(texts: Iterable[str]) -> int:
+    """Tokens to pad instructions to: the longest one's and one more, in multiples of 8 (SmolVLA's default of 48
+    would make a short instruction's prefix mostly padding, and every training step pay for it)."""
+    return 8 * math.ceil((max(len(_tokens(text)) for text in texts) + 1) / 8)
 
 
 def write_smolvlm(directory: str | Path, words: Iterable[str], size: SmolVLMSize) -> Path:
@@ -124,4 +135,4 @@ def smolvla_config(
     return SmolVLAConfig(**{**settings, **overrides})
 
 
-__all__ = ["words_of", "write_smolvlm", "smolvla_config"]
+__all__ = ["token_budget", "words_of", "write_smolvlm", "smolvla_config"]
