@@ -18,7 +18,7 @@ if [ "${SHORT:-0}" = 1 ]; then
     teacher=(--steps 4 --batch-size 4 --checkpoint-every 2) student=(--steps 2 --batch-size 4) episodes=1
 else
     tasks=mt10 demos=30 image=64 size=small
-    teacher=(--steps 10000 --batch-size 32 --learning-rate 3e-4 --checkpoint-every 500)
+    teacher=(--steps 5000 --batch-size 32 --learning-rate 3e-4 --checkpoint-every 500)
     student=(--steps 2000 --batch-size 32 --learning-rate 3e-5 --warmup-steps 50 --checkpoint-every 500)
     episodes=20
 fi
