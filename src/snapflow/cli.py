@@ -43,6 +43,7 @@ TRAINING_OPTIONS = {
     "steps": "optimisation steps",
     "batch_size": "training pairs per step",
     "learning_rate": "peak learning rate (linear warm-up, then cosine decay)",
+    "warmup_steps": "steps of linear warm-up to the peak learning rate",
     "seed": "seed of the initialisation, the batches and the noise",
     "checkpoint_every": "steps between checkpoints (an interrupted run resumes from the last one)",
 }
@@ -621,7 +622,7 @@ def _add_training_options(
         kind = type(getattr(TEACHER_TRAINING, name))
         parser.add_argument(
             f"--{name.replace('_', '-')}",
-            type=POSITIVE if kind is float else (NON_NEGATIVE_COUNT if name == "seed" else COUNT),
+            type=POSITIVE if kind is float else (NON_NEGATIVE_COUNT if name in ("seed", "warmup_steps") else COUNT),
             default=getattr(base, name) if base is not None else None,
             help=help if base is not None else f"{help} (default: the recipe's; for LeRobot the paper's training)",
         )
