@@ -166,3 +166,12 @@ def test_tasks_beyond_mt10_run_their_expert_to_success(task: str):
             break
     assert success and env.steps < MAX_EPISODE_STEPS
     env.close()
+
+
+def test_a_report_title_names_the_task_set_it_ran():
+    from snapflow.envs.metaworld import MT10_TASKS, MT50_TASKS, MetaWorld
+
+    assert MetaWorld().describe(MT10_TASKS) == "Meta-World MT10"
+    assert MetaWorld().describe(MT50_TASKS) == "Meta-World MT50"
+    assert MetaWorld().describe(["reach-v3", "push-v3"]) == "Meta-World (2 tasks)"
+    assert MetaWorld(via_points=True).describe(MT10_TASKS) == "Meta-World MT10, via-point variant"

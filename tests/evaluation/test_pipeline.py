@@ -85,7 +85,7 @@ def test_collect_train_distill_eval_on_one_task(tmp_path_factory, tmp_path, caps
     assert_figure(output / "success.png", (6, 4), {CYCLE[0]: 0.0003, CYCLE[1]: 0.0003})
     assert_figure(output / "latency.png", (6, 3.5), {CYCLE[1]: 0.005})
     markdown = (output / "report.md").read_text()
-    assert "# SnapFlow on Meta-World MT10" in markdown and "## Closed-loop success" in markdown
+    assert "# SnapFlow on Meta-World (1 task)" in markdown and "## Closed-loop success" in markdown  # not "MT10"
     assert f"| {TASK} | {100 * report['rows']['snapflow-1']['success'][TASK]['success_rate']:.1f}% (" in markdown
     assert "| snapflow-1 | teacher-2 |" in capsys.readouterr().out
 

@@ -79,6 +79,13 @@ class Benchmark(ABC):
         """The tasks of the first set of :attr:`task_sets`: what ``--tasks`` means when not given."""
         return next(iter(self.task_sets.values()))
 
+    def describe(self, tasks: Sequence[str]) -> str:
+        """The benchmark's title for a run on ``tasks``, naming the set they are when they are one (report titles)."""
+        named = next((name for name, members in self.task_sets.items() if list(members) == list(tasks)), None)
+        return (
+            f"{self.title} {named.upper()}" if named else f"{self.title} ({len(tasks)} task{'s' * (len(tasks) != 1)})"
+        )
+
     @abstractmethod
     def instruction(self, task: str) -> str:
         """The natural-language instruction of ``task``."""

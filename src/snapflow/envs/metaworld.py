@@ -18,6 +18,7 @@ import functools
 import os
 import warnings
 import zlib
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -203,7 +204,7 @@ class MetaWorld(Benchmark):
     def __init__(self, via_points: bool = False) -> None:
         self.via_points = via_points
         self.name = "metaworld-via-points" if via_points else "metaworld"
-        self.title = "Meta-World MT10, via-point variant" if via_points else "Meta-World MT10"
+        self.title = "Meta-World"
 
     @property
     def tasks(self) -> tuple[str, ...]:
@@ -212,6 +213,11 @@ class MetaWorld(Benchmark):
     @property
     def task_sets(self) -> dict[str, tuple[str, ...]]:
         return TASK_SETS
+
+    def describe(self, tasks: Sequence[str]) -> str:
+        """``Meta-World MT10`` (or MT50, or N tasks), ``, via-point variant`` after it for that variant."""
+        described = super().describe(tasks)
+        return f"{described}, via-point variant" if self.via_points else described
 
     def instruction(self, task: str) -> str:
         self.check_tasks([task])

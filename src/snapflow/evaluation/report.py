@@ -45,7 +45,7 @@ def markdown_report(report: EvaluationReport) -> str:
         ]
         success_rows.append(["**mean**" if task == "mean" else task, *cells])
     sections = [
-        f"# SnapFlow on {make_benchmark(report.env).title}",
+        f"# SnapFlow on {make_benchmark(report.env).describe(report.tasks)}",
         f"{len(report.tasks)} task(s), {report.episodes_per_task} episodes per task on evaluation variations no demonstration saw, "
         f"{report.n_act} actions executed per predicted chunk.",
         "\n".join(
@@ -126,7 +126,7 @@ def plot_success(report: EvaluationReport, path: Path) -> None:
     axis.set_ylabel(f"success % ({report.episodes_per_task} episodes per task)")
     axis.set_ylim(0, 118)  # headroom so the one-row legend sits above the 100% bars
     axis.legend(fontsize=8, loc="upper center", ncol=len(labels))
-    axis.set_title(f"{make_benchmark(report.env).title} closed-loop success")
+    axis.set_title(f"{make_benchmark(report.env).describe(report.tasks)} closed-loop success")
     figure.tight_layout()
     save_figure(figure, path)
 
