@@ -285,19 +285,23 @@ def _train(args: argparse.Namespace) -> int:
     return 0
 
 
-def _train_lerobot(args: argparse.Namespace, config: TrainConfig) -> int:
-    from dataclasses import replace as replace_fields
-
+def _dataset_source(args: argparse.Namespace) -> tuple[Path | None, str]:
+    """``--dataset`` as (root on disk, repo id), or (None, repo id) for a dataset LeRobot fetches and caches; a
+    mistyped root is named before LeRobot loads."""
     from snapflow.adapters.hub import local_folder
-    from snapflow.training.lerobot import EXPORT_DIRECTORY, train_smolvla_teacher
 
     root = local_folder(args.dataset)
+    return root, (args.repo_id or f"local/{root.name}") if root else args.dataset
+
+
+def _train_lerobot(args: argparse.Namespace, config: TrainConfig) -> int:
+    from snapflow.training.lerobot import EXPORT_DIRECTORY, train_smolvla_teacher
+
     size = SMOLVLM_SIZES[args.smolvlm]
     if args.image_size:
-        size = replace_fields(size, image_size=args.image_size)
+        size = replace(size, image_size=args.image_size)
     state = train_smolvla_teacher(
-        root,
-        (args.repo_id or f"local/{root.name}") if root else args.dataset,
+        *_dataset_source(args),
         args.output,
         config,
         size,
@@ -336,14 +340,9 @@ def _distill(args: argparse.Namespace) -> int:
     }
     settings = replace(recipe.distill, **{name: value for name, value in chosen.items() if value is not None})
     if lerobot:
-        from snapflow.adapters.hub import local_folder
-
-        # a dataset root on disk, or else (None) a repo id LeRobot fetches and caches; a mistyped root is named
-        # before LeRobot loads
-        dataset_root = local_folder(args.dataset)
+        dataset_root, repo_id = _dataset_source(args)
         from snapflow.training.lerobot import EXPORT_DIRECTORY, distill_lerobot, paper_training
 
-        repo_id = (args.repo_id or f"local/{dataset_root.name}") if dataset_root else args.dataset
         state = distill_lerobot(
             args.policy,
             dataset_root,
@@ -437,10 +436,10 @@ def _distinct_names(paths: list[str]) -> dict[str, str]:
 def _load_evaluated(path: str) -> Any:
     """A built-in checkpoint, or a LeRobot policy folder (``config.json`` of LeRobot's layout, e.g. the
     ``lerobot_policy/`` that `train --policy smolvla` and `distill --policy` export)."""
-    from snapflow.policies.checkpoint import LATEST, POLICY_CONFIG, load_policy
+    from snapflow.policies.checkpoint import is_builtin_checkpoint, load_policy
 
     folder = Path(path)
-    if (folder / POLICY_CONFIG).is_file() or (folder / LATEST).is_file() or not (folder / "config.json").is_file():
+    if is_builtin_checkpoint(folder) or not (folder / "config.json").is_file():
         return load_policy(path)  # which names what is wrong with anything else
     from snapflow.adapters.lerobot.evaluation import load_lerobot_policy
 

@@ -19,7 +19,7 @@ from snapflow.adapters.hub import check_source, local_folder
 from snapflow.benchmark.architectures import architectures
 from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, SamplingMode
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
-from snapflow.policies.checkpoint import LATEST, POLICY_CONFIG, LoadedPolicy, load_policy, policy_metadata
+from snapflow.policies.checkpoint import LoadedPolicy, is_builtin_checkpoint, load_policy, policy_metadata
 from snapflow.policies.factory import POLICIES, default_config, make_model, make_processor, policy_type
 from snapflow.policies.normalization import NormalizationStats
 from snapflow.protocol import map_tensors
@@ -204,8 +204,8 @@ def make_subject(
             dtype,
         )
     folder = local_folder(policy)  # None: a hub id; a mistyped folder is named here, never looked up on the hub
-    if folder is not None and ((folder / POLICY_CONFIG).is_file() or (folder / LATEST).is_file()):
-        loaded = load_policy(folder)  # what resolve_checkpoint accepts
+    if folder is not None and is_builtin_checkpoint(folder):
+        loaded = load_policy(folder)
         return builtin_subject(loaded, f"{loaded.metadata['policy']} ({policy})", device, dtype)
     try:
         from snapflow.adapters.lerobot import load_distilled, load_pretrained_policy

@@ -128,6 +128,11 @@ def write_policy(directory: Path, policy: nn.Module, metadata: dict[str, Any]) -
     write_json(directory / POLICY_CONFIG, metadata)
 
 
+def is_builtin_checkpoint(path: str | Path) -> bool:
+    """Whether ``path`` is what :func:`resolve_checkpoint` accepts: a checkpoint directory or a run directory."""
+    return (Path(path) / POLICY_CONFIG).is_file() or (Path(path) / LATEST).is_file()
+
+
 def resolve_checkpoint(path: str | Path) -> Path:
     """A checkpoint directory, or a run directory whose ``latest.json`` names one."""
     path = Path(path)
@@ -177,6 +182,7 @@ def load_policy(path: str | Path, target_time: bool | None = None) -> LoadedPoli
 
 
 __all__ = [
+    "is_builtin_checkpoint",
     "CheckpointError",
     "LoadedPolicy",
     "LATEST",
