@@ -5,6 +5,7 @@ processors."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
@@ -13,6 +14,7 @@ import torch
 from accelerate import PartialState
 
 from snapflow.adapters.hub import check_source, fetch_hub_file
+from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
 from snapflow.adapters.lerobot.checkpoint import read_marker, save_distilled, save_teacher
 from snapflow.adapters.lerobot.data import LeRobotChunkData
 from snapflow.adapters.lerobot.registry import load_pretrained_policy, wrap_policy
@@ -20,6 +22,7 @@ from snapflow.adapters.lerobot.smolvlm import smolvla_config, token_budget, word
 from snapflow.adapters.lerobot_config import SmolVLMSize
 from snapflow.data.demonstrations import split_episodes
 from snapflow.flow.time_sampling import BetaTimeSampler
+from snapflow.objective.base import TwoBranchObjective
 from snapflow.objective.snapflow import SnapFlowObjective
 from snapflow.reporting.locks import hold_run_lock
 from snapflow.reporting.records import as_record
@@ -221,21 +224,52 @@ def train_smolvla_teacher(
             "val_fraction": val_fraction,
             "stage": "teacher",
         }
-        state = train(
+        return _train_and_export(
             adapter,
             SnapFlowObjective(alpha=1.0, time_sampler=BetaTimeSampler()),
-            LeRobotChunkData(dataset, preprocessor, policy),
-            None,
+            dataset,
+            (preprocessor, postprocessor),
+            [parameter for parameter in adapter.parameters() if parameter not in phi_s],
             config,
             output,
             run_metadata,
-            resume=resume,
-            trainable=[parameter for parameter in adapter.parameters() if parameter not in phi_s],
-            progress=progress,
+            resume,
+            progress,
+            lambda folder: save_teacher(adapter, folder, val_fraction),
         )
-        export = save_teacher(adapter, Path(output) / EXPORT_DIRECTORY, val_fraction)
-        preprocessor.save_pretrained(export)
-        postprocessor.save_pretrained(export)
+
+
+def _train_and_export(
+    adapter: LeRobotFlowPolicy,
+    objective: TwoBranchObjective,
+    dataset: Any,
+    processors: tuple[Any, Any],
+    trainable: list[torch.nn.Parameter],
+    config: TrainConfig,
+    output: str | Path,
+    run_metadata: dict[str, Any],
+    resume: bool,
+    progress: bool,
+    save: Callable[[Path], Path],
+) -> dict[str, Any]:
+    """The one trainer on LeRobot's pre-processed batches of ``dataset``, then ``save`` of the result into
+    ``output/lerobot_policy`` with the processors beside it."""
+    preprocessor, postprocessor = processors
+    state = train(
+        adapter,
+        objective,
+        LeRobotChunkData(dataset, preprocessor, adapter.policy),
+        None,
+        config,
+        output,
+        run_metadata,
+        resume=resume,
+        trainable=trainable,
+        progress=progress,
+    )
+    export = save(Path(output) / EXPORT_DIRECTORY)
+    preprocessor.save_pretrained(export)
+    postprocessor.save_pretrained(export)
     return state
 
 
@@ -274,22 +308,19 @@ def _distill_lerobot(
         "val_fraction": val_fraction,
         "stage": "snapflow",
     }
-    state = train(
+    return _train_and_export(
         adapter,
         objective,
-        LeRobotChunkData(dataset, preprocessor, policy),
-        None,
+        dataset,
+        (preprocessor, postprocessor),
+        adapter.expert_parameters(),
         config,
         output,
         run_metadata,
-        resume=resume,
-        trainable=adapter.expert_parameters(),
-        progress=progress,
+        resume,
+        progress,
+        lambda folder: save_distilled(adapter, folder, val_fraction),
     )
-    export = save_distilled(adapter, Path(output) / EXPORT_DIRECTORY, val_fraction)
-    preprocessor.save_pretrained(export)
-    postprocessor.save_pretrained(export)
-    return state
 
 
 __all__ = [
