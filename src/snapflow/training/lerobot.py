@@ -17,6 +17,7 @@ from snapflow.adapters.hub import check_source, fetch_hub_file
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
 from snapflow.adapters.lerobot.checkpoint import read_marker, save_distilled, save_teacher
 from snapflow.adapters.lerobot.data import LeRobotChunkData
+from snapflow.adapters.lerobot.dataset import policy_features
 from snapflow.adapters.lerobot.registry import load_pretrained_policy, wrap_policy
 from snapflow.adapters.lerobot.smolvlm import smolvla_config, token_budget, words_of, write_smolvlm
 from snapflow.adapters.lerobot_config import SmolVLMSize
@@ -192,12 +193,11 @@ def train_smolvla_teacher(
     with hold_run_lock(output, "snapflow train") if PartialState().is_main_process else nullcontext():
         from lerobot.configs.types import FeatureType
         from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
-        from lerobot.datasets.utils import dataset_to_policy_features
         from lerobot.policies.factory import make_pre_post_processors
         from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
 
         metadata = LeRobotDatasetMetadata(repo_id, root=dataset_root)
-        features = dataset_to_policy_features(metadata.features)
+        features = policy_features(metadata.features)
         inputs = {key: feature for key, feature in features.items() if feature.type is not FeatureType.ACTION}
         outputs = {key: feature for key, feature in features.items() if feature.type is FeatureType.ACTION}
         if not any(feature.type is FeatureType.VISUAL for feature in inputs.values()):

@@ -38,6 +38,16 @@ def lerobot_features(demonstrations: Demonstrations, camera: str) -> dict[str, d
     return features
 
 
+def policy_features(dataset_features: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """A dataset's features as LeRobot's ``PolicyFeature`` (LeRobot's own conversion, which 0.6 moved out of
+    ``lerobot.datasets.utils``)."""
+    try:
+        from lerobot.utils.feature_utils import dataset_to_policy_features
+    except ImportError:  # LeRobot < 0.6
+        from lerobot.datasets.utils import dataset_to_policy_features
+    return dataset_to_policy_features(dataset_features)
+
+
 def check_dataset_root(root: str | Path) -> Path:
     """Refuse a root that already holds something: a dataset is written once, never over another."""
     root = Path(root)
