@@ -165,10 +165,13 @@ def tiny_batch(batch_size: int = 4, seed: int = 0) -> dict[str, torch.Tensor]:
 def model_inputs(policy, batch: dict[str, torch.Tensor]) -> tuple:
     """What each LeRobot policy's ``predict_action_chunk`` hands its model, written out per policy (not the adapter's
     ``model_inputs``, which the tests check against it)."""
+    from snapflow.adapters.lerobot.registry import base_policy_type
+
     language = batch["observation.language.tokens"], batch["observation.language.attention_mask"]
-    if policy.config.type == "smolvla":
+    policy_type = base_policy_type(policy.config)
+    if policy_type == "smolvla":
         return *policy.prepare_images(batch), *language, policy.prepare_state(batch)
-    state = (policy.prepare_state(batch),) if policy.config.type == "pi0" else ()  # pi0.5's state is in its prompt
+    state = (policy.prepare_state(batch),) if policy_type == "pi0" else ()  # pi0.5's state is in its prompt
     return *policy._preprocess_images(batch), *language, *state
 
 
@@ -187,6 +190,21 @@ def randomise_target_time(policy, std: float = 0.2, seed: int = 1):
         for parameter in policy.target_time_embedding.linear_out.parameters():
             parameter.copy_(std * torch.randn(parameter.shape, generator=generator))
     return policy
+
+
+def save_tiny_metaworld_student(vlm_directory: Path, directory: Path) -> Path:
+    """A distilled tiny SmolVLA (phi_s non-zero) with the features LeRobot's Meta-World env produces (4-D agent
+    state, one 480-pixel ``observation.image``), saved by snapflow with unit-statistics processors beside it."""
+    from lerobot.policies.factory import make_pre_post_processors
+
+    from snapflow.adapters.lerobot import save_distilled, wrap_policy
+
+    policy = build_tiny_smolvla(vlm_directory, state_dim=4, image_key="observation.image", image_size=480)
+    save_distilled(randomise_target_time(wrap_policy(policy)), directory)
+    unit = {"mean": torch.zeros(4), "std": torch.ones(4)}
+    for processor in make_pre_post_processors(policy.config, dataset_stats={"observation.state": unit, "action": unit}):
+        processor.save_pretrained(directory)
+    return directory
 
 
 def cache_as_hub_repo(folder: Path, repo_id: str) -> None:

@@ -14,7 +14,7 @@ pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test
 from packaging.version import Version  # noqa: E402
 
 from snapflow import SnapFlowObjective  # noqa: E402
-from snapflow.adapters.lerobot import load_distilled, save_distilled, wrap_policy  # noqa: E402
+from snapflow.adapters.lerobot import load_distilled, wrap_policy  # noqa: E402
 from tests.lerobot_tiny import build_tiny_pi, build_tiny_smolvla, randomise_target_time, tiny_batch, tiny_pi_configs  # noqa: E402
 
 LEROBOT = Version(version("lerobot"))
@@ -206,18 +206,10 @@ def test_cli_distills_a_saved_pi_policy_on_a_local_lerobot_dataset(policy_type, 
 def test_cli_evaluates_a_distilled_smolvla_in_lerobots_own_metaworld(vlm_directory, tmp_path, capsys):
     import json
 
-    from lerobot.policies.factory import make_pre_post_processors
-
     from snapflow.cli import main
+    from tests.lerobot_tiny import save_tiny_metaworld_student
 
-    # a distilled SmolVLA with the features LeRobot's Meta-World env produces, saved with its processors
-    policy = build_tiny_smolvla(vlm_directory, state_dim=4, image_key="observation.image", image_size=480)
-    adapter = wrap_policy(policy)
-    randomise_target_time(adapter)
-    directory = save_distilled(adapter, tmp_path / "distilled")
-    unit = {"mean": torch.zeros(4), "std": torch.ones(4)}
-    for processor in make_pre_post_processors(policy.config, dataset_stats={"observation.state": unit, "action": unit}):
-        processor.save_pretrained(directory)
+    directory = save_tiny_metaworld_student(vlm_directory, tmp_path / "distilled")
 
     output = tmp_path / "eval"
     arguments = [

@@ -1,5 +1,5 @@
-"""LeRobot policies snapflow trained, on disk: LeRobot's own layout (``config.json`` + ``model.safetensors``, with
-phi_s inside for a distilled one) plus a marker, ``snapflow.json``: which adapter rebuilds it, whether it was
+"""LeRobot policies snapflow trained, on disk: LeRobot's own layout (``config.json`` + ``model.safetensors``; a
+distilled one typed as its SnapFlow student, ``snapflow_<type>``, with phi_s inside) plus a marker, ``snapflow.json``: which adapter rebuilds it, whether it was
 distilled, and the share of each task's episodes its training held out (for offline metrics)."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
-from snapflow.adapters.lerobot.registry import adapter_class
+from snapflow.adapters.lerobot.registry import adapter_class, base_policy_type, wrap_policy
 from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
 from snapflow.policies.checkpoint import CheckpointError, load_state_strict, read_tensors
 from snapflow.reporting.files import write_json
@@ -40,8 +40,13 @@ def read_marker(directory: str | Path) -> dict | None:
 
 
 def save_distilled(adapter: LeRobotFlowPolicy, directory: str | Path, val_fraction: float = 0.0) -> Path:
+    """The distilled policy in LeRobot's layout, its config typed as its SnapFlow student (sampling one step), so
+    LeRobot's ``lerobot-eval --policy.path`` loads it through snapflow's plugin."""
+    from snapflow.adapters.lerobot.plugin import student_config
+
     directory = Path(directory)
     adapter.policy.save_pretrained(directory)
+    student_config(adapter.policy.config)._save_pretrained(directory)
     _write_marker(directory, adapter.policy_type, True, val_fraction)
     return directory
 
@@ -63,11 +68,12 @@ def save_teacher(adapter: LeRobotFlowPolicy, directory: str | Path, val_fraction
 
 
 def load_distilled(directory: str | Path, mode: SamplingMode = SNAPFLOW_1) -> LeRobotFlowPolicy:
-    """Rebuild a saved SnapFlow policy, load every tensor strictly, and make LeRobot's own action API sample
-    with ``mode`` (SnapFlow 1-NFE by default). (LeRobot's ``from_pretrained`` loads SmolVLA non-strictly, so on
-    its own it would silently drop phi_s and give back the teacher.)"""
+    """Rebuild a saved SnapFlow policy as its student type, load every tensor strictly, and make LeRobot's own
+    action API sample with ``mode`` (SnapFlow 1-NFE by default). (LeRobot's ``from_pretrained`` loads a plain
+    SmolVLA non-strictly, so on its own it would silently drop phi_s and give back the teacher.)"""
     from lerobot.configs.policies import PreTrainedConfig
-    from lerobot.policies.factory import get_policy_class
+
+    from snapflow.adapters.lerobot.plugin import STUDENT_POLICIES, student_config
 
     directory = Path(directory)
     marker = read_marker(directory)
@@ -76,13 +82,16 @@ def load_distilled(directory: str | Path, mode: SamplingMode = SNAPFLOW_1) -> Le
     if not marker["target_time"]:
         raise CheckpointError(f"{directory} is a flow-matching teacher snapflow trained, not a distilled policy")
     policy_type = marker["policy"]
-    config = PreTrainedConfig.from_pretrained(directory)
-    if config.type != policy_type:
+    try:
+        config = PreTrainedConfig.from_pretrained(directory)
+    except Exception as error:  # draccus wraps the config's own error (an unknown sampling mode, a bad field)
+        raise CheckpointError(f"{directory / 'config.json'} does not load: {error.__cause__ or error}") from None
+    if base_policy_type(config) != policy_type:
         raise CheckpointError(f"{directory} holds a {config.type!r} config but its marker says {policy_type!r}")
-    adapter = adapter_class(policy_type)(get_policy_class(policy_type)(config))
-    load_state_strict(adapter.policy, read_tensors(directory / "model.safetensors"), directory / "model.safetensors")
-    adapter.use_sampling_mode(mode)
-    return adapter
+    adapter_class(policy_type)  # the installed LeRobot serves it
+    policy = STUDENT_POLICIES[policy_type](student_config(config, mode))  # a plain config: an older export
+    load_state_strict(policy, read_tensors(directory / "model.safetensors"), directory / "model.safetensors")
+    return wrap_policy(policy)
 
 
 __all__ = ["SNAPFLOW_MARKER", "read_marker", "save_distilled", "save_teacher", "load_distilled"]

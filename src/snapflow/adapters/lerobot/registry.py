@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from importlib.metadata import version
+from typing import Any
 
 from packaging.version import Version
 from torch import nn
@@ -30,9 +31,16 @@ def adapter_class(policy_type: str) -> type[LeRobotFlowPolicy]:
     return adapter
 
 
+def base_policy_type(config: Any) -> str:
+    """The LeRobot policy type whose adapter serves ``config``: a SnapFlow student's (``snapflow_smolvla``,
+    :mod:`snapflow.adapters.lerobot.plugin`) is the type it was distilled from."""
+    return getattr(config, "base_type", config.type)
+
+
 def wrap_policy(policy: nn.Module) -> LeRobotFlowPolicy:
-    """The SnapFlow adapter for a LeRobot PI0Policy, PI05Policy or SmolVLAPolicy (phi_s added at zero)."""
-    return adapter_class(policy.config.type)(policy)
+    """The SnapFlow adapter for a LeRobot PI0Policy, PI05Policy or SmolVLAPolicy (phi_s added at zero), or for a
+    SnapFlow student of one (its phi_s kept)."""
+    return adapter_class(base_policy_type(policy.config))(policy)
 
 
 def load_pretrained_policy(path: str) -> nn.Module:
@@ -44,9 +52,13 @@ def load_pretrained_policy(path: str) -> nn.Module:
     from lerobot.configs.policies import PreTrainedConfig
     from lerobot.policies.factory import get_policy_class
 
-    policy_type = PreTrainedConfig.from_pretrained(path).type
-    adapter_class(policy_type)
-    return get_policy_class(policy_type).from_pretrained(path)
+    from snapflow.adapters.lerobot.plugin import STUDENT_POLICIES, SnapFlowSampling  # registers the student types
+
+    config = PreTrainedConfig.from_pretrained(path)
+    adapter_class(base_policy_type(config))
+    if isinstance(config, SnapFlowSampling):  # LeRobot < 0.5 resolves only its own types
+        return STUDENT_POLICIES[config.base_type].from_pretrained(path)
+    return get_policy_class(config.type).from_pretrained(path)
 
 
-__all__ = ["ADAPTERS", "adapter_class", "wrap_policy", "load_pretrained_policy"]
+__all__ = ["ADAPTERS", "adapter_class", "base_policy_type", "wrap_policy", "load_pretrained_policy"]

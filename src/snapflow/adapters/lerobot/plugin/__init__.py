@@ -1,0 +1,58 @@
+"""SnapFlow students as LeRobot policies of their own types, ``snapflow_smolvla``, ``snapflow_pi0`` and
+``snapflow_pi05``: LeRobot's config plus one field, ``sampling_mode`` (``snapflow-1`` by default, ``teacher-10``
+to run the same checkpoint as its teacher), and LeRobot's policy class plus phi_s, loaded strictly.
+
+A student that ``snapflow distill --policy`` exports is saved under these types, so LeRobot's own tools
+(``lerobot-eval --policy.path=...``, ``make_policy``, ``from_pretrained``) load it unchanged once the types are
+registered. LeRobot >= 0.5 registers them itself: it imports every installed distribution named
+``lerobot_policy_*``, and ``lerobot_policy_snapflow`` (``plugins/lerobot_policy_snapflow``) imports this package.
+The module names follow LeRobot's convention (``configuration_*`` -> ``modeling_*`` / ``processor_*``), by which
+its factory finds the policy class and the processors of a registered config type."""
+
+from __future__ import annotations
+
+from dataclasses import fields
+from typing import Any
+
+from snapflow.adapters.lerobot.plugin.configuration_snapflow import (
+    SnapFlowPI0Config,
+    SnapFlowPI05Config,
+    SnapFlowSampling,
+    SnapFlowSmolVLAConfig,
+)
+from snapflow.adapters.lerobot.plugin.modeling_snapflow import (
+    SnapFlowPI0Policy,
+    SnapFlowPI05Policy,
+    SnapFlowSmolVLAPolicy,
+)
+from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
+
+#: the student policy class of each LeRobot policy type snapflow distils
+STUDENT_POLICIES: dict[str, type] = {
+    policy.config_class.base_type: policy for policy in (SnapFlowSmolVLAPolicy, SnapFlowPI0Policy, SnapFlowPI05Policy)
+}
+
+
+def student_config(config: Any, mode: SamplingMode = SNAPFLOW_1) -> SnapFlowSampling:
+    """``config`` (a plain LeRobot config, or a student's) as its student type, sampling with ``mode``."""
+    base_type = config.base_type if isinstance(config, SnapFlowSampling) else config.type
+    if base_type not in STUDENT_POLICIES:
+        raise ValueError(
+            f"snapflow distils LeRobot's {', '.join(sorted(STUDENT_POLICIES))} policies, not {base_type!r}"
+        )
+    values = {field.name: getattr(config, field.name) for field in fields(config) if field.init}
+    values["sampling_mode"] = mode.name
+    return STUDENT_POLICIES[base_type].config_class(**values)
+
+
+__all__ = [
+    "STUDENT_POLICIES",
+    "SnapFlowSampling",
+    "SnapFlowSmolVLAConfig",
+    "SnapFlowPI0Config",
+    "SnapFlowPI05Config",
+    "SnapFlowSmolVLAPolicy",
+    "SnapFlowPI0Policy",
+    "SnapFlowPI05Policy",
+    "student_config",
+]

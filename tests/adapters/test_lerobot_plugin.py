@@ -1,0 +1,162 @@
+"""snapflow's LeRobot plugin: a policy ``snapflow distill`` saved is a LeRobot policy of its own type
+(``snapflow_smolvla``), loaded by LeRobot's own loaders and tools, sampling in one step, with its teacher one config
+field (``sampling_mode``) away. On LeRobot >= 0.5, ``lerobot-eval`` itself runs it in Meta-World through the
+``lerobot_policy_snapflow`` distribution."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from importlib.metadata import PackageNotFoundError, distribution, version
+from pathlib import Path
+
+import pytest
+import torch
+
+pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test command; this environment lacks it")
+
+from packaging.version import Version  # noqa: E402
+
+from snapflow.adapters.lerobot import load_distilled, save_distilled, wrap_policy  # noqa: E402
+from snapflow.policies.checkpoint import CheckpointError  # noqa: E402
+from tests.lerobot_tiny import build_tiny_smolvla, model_inputs, randomise_target_time, tiny_batch  # noqa: E402
+
+LEROBOT = Version(version("lerobot"))
+PLUGINS = pytest.mark.skipif(
+    LEROBOT < Version("0.5"),
+    reason=f"LeRobot imports third-party policies from lerobot 0.5 on; lerobot {LEROBOT} is installed",
+)
+
+
+@pytest.fixture
+def student(vlm_directory, tmp_path) -> Path:
+    """A distilled tiny SmolVLA (phi_s non-zero) as ``snapflow distill`` exports it."""
+    return save_distilled(randomise_target_time(wrap_policy(build_tiny_smolvla(vlm_directory))), tmp_path / "student")
+
+
+def _sample(policy, batch: dict[str, torch.Tensor], noise: torch.Tensor) -> tuple[torch.Tensor, int]:
+    """The policy's own ``model.sample_actions`` on ``batch`` and how many denoising passes it ran."""
+    model, calls = policy.model, []
+    denoise_step = model.denoise_step
+    model.denoise_step = lambda *args, **kwargs: calls.append(1) or denoise_step(*args, **kwargs)
+    try:
+        with torch.no_grad():
+            return model.sample_actions(*model_inputs(policy, batch), noise=noise), len(calls)
+    finally:
+        del model.denoise_step
+
+
+def test_lerobots_own_loader_gives_the_one_step_student_and_its_teacher_one_field_away(student):
+    from lerobot.configs.policies import PreTrainedConfig
+
+    from snapflow.adapters.lerobot.plugin import SnapFlowSmolVLAConfig, SnapFlowSmolVLAPolicy
+
+    saved = json.loads((student / "config.json").read_text())
+    assert saved["type"] == "snapflow_smolvla" and saved["sampling_mode"] == "snapflow-1"
+    batch, noise = tiny_batch(), torch.randn(4, 4, 4, generator=torch.Generator().manual_seed(3))
+
+    policy = SnapFlowSmolVLAPolicy.from_pretrained(student)  # LeRobot's from_pretrained, untouched
+    assert isinstance(policy.config, SnapFlowSmolVLAConfig)
+    one_step, passes = _sample(policy, batch, noise)
+    assert passes == 1
+    expected, _ = _sample(load_distilled(student).policy, batch, noise)
+    assert torch.equal(one_step, expected), "LeRobot's loader and snapflow's must give the same student"
+
+    # the teacher: the same folder with one config field changed, as lerobot-eval's --policy.sampling_mode does
+    config = PreTrainedConfig.from_pretrained(student, cli_overrides=["--sampling_mode=teacher-10"])
+    teacher_mode = SnapFlowSmolVLAPolicy.from_pretrained(student, config=config)
+    ten_steps, passes = _sample(teacher_mode, batch, noise)
+    assert passes == 10
+    # ... is LeRobot's own 10-step Euler sampler (the class's, not the instance's) on the same network (s = t)
+    teacher_mode.config.num_steps = 10
+    with torch.no_grad():
+        lerobots = type(teacher_mode.model).sample_actions(
+            teacher_mode.model, *model_inputs(teacher_mode, batch), noise=noise
+        )
+    assert torch.allclose(ten_steps, lerobots, atol=1e-5)
+    assert not torch.allclose(one_step, ten_steps, atol=1e-3)
+
+
+def test_a_student_without_phi_s_or_with_an_unknown_mode_is_refused(student, tmp_path):
+    import shutil
+
+    from safetensors.torch import load_file, save_file
+
+    from snapflow.adapters.lerobot.plugin import SnapFlowSmolVLAPolicy
+
+    # LeRobot loads a plain SmolVLA non-strictly: a student must not silently lose phi_s (the naive step)
+    broken = tmp_path / "no_phi_s"
+    shutil.copytree(student, broken)
+    tensors = load_file(broken / "model.safetensors")
+    save_file(
+        {name: value for name, value in tensors.items() if "target_time_embedding" not in name},
+        broken / "model.safetensors",
+    )
+    with pytest.raises(RuntimeError, match="target_time_embedding"):
+        SnapFlowSmolVLAPolicy.from_pretrained(broken)
+    with pytest.raises(CheckpointError, match="target_time_embedding"):
+        load_distilled(broken)
+
+    unknown = tmp_path / "unknown_mode"
+    shutil.copytree(student, unknown)
+    config = json.loads((unknown / "config.json").read_text())
+    (unknown / "config.json").write_text(json.dumps({**config, "sampling_mode": "fast-1"}))
+    with pytest.raises(Exception) as raised:  # LeRobot's config parser wraps the config's own error
+        SnapFlowSmolVLAPolicy.from_pretrained(unknown)
+    assert "unknown sampling mode 'fast-1'" in str(raised.value.__cause__)
+    with pytest.raises(CheckpointError, match="config.json does not load: unknown sampling mode 'fast-1'"):
+        load_distilled(unknown)
+
+
+@PLUGINS
+def test_lerobots_factory_resolves_the_student_types_by_its_conventions(vlm_directory):
+    from lerobot.policies.factory import get_policy_class, make_policy_config, make_pre_post_processors
+
+    from snapflow.adapters.lerobot.plugin import STUDENT_POLICIES
+
+    for base_type, policy_class in STUDENT_POLICIES.items():
+        assert get_policy_class(f"snapflow_{base_type}") is policy_class
+    local = dict(vlm_model_name=str(vlm_directory), device="cpu")  # the tokenizer processor reads it
+    config = make_policy_config("snapflow_smolvla", sampling_mode="teacher-4", **local)
+    assert config.mode.num_steps == 4 and not config.mode.jump
+    preprocessor, postprocessor = make_pre_post_processors(config)  # built fresh: SmolVLA's own steps
+    assert [type(step).__name__ for step in preprocessor.steps] == [
+        type(step).__name__ for step in make_pre_post_processors(make_policy_config("smolvla", **local))[0].steps
+    ]
+
+
+@pytest.mark.slow
+@PLUGINS
+def test_lerobot_eval_runs_the_distilled_student_in_metaworld(vlm_directory, tmp_path):
+    from tests.lerobot_tiny import save_tiny_metaworld_student
+
+    try:
+        distribution("lerobot_policy_snapflow")
+    except PackageNotFoundError:
+        pytest.fail(
+            "the plugin distribution is not installed: the README's test command installs plugins/lerobot_policy_snapflow"
+        )
+    student = save_tiny_metaworld_student(vlm_directory, tmp_path / "student")
+    lerobot_eval = Path(sys.executable).with_name("lerobot-eval")
+    finished = subprocess.run(
+        [
+            str(lerobot_eval),
+            f"--policy.path={student}",
+            "--policy.device=cpu",
+            "--env.type=metaworld",
+            "--env.task=reach-v3",
+            "--eval.n_episodes=2",
+            "--eval.batch_size=2",
+            f"--output_dir={tmp_path / 'eval'}",
+        ],
+        env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")},
+        capture_output=True,
+        text=True,
+        timeout=1500,
+    )
+    assert finished.returncode == 0, finished.stderr[-3000:]
+    assert "Imported third-party plugin: lerobot_policy_snapflow" in finished.stderr
+    info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
+    assert info["overall"]["n_episodes"] == 2 and 0 <= info["overall"]["pc_success"] <= 100
