@@ -48,7 +48,14 @@ TRAINING_OPTIONS = {
     "checkpoint_every": "steps between checkpoints (an interrupted run resumes from the last one)",
 }
 # the pip extra that installs each optional module a command may need
-EXTRAS = {"lerobot": "lerobot", "metaworld": "metaworld", "mujoco": "metaworld"}
+EXTRAS = {
+    "lerobot": "lerobot",
+    "metaworld": "metaworld",
+    "mujoco": "metaworld",
+    "onnx": "onnx",
+    "onnxruntime": "onnx",
+    "onnxscript": "onnx",
+}
 TASKS_HELP = "a set of the benchmark's tasks (metaworld: mt10, the default, or mt50) or comma-separated task names"
 INTERRUPTED = 130  # what main returns after Ctrl-C: 128 + SIGINT, the status a shell shows for it
 
@@ -100,6 +107,11 @@ NON_NEGATIVE_COUNT = _number(int, 0)
 SHARE = _number(float, 0, 1)
 POSITIVE = _number(float, 0, strict=True)
 NON_NEGATIVE = _number(float, 0)
+
+
+def _counts(text: str) -> tuple[int, ...]:
+    """A comma-separated list of counts, e.g. batch sizes ``1,8,32``."""
+    return tuple(COUNT(part) for part in text.split(","))
 
 
 def _validation_share(text: str) -> float:
@@ -514,10 +526,25 @@ def _bench(args: argparse.Namespace) -> int:
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     dtype = {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch.float16}[args.dtype]
     subject = make_subject(args.policy, args.architecture, device, dtype, args.vlm)
-    report = run_bench(subject, args.warmup, args.repeats, args.compile, profile=not args.no_profile)
+    report = run_bench(
+        subject, args.warmup, args.repeats, args.compile, profile=not args.no_profile, batch_sizes=args.batch_sizes
+    )
     write_bench(report, args.output)
     print(markdown_bench(report))
     print(f"wrote bench.json, bench.md, latency.png{'' if args.no_profile else ' and profile.txt'} to {args.output}")
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    _check_writable(args.output)
+    from snapflow.policies.checkpoint import export_onnx_checkpoint
+
+    record = export_onnx_checkpoint(args.policy, args.output)
+    print(
+        f"wrote {Path(args.output) / record['file']} (one graph: prefix and the one jump; inputs "
+        f"{', '.join(record['inputs'])}; largest difference to PyTorch {record['max_abs_difference_to_pytorch']:.1e}) "
+        f"and policy.json; run it with: snapflow eval --policy {args.output} --modes snapflow-1"
+    )
     return 0
 
 
@@ -893,7 +920,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--seed", type=NON_NEGATIVE_COUNT, help="evaluation seed (default: 0; with --lerobot-env LeRobot's 1000)"
     )
     evaluate.add_argument(
-        "--compile", choices=COMPILE_MODES, help="torch.compile the policies' one-pass velocity (snapflow.inference)"
+        "--compile",
+        choices=COMPILE_MODES,
+        help="the fast path: torch.compile each policy's prefix pass and one-pass velocity (snapflow.inference)",
     )
     evaluate.add_argument(
         "--lerobot-env", help="evaluate in LeRobot's environment of this type (pusht, aloha, libero, metaworld, ...)"
@@ -952,12 +981,31 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument(
         "--compile",
         choices=COMPILE_MODES,
-        help="torch.compile the one-pass action expert (reduce-overhead: CUDA-graph capture on a GPU)",
+        help="the fast path: torch.compile the prefix pass and the one-pass action expert (reduce-overhead: both "
+        "captured as CUDA graphs on a GPU)",
     )
     bench.add_argument("--warmup", type=NON_NEGATIVE_COUNT, default=10, help="untimed calls of each quantity first")
     bench.add_argument("--repeats", type=COUNT, default=50, help="timed calls of each quantity, round-robin")
     bench.add_argument("--no-profile", action="store_true", help="skip the torch.profiler table of the 1-NFE path")
+    bench.add_argument(
+        "--batch-sizes",
+        type=_counts,
+        default=(1, 8, 32),
+        help="throughput of the 10-step teacher and the one-step mode at these batch sizes (comma-separated)",
+    )
     _add_output(bench, "outputs/bench", "where bench.json, bench.md and the plot go")
+
+    export = _command(
+        commands,
+        "export",
+        "export a one-step student as one ONNX graph (prefix and jump, no sampling loop)",
+        _export,
+        _nothing_written,
+        common,
+    )
+    export.add_argument("--policy", required=True, help="student checkpoint or run directory (built-in policy)")
+    export.add_argument("--format", choices=["onnx"], default="onnx", help="the exported format")
+    _add_output(export, None, "folder for model.onnx and policy.json (snapflow eval / bench load it)")
 
     targets = _command(
         commands,

@@ -247,6 +247,21 @@ class FlowPolicyContract:
         with pytest.raises(CheckpointError), self.loading():
             self.load(tmp_path / "empty")
 
+    @pytest.mark.slow
+    def test_the_compiled_fast_path_samples_what_eager_does(self, policy, batch):
+        from snapflow.inference import compile_policy
+
+        randomise_target_time(policy)
+        observation, actions = batch
+        noise = self.noise_like(actions)
+        eager = {mode: sample_actions(policy, observation, noise, mode) for mode in (SNAPFLOW_1, TEACHER_10)}
+        prefix, velocity = getattr(policy, "compiled_methods", ("encode", "velocity"))
+        assert compile_policy(policy, "default") is policy
+        assert {prefix, velocity} <= set(vars(policy)), "both the prefix pass and the velocity are replaced"
+        for mode, expected in eager.items():
+            # inductor fuses and reorders float32 arithmetic: equal within rounding, not bit for bit
+            torch.testing.assert_close(sample_actions(policy, observation, noise, mode), expected, atol=1e-4, rtol=1e-4)
+
 
 # ---- the LeRobot adapters -------------------------------------------------------------------------------------
 

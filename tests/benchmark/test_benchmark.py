@@ -138,6 +138,16 @@ def test_bench_cli_times_a_built_in_architecture_and_writes_every_result_file(ar
         assert entry["end_to_end_speedup"] == pytest.approx(
             reference["end_to_end"]["median_ms"] / entry["end_to_end"]["median_ms"]
         )
+    assert report["jump_to_teacher_pass_ratio"] == pytest.approx(
+        latency["modes"]["snapflow-1"]["per_pass_ms"] / reference["per_pass_ms"]
+    )
+    # throughput at the default batch sizes, of the 10-step teacher and the one-step mode
+    assert list(report["throughput"]) == ["1", "8", "32"]
+    for size, entry in report["throughput"].items():
+        assert list(entry) == ["teacher-10", "snapflow-1"]
+        for timed in entry.values():
+            assert timed["chunks_per_s"] == pytest.approx(int(size) * 1e3 / timed["end_to_end"]["median_ms"])
+    assert "| 32 |" in (output / "bench.md").read_text()
     assert (
         report["machine"]["torch"] == torch.__version__ and report["dtype"] == "float32" and report["compile"] is None
     )

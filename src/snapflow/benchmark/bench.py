@@ -7,17 +7,20 @@ and the policy runs in bfloat16 / float16. The profile of the one-step path show
 
 from __future__ import annotations
 
+import functools
 import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from snapflow.benchmark.latency import measure_latency
+from snapflow.benchmark.latency import measure_latency, time_round_robin
 from snapflow.benchmark.subjects import BenchSubject
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.solver import sample_actions
 from snapflow.inference.compile import compile_policy
+from snapflow.protocol import map_tensors
 from snapflow.reporting.figures import pyplot, save_figure
 from snapflow.reporting.files import write_json, write_text
 from snapflow.reporting.machine import machine
@@ -61,6 +64,31 @@ def profile_one_step(subject: BenchSubject, calls: int = 20) -> tuple[str, dict[
     }
 
 
+def _repeat_first_row(tensor: torch.Tensor, size: int) -> torch.Tensor:
+    return tensor[:1].expand(size, *tensor.shape[1:]).clone()
+
+
+@torch.inference_mode()
+def measure_throughput(
+    subject: BenchSubject, modes: tuple[SamplingMode, ...], batch_sizes: tuple[int, ...], warmup: int, repeats: int
+) -> dict[str, dict[str, Any]]:
+    """End-to-end ms per batch and chunks per second of each mode at each batch size (the batch-1 observation
+    repeated), timed round-robin within a batch size."""
+    results: dict[str, dict[str, Any]] = {}
+    for size in batch_sizes:
+        observation = map_tensors(subject.observation, functools.partial(_repeat_first_row, size=size))
+        noise = _repeat_first_row(subject.noise, size)
+        functions = {
+            mode.name: functools.partial(sample_actions, subject.policy, observation, noise, mode) for mode in modes
+        }
+        timed = time_round_robin(functions, noise.device, warmup, repeats)
+        results[str(size)] = {
+            name: {"end_to_end": asdict(timing), "chunks_per_s": size * 1e3 / timing.median_ms}
+            for name, timing in timed.items()
+        }
+    return results
+
+
 def run_bench(
     subject: BenchSubject,
     warmup: int = 10,
@@ -68,22 +96,31 @@ def run_bench(
     compile_mode: str | None = None,
     profile: bool = True,
     modes: tuple[SamplingMode, ...] | None = None,
+    batch_sizes: tuple[int, ...] = (),
 ) -> dict[str, Any]:
-    """Time ``subject`` at every mode (default: the teacher's 10, 5, 2 steps and the subject's one-step mode; the
-    first is the reference of the speedups) and, optionally, profile its one-step mode."""
-    modes = modes or (*TEACHER_MODES, subject.one_step)
+    """Time ``subject`` at batch 1 at every mode (default: the teacher's 10, 5, 2 steps and the subject's one-step
+    mode; the first is the reference of the speedups), the throughput of the first and last mode at
+    ``batch_sizes``, and, optionally, profile its one-step mode. ``compile_mode`` runs the fast path
+    (:func:`snapflow.inference.compile_policy`)."""
+    modes = modes or subject.only_modes or (*TEACHER_MODES, subject.one_step)
     if compile_mode:
         compile_policy(subject.policy, compile_mode)
+    latency = measure_latency(subject.policy, subject.observation, subject.noise, list(modes), warmup, repeats)
     report: dict[str, Any] = {
         "subject": subject.name,
         "details": subject.details,
         "machine": machine(),
         "dtype": str(subject.noise.dtype).removeprefix("torch."),
         "compile": compile_mode,
-        "latency": measure_latency(
-            subject.policy, subject.observation, subject.noise, list(modes), warmup, repeats
-        ).to_dict(),
+        "latency": latency.to_dict(),
     }
+    teacher, one_step = latency.modes[modes[0].name], latency.modes[modes[-1].name]
+    if modes[-1].jump and not modes[0].jump:
+        # what one jump costs against one teacher step: phi_s's s path should add nothing measurable
+        report["jump_to_teacher_pass_ratio"] = one_step.per_pass_ms / teacher.per_pass_ms
+    if batch_sizes:
+        ends = tuple(dict.fromkeys((modes[0], modes[-1])))
+        report["throughput"] = measure_throughput(subject, ends, batch_sizes, min(warmup, 3), max(3, repeats // 5))
     paper = PAPER_A800.get(subject.details.get("policy_type", ""))
     if paper:
         report["paper_a800"] = {**paper, "end_to_end_speedup": paper["teacher_10_ms"] / paper["snapflow_1_ms"]}
@@ -131,6 +168,31 @@ def markdown_bench(report: dict[str, Any]) -> str:
             ],
         ),
     ]
+    if "jump_to_teacher_pass_ratio" in report:
+        lines += [
+            "",
+            f"One jump costs {report['jump_to_teacher_pass_ratio']:.2f}x one teacher step (per-pass medians above).",
+        ]
+    if "throughput" in report:
+        sizes = list(report["throughput"])
+        names = list(report["throughput"][sizes[0]])
+        lines += [
+            "",
+            f"Throughput (end-to-end; medians of {report['throughput'][sizes[0]][names[0]]['end_to_end']['repeats']} "
+            "round-robin repeats per batch size):",
+            "",
+            markdown_table(
+                ["batch", *(f"{name} ms" for name in names), *(f"{name} chunks/s" for name in names)],
+                [
+                    [
+                        size,
+                        *(f"{report['throughput'][size][name]['end_to_end']['median_ms']:.2f}" for name in names),
+                        *(f"{report['throughput'][size][name]['chunks_per_s']:.1f}" for name in names),
+                    ]
+                    for size in sizes
+                ],
+            ),
+        ]
     if "paper_a800" in report:
         paper = report["paper_a800"]
         lines += [
@@ -199,6 +261,7 @@ __all__ = [
     "TEACHER_MODES",
     "PAPER_A800",
     "profile_one_step",
+    "measure_throughput",
     "run_bench",
     "markdown_bench",
     "plot_bench",

@@ -11,7 +11,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -40,6 +39,8 @@ class BenchSubject:
     noise: Tensor
     details: dict[str, Any] = field(default_factory=dict)
     one_step: SamplingMode = SNAPFLOW_1
+    #: the only modes the policy runs (an ONNX export runs its one jump), or None for any
+    only_modes: tuple[SamplingMode, ...] | None = None
 
 
 def _parameter_count(module: nn.Module) -> int:
@@ -53,15 +54,7 @@ def builtin_subject(
     knows, a black image where it reads one) and fixed noise: the values do not change the timing."""
     processor = loaded.processor
     torch.manual_seed(0)
-    images = (
-        np.zeros((1, processor.image_size, processor.image_size, 3), dtype=np.uint8) if processor.image_size else None
-    )
-    instruction = processor.instructions[0] if processor.instructions else "push the puck to the goal"
-    observation = _cast(
-        processor.observation(np.zeros((1, processor.state_dim), dtype=np.float32), [instruction], images),
-        device,
-        dtype,
-    )
+    observation = _cast(processor.example_observation(), device, dtype)
     noise = torch.randn(1, processor.chunk_length, processor.action_dim).to(device=device, dtype=dtype)
     policy = loaded.policy.to(device=device, dtype=dtype).eval()
     return BenchSubject(
@@ -73,9 +66,11 @@ def builtin_subject(
             "parameters": _parameter_count(policy),
             "policy_type": loaded.metadata["policy"],
             "config": processor.config.to_dict(),
+            **({"onnx": loaded.metadata["onnx"]} if loaded.exported else {}),
         },
         # without phi_s (a teacher checkpoint) the one step is the naive one, timed and named as such
-        SNAPFLOW_1 if loaded.policy.target_time_embedding is not None else NAIVE_1,
+        SNAPFLOW_1 if loaded.exported or loaded.policy.target_time_embedding is not None else NAIVE_1,
+        (SNAPFLOW_1,) if loaded.exported else None,
     )
 
 

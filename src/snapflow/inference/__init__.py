@@ -1,4 +1,5 @@
-"""Inference-time speed: the deployment fast paths, applied to any FlowPolicy (built-in or LeRobot adapter)."""
+"""Inference-time speed: the deployment fast paths (compiled prefix and expert; one ONNX graph), applied to any
+FlowPolicy (built-in or LeRobot adapter)."""
 
 from snapflow._lazy import lazy_exports
 
@@ -6,5 +7,6 @@ __getattr__, __dir__, __all__ = lazy_exports(
     __name__,
     {
         "snapflow.inference.compile": ["COMPILE_MODES", "compile_policy"],
+        "snapflow.inference.onnx": ["OnnxOneStepPolicy", "export_onnx"],
     },
 )

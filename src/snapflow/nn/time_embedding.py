@@ -10,25 +10,35 @@ from torch import Tensor, nn
 
 
 def sinusoidal_features(t: Tensor, dim: int, min_period: float = 4e-3, max_period: float = 4.0) -> Tensor:
-    """Features [sin(2 pi t / p_k), cos(2 pi t / p_k)] for ``dim // 2`` periods spaced geometrically.
+    """Features [sin(2 pi t / p_k), cos(2 pi t / p_k)] for ``dim // 2`` periods spaced geometrically, in float32.
 
-    The default periods are those of pi0 / pi0.5 / SmolVLA, whose times live in [0, 1].
+    The default periods are those of pi0 / pi0.5 / SmolVLA, whose times live in [0, 1]. float32 throughout (no
+    float64, no host sync), so the pass stays one graph where it is compiled or captured.
     """
     if dim % 2:
         raise ValueError(f"sinusoidal feature width must be even, got {dim}")
     if t.ndim != 1:
         raise ValueError(f"time must have shape (B,), got {tuple(t.shape)}")
-    angles = t.to(torch.float64)[:, None] * _angular_frequencies(dim, min_period, max_period, t.device)[None, :]
-    return torch.cat([angles.sin(), angles.cos()], dim=1).to(torch.float32)
+    if torch.compiler.is_compiling():  # traced inline: a constant the compiler folds (a cached tensor would leak)
+        frequencies = _frequencies(dim, min_period, max_period, t.device)
+    else:
+        frequencies = _cached_frequencies(dim, min_period, max_period, t.device)
+    angles = t.to(torch.float32)[:, None] * frequencies[None, :]
+    return torch.cat([angles.sin(), angles.cos()], dim=1)
+
+
+def _frequencies(dim: int, min_period: float, max_period: float, device: torch.device) -> Tensor:
+    """2 pi / p_k, computed in float64 and rounded once to float32."""
+    fraction = torch.linspace(0.0, 1.0, dim // 2, device=device, dtype=torch.float64)
+    return (2 * math.pi / (min_period * (max_period / min_period) ** fraction)).to(torch.float32)
 
 
 @functools.lru_cache(maxsize=64)
-def _angular_frequencies(dim: int, min_period: float, max_period: float, device: torch.device) -> Tensor:
-    """2 pi / p_k in float64, built once per width and device: every denoising pass needs them, and rebuilding
-    them was a measurable share of a one-step pass of a small policy."""
+def _cached_frequencies(dim: int, min_period: float, max_period: float, device: torch.device) -> Tensor:
+    """:func:`_frequencies` built once per width and device in eager mode: every denoising pass needs them, and
+    rebuilding them was a measurable share of a one-step pass of a small policy."""
     with torch.inference_mode(False):  # a cached inference tensor could not take part in later training
-        fraction = torch.linspace(0.0, 1.0, dim // 2, device=device, dtype=torch.float64)
-        return 2 * math.pi / (min_period * (max_period / min_period) ** fraction)
+        return _frequencies(dim, min_period, max_period, device)
 
 
 class TargetTimeEmbedding(nn.Module):

@@ -17,7 +17,8 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 from torch import nn
 
-from snapflow.flow.modes import SamplingMode
+from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
+from snapflow.inference.onnx import ONNX_FILE, OPSET, SINGLE, OnnxOneStepPolicy, export_onnx
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
 from snapflow.policies.factory import make_model, make_processor, policy_type, policy_type_of
 from snapflow.policies.normalization import NormalizationStats
@@ -36,10 +37,15 @@ class CheckpointError(ValueError):
 
 @dataclass
 class LoadedPolicy:
-    policy: SnapFlowPolicy
+    policy: SnapFlowPolicy | OnnxOneStepPolicy
     processor: Processor
     metadata: dict[str, Any]
     path: Path
+
+    @property
+    def exported(self) -> bool:
+        """Whether this is an ONNX export of a student (:func:`export_onnx_checkpoint`), which runs snapflow-1 only."""
+        return "onnx" in self.metadata
 
     @property
     def distilled(self) -> bool:
@@ -48,7 +54,13 @@ class LoadedPolicy:
 
     def check_mode(self, mode: SamplingMode) -> None:
         """Refuse ``snapflow-N`` on a flow-matching teacher: its network has no target-time embedding and ignores
-        the target time, so the jump would be the naive step reported under SnapFlow's name."""
+        the target time, so the jump would be the naive step reported under SnapFlow's name. Refuse any mode but
+        ``snapflow-1`` on an ONNX export: its graph holds that one jump."""
+        if self.exported and mode != SNAPFLOW_1:
+            raise CheckpointError(
+                f"{self.path} is an ONNX export of a one-step student: it runs snapflow-1 only; for {mode.name}, "
+                f"evaluate the checkpoint it was exported from ({self.metadata['onnx']['source']})"
+            )
         if mode.jump and not self.distilled:
             raise CheckpointError(
                 f"{self.path} is a flow-matching teacher (never distilled, no target-time embedding): {mode.name} "
@@ -169,6 +181,10 @@ def load_policy(path: str | Path, target_time: bool | None = None) -> LoadedPoli
         processor = make_processor(config, NormalizationStats(**metadata["stats"]), metadata.get("instructions", ()))
     except (TypeError, ValueError) as error:
         raise CheckpointError(f"{directory / POLICY_CONFIG}: invalid field: {error}") from None
+    if "onnx" in metadata:
+        if target_time:
+            raise CheckpointError(f"{directory} is an ONNX export: it runs, it does not train; use its source")
+        return LoadedPolicy(_onnx_policy(directory / metadata["onnx"]["file"]), processor, metadata, directory)
     saved_target_time = bool(metadata["target_time"])
     policy = SnapFlowPolicy(make_model(config), target_time=saved_target_time)
     load_state_strict(policy, read_tensors(directory / POLICY_WEIGHTS), directory / POLICY_WEIGHTS)
@@ -181,7 +197,50 @@ def load_policy(path: str | Path, target_time: bool | None = None) -> LoadedPoli
     return LoadedPolicy(policy, processor, metadata, directory)
 
 
+def _onnx_policy(path: Path) -> OnnxOneStepPolicy:
+    if not path.is_file():
+        raise CheckpointError(f"{path} not found")
+    try:
+        return OnnxOneStepPolicy(path)
+    except Exception as error:  # onnxruntime raises its own exception types for a truncated or foreign file
+        raise CheckpointError(f"{path} is corrupt or not an ONNX graph ({str(error).strip()[:200]})") from None
+
+
+def export_onnx_checkpoint(path: str | Path, output: str | Path) -> dict[str, Any]:
+    """Export the student at ``path`` (checkpoint or run) to ``output``: ``model.onnx``, its one-step graph
+    (:func:`snapflow.inference.onnx.export_onnx`), and a ``policy.json`` with the student's processor and an ``onnx``
+    record (source, inputs, opset, versions, the difference to PyTorch measured at export). ``load_policy(output)``
+    loads it back for ``snapflow eval`` / ``bench``. Returns the ``onnx`` record."""
+    from importlib.metadata import version
+
+    loaded = load_policy(path)
+    if loaded.exported:
+        raise CheckpointError(f"{loaded.path} is already an ONNX export")
+    if not loaded.distilled:
+        raise CheckpointError(
+            f"{loaded.path} is a flow-matching teacher: its one step is the naive one, and its 10 steps are a loop "
+            "an export would unroll; distil it first (snapflow distill --teacher ...) and export the student"
+        )
+    processor, output = loaded.processor, Path(output)
+    observation = processor.example_observation()
+    noise = torch.randn(1, processor.chunk_length, processor.action_dim, generator=torch.Generator().manual_seed(0))
+    difference = export_onnx(loaded.policy.eval(), observation, noise, output / ONNX_FILE)
+    record = {
+        "file": ONNX_FILE,
+        "source": str(loaded.path),
+        "inputs": ["noise", *(observation if isinstance(observation, dict) else [SINGLE])],
+        "outputs": ["actions"],
+        "opset": OPSET,
+        "max_abs_difference_to_pytorch": difference,
+        "torch": torch.__version__,
+        "onnxruntime": version("onnxruntime"),
+    }
+    write_json(output / POLICY_CONFIG, {**loaded.metadata, "onnx": record})  # last: it makes the folder a checkpoint
+    return record
+
+
 __all__ = [
+    "export_onnx_checkpoint",
     "is_builtin_checkpoint",
     "CheckpointError",
     "LoadedPolicy",

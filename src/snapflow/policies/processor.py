@@ -84,6 +84,13 @@ class Processor(ABC):
     ) -> Any:
         """Model input for a batch of raw states (B, >= state_dim), instructions and optional uint8 images (B, S, S, 3)."""
 
+    def example_observation(self, batch: int = 1) -> Any:
+        """A batch of what the policy reads with neutral values (a zero state, the first instruction it knows, a
+        black image where it reads one): for timing and tracing, which the values do not change."""
+        images = np.zeros((batch, self.image_size, self.image_size, 3), dtype=np.uint8) if self.image_size else None
+        instruction = self.instructions[0] if self.instructions else "push the puck to the goal"
+        return self.observation(np.zeros((batch, self.state_dim), dtype=np.float32), [instruction] * batch, images)
+
     def normalize_actions(self, actions: Tensor) -> Tensor:
         return (actions - self.action_mean) / self.action_std
 

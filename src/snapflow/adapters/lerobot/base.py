@@ -93,6 +93,9 @@ class LeRobotFlowPolicy(nn.Module, ABC):
     embed_suffix_with_target_time: ClassVar[Callable[..., Any]]
     #: the oldest LeRobot release whose internals the adapter follows
     minimum_lerobot: ClassVar[str] = "0.4.4"
+    #: what :func:`snapflow.inference.compile_policy` compiles: the prefix pass LeRobot's sampling calls (``encode``
+    #: goes through it too) and the velocity
+    compiled_methods: ClassVar[tuple[str, str]] = ("encode_inputs", "velocity")
 
     def __init__(self, policy: nn.Module) -> None:
         super().__init__()
