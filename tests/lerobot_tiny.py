@@ -192,17 +192,25 @@ def randomise_target_time(policy, std: float = 0.2, seed: int = 1):
     return policy
 
 
-def save_tiny_metaworld_student(vlm_directory: Path, directory: Path) -> Path:
-    """A distilled tiny SmolVLA (phi_s non-zero) with the features LeRobot's Meta-World env produces (4-D agent
-    state, one 480-pixel ``observation.image``), saved by snapflow with unit-statistics processors beside it."""
+def save_tiny_student(
+    vlm_directory: Path,
+    directory: Path,
+    state_dim: int = 4,
+    image_key: str = "observation.image",
+    image_size: int = 480,
+) -> Path:
+    """A distilled tiny SmolVLA (phi_s non-zero) saved by snapflow with unit-statistics processors beside it; by
+    default with the features LeRobot's Meta-World env produces (4-D agent state, one 480-pixel
+    ``observation.image``)."""
     from lerobot.policies.factory import make_pre_post_processors
 
     from snapflow.adapters.lerobot import save_distilled, wrap_policy
 
-    policy = build_tiny_smolvla(vlm_directory, state_dim=4, image_key="observation.image", image_size=480)
+    policy = build_tiny_smolvla(vlm_directory, state_dim=state_dim, image_key=image_key, image_size=image_size)
     save_distilled(randomise_target_time(wrap_policy(policy)), directory)
-    unit = {"mean": torch.zeros(4), "std": torch.ones(4)}
-    for processor in make_pre_post_processors(policy.config, dataset_stats={"observation.state": unit, "action": unit}):
+    stats = {"observation.state": {"mean": torch.zeros(state_dim), "std": torch.ones(state_dim)}}
+    stats["action"] = {"mean": torch.zeros(4), "std": torch.ones(4)}
+    for processor in make_pre_post_processors(policy.config, dataset_stats=stats):
         processor.save_pretrained(directory)
     return directory
 

@@ -537,9 +537,15 @@ def _bench(args: argparse.Namespace) -> int:
 
 def _export(args: argparse.Namespace) -> int:
     _check_writable(args.output)
-    from snapflow.policies.checkpoint import export_onnx_checkpoint
+    from snapflow.policies.checkpoint import export_onnx_checkpoint, is_builtin_checkpoint
 
-    record = export_onnx_checkpoint(args.policy, args.output)
+    folder = Path(args.policy)
+    if is_builtin_checkpoint(folder) or not (folder / "config.json").is_file():
+        record = export_onnx_checkpoint(folder, args.output)  # which names what is wrong with anything else
+    else:
+        from snapflow.adapters.lerobot.evaluation import export_lerobot_onnx
+
+        record = export_lerobot_onnx(folder, args.output)
     print(
         f"wrote {Path(args.output) / record['file']} (one graph: prefix and the one jump; inputs "
         f"{', '.join(record['inputs'])}; largest difference to PyTorch {record['max_abs_difference_to_pytorch']:.1e}) "
@@ -1003,7 +1009,9 @@ def build_parser() -> argparse.ArgumentParser:
         _nothing_written,
         common,
     )
-    export.add_argument("--policy", required=True, help="student checkpoint or run directory (built-in policy)")
+    export.add_argument(
+        "--policy", required=True, help="student checkpoint or run directory, or distilled LeRobot folder"
+    )
     export.add_argument("--format", choices=["onnx"], default="onnx", help="the exported format")
     _add_output(export, None, "folder for model.onnx and policy.json (snapflow eval / bench load it)")
 

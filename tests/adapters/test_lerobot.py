@@ -207,9 +207,9 @@ def test_cli_evaluates_a_distilled_smolvla_in_lerobots_own_metaworld(vlm_directo
     import json
 
     from snapflow.cli import main
-    from tests.lerobot_tiny import save_tiny_metaworld_student
+    from tests.lerobot_tiny import save_tiny_student
 
-    directory = save_tiny_metaworld_student(vlm_directory, tmp_path / "distilled")
+    directory = save_tiny_student(vlm_directory, tmp_path / "distilled")
 
     output = tmp_path / "eval"
     arguments = [

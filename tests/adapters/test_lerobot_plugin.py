@@ -130,7 +130,7 @@ def test_lerobots_factory_resolves_the_student_types_by_its_conventions(vlm_dire
 @pytest.mark.slow
 @PLUGINS
 def test_lerobot_eval_runs_the_distilled_student_in_metaworld(vlm_directory, tmp_path):
-    from tests.lerobot_tiny import save_tiny_metaworld_student
+    from tests.lerobot_tiny import save_tiny_student
 
     try:
         distribution("lerobot_policy_snapflow")
@@ -138,7 +138,7 @@ def test_lerobot_eval_runs_the_distilled_student_in_metaworld(vlm_directory, tmp
         pytest.fail(
             "the plugin distribution is not installed: the README's test command installs plugins/lerobot_policy_snapflow"
         )
-    student = save_tiny_metaworld_student(vlm_directory, tmp_path / "student")
+    student = save_tiny_student(vlm_directory, tmp_path / "student")
     lerobot_eval = Path(sys.executable).with_name("lerobot-eval")
     finished = subprocess.run(
         [

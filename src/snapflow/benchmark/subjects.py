@@ -99,24 +99,21 @@ def _cast(observation: Any, device: torch.device, dtype: torch.dtype) -> Any:
     )
 
 
-def lerobot_observation(policy: nn.Module, device: torch.device) -> dict[str, Tensor]:
-    """A batch-1 observation as LeRobot's pre-processor hands it to the model: images in [0, 1], normalised
-    state, a full-length token sequence (the values do not change the timing)."""
-    config = policy.config
-    observation = {key: torch.rand(1, *feature.shape, device=device) for key, feature in config.image_features.items()}
-    if config.robot_state_feature is not None:
-        observation["observation.state"] = torch.randn(1, *config.robot_state_feature.shape, device=device)
-    length = config.tokenizer_max_length
-    observation["observation.language.tokens"] = torch.zeros(
-        1, length, dtype=torch.long, device=device
-    )  # id 0: in every vocabulary
-    observation["observation.language.attention_mask"] = torch.ones(1, length, dtype=torch.bool, device=device)
-    return observation
+def exported_lerobot_subject(loaded: Any, name: str) -> BenchSubject:
+    """An ONNX export of a distilled LeRobot policy (``LoadedLeRobotPolicy``), timed at the one jump it runs."""
+    from snapflow.adapters.lerobot.evaluation import lerobot_observation
+
+    config = loaded.processor.config
+    noise = torch.randn(1, config.chunk_size, config.max_action_dim)
+    observation = lerobot_observation(config, torch.device("cpu"))
+    details = {"policy_type": config.type, "onnx": loaded.onnx}
+    return BenchSubject(name, loaded.policy, observation, noise, details, SNAPFLOW_1, (SNAPFLOW_1,))
 
 
 def lerobot_subject(policy: nn.Module, name: str, device: torch.device, dtype: torch.dtype) -> BenchSubject:
     """Any LeRobot pi0 / pi0.5 / SmolVLA under its SnapFlow adapter (phi_s included, as the student runs)."""
     from snapflow.adapters.lerobot import LeRobotFlowPolicy, wrap_policy
+    from snapflow.adapters.lerobot.evaluation import lerobot_observation
 
     adapter = policy if isinstance(policy, LeRobotFlowPolicy) else wrap_policy(policy)
     inner = adapter.policy
@@ -136,7 +133,7 @@ def lerobot_subject(policy: nn.Module, name: str, device: torch.device, dtype: t
     return BenchSubject(
         name,
         adapter,
-        lerobot_observation(inner, device),
+        lerobot_observation(inner.config, device),
         noise,
         {
             "parameters": _parameter_count(adapter),
@@ -214,10 +211,10 @@ def make_subject(
 
 
 __all__ = [
+    "exported_lerobot_subject",
     "BenchSubject",
     "builtin_subject",
     "random_builtin_policy",
-    "lerobot_observation",
     "lerobot_subject",
     "lerobot_architecture",
     "make_subject",

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, TypeAlias
 import torch
 
 from snapflow.benchmark.latency import LatencyRow, add_speedups, measure_latency
-from snapflow.benchmark.subjects import BenchSubject, builtin_subject, lerobot_subject
+from snapflow.benchmark.subjects import BenchSubject, builtin_subject, exported_lerobot_subject, lerobot_subject
 from snapflow.data.chunks import ChunkData
 from snapflow.data.demonstrations import Demonstrations
 from snapflow.envs.base import Benchmark
@@ -87,6 +87,8 @@ def checkpoint_latency(runs: list[Run], warmup: int = 10, repeats: int = 50) -> 
 def _subject(loaded: Loaded, label: str) -> BenchSubject:
     if isinstance(loaded, LoadedPolicy):
         return builtin_subject(loaded, label)
+    if loaded.exported:
+        return exported_lerobot_subject(loaded, label)
     return lerobot_subject(loaded.policy, label, torch.device("cpu"), torch.float32)
 
 

@@ -65,22 +65,11 @@ def export_onnx(policy: FlowPolicy, observation: Tensor | dict[str, Tensor], noi
 
     def export_and_check(temporary: Path) -> None:
         nonlocal difference
-        batch = torch.export.Dim("batch", min=1, max=4096)
-        with torch.no_grad():  # traced at batch 2: a batch of 1 would be specialised into the graph
-            torch.onnx.export(
-                graph,
-                (_repeat_rows({"noise": noise}, 2)["noise"],),
-                str(temporary),
-                kwargs={"observation": _repeat_rows(observation, 2)},
-                input_names=["noise", *observation],
-                output_names=["actions"],
-                dynamic_shapes={"noise": {0: batch}, "observation": {name: {0: batch} for name in observation}},
-                dynamo=True,
-                opset_version=OPSET,
-                external_data=False,
-                verbose=False,
-            )
+        _trace(graph, observation, noise, temporary, free_batch=True)
         exported = OnnxOneStepPolicy(temporary)
+        if exported.fixed_batch:  # the policy's code pins the batch somewhere: a graph for batch 1, run row by row
+            _trace(graph, observation, noise, temporary, free_batch=False)
+            exported = OnnxOneStepPolicy(temporary)
         for rows in (1, 3):
             example, example_noise = _repeat_rows(observation, rows), _repeat_rows({"noise": noise}, rows)["noise"]
             with torch.no_grad():
@@ -91,6 +80,28 @@ def export_onnx(policy: FlowPolicy, observation: Tensor | dict[str, Tensor], noi
 
     atomic_write(path, export_and_check)
     return difference
+
+
+def _trace(graph: OneStepGraph, observation: dict[str, Tensor], noise: Tensor, path: Path, free_batch: bool) -> None:
+    """torch.export -> ONNX of ``graph``: traced at batch 2 with the batch dimension free (a batch of 1 would be
+    specialised into the graph), or at batch 1 with every shape fixed."""
+    rows = 2 if free_batch else 1
+    batch = torch.export.Dim("batch", min=1, max=4096)
+    dynamic = {"noise": {0: batch}, "observation": {name: {0: batch} for name in observation}} if free_batch else None
+    with torch.no_grad():
+        torch.onnx.export(
+            graph,
+            (_repeat_rows({"noise": noise}, rows)["noise"],),
+            str(path),
+            kwargs={"observation": _repeat_rows(observation, rows)},
+            input_names=["noise", *observation],
+            output_names=["actions"],
+            dynamic_shapes=dynamic,
+            dynamo=True,
+            opset_version=OPSET,
+            external_data=False,
+            verbose=False,
+        )
 
 
 class OnnxOneStepPolicy(nn.Module):
@@ -111,14 +122,23 @@ class OnnxOneStepPolicy(nn.Module):
         options.inter_op_num_threads = 1
         self.path = Path(path)
         self.session = onnxruntime.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
-        self.input_names = [entry.name for entry in self.session.get_inputs()]
+        inputs = self.session.get_inputs()
+        self.input_names = [entry.name for entry in inputs]
+        #: a graph traced for batch 1 (the policy's code pins its batch): batches run through it row by row
+        self.fixed_batch = any(not isinstance(entry.shape[0], str) for entry in inputs)
 
     def actions(self, observation: Tensor | dict[str, Any], noise: Tensor) -> Tensor:
         """The graph's action chunk for a batch of observations and noise."""
         observation = observation if isinstance(observation, dict) else {SINGLE: observation}
         feeds = {name: _numpy(observation[name]) for name in self.input_names if name != "noise"}
-        (actions,) = self.session.run(["actions"], {"noise": _numpy(noise), **feeds})
-        return torch.from_numpy(actions)
+        feeds["noise"] = _numpy(noise)
+        if not self.fixed_batch:
+            return torch.from_numpy(self.session.run(["actions"], feeds)[0])
+        rows = [
+            self.session.run(["actions"], {name: value[row : row + 1] for name, value in feeds.items()})[0]
+            for row in range(len(noise))
+        ]
+        return torch.from_numpy(np.concatenate(rows))
 
     def encode(self, observation: Tensor | dict[str, Any]) -> Tensor | dict[str, Any]:
         named = observation if isinstance(observation, dict) else {SINGLE: observation}

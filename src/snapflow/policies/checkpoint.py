@@ -184,7 +184,7 @@ def load_policy(path: str | Path, target_time: bool | None = None) -> LoadedPoli
     if "onnx" in metadata:
         if target_time:
             raise CheckpointError(f"{directory} is an ONNX export: it runs, it does not train; use its source")
-        return LoadedPolicy(_onnx_policy(directory / metadata["onnx"]["file"]), processor, metadata, directory)
+        return LoadedPolicy(load_onnx_graph(directory / metadata["onnx"]["file"]), processor, metadata, directory)
     saved_target_time = bool(metadata["target_time"])
     policy = SnapFlowPolicy(make_model(config), target_time=saved_target_time)
     load_state_strict(policy, read_tensors(directory / POLICY_WEIGHTS), directory / POLICY_WEIGHTS)
@@ -197,7 +197,8 @@ def load_policy(path: str | Path, target_time: bool | None = None) -> LoadedPoli
     return LoadedPolicy(policy, processor, metadata, directory)
 
 
-def _onnx_policy(path: Path) -> OnnxOneStepPolicy:
+def load_onnx_graph(path: Path) -> OnnxOneStepPolicy:
+    """An exported one-step graph in onnxruntime, or a named error for a missing or corrupt file."""
     if not path.is_file():
         raise CheckpointError(f"{path} not found")
     try:
@@ -241,6 +242,7 @@ def export_onnx_checkpoint(path: str | Path, output: str | Path) -> dict[str, An
 
 __all__ = [
     "export_onnx_checkpoint",
+    "load_onnx_graph",
     "is_builtin_checkpoint",
     "CheckpointError",
     "LoadedPolicy",

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
 from snapflow.adapters.lerobot.registry import adapter_class, base_policy_type, wrap_policy
@@ -14,6 +15,7 @@ from snapflow.policies.checkpoint import CheckpointError, load_state_strict, rea
 from snapflow.reporting.files import write_json
 
 SNAPFLOW_MARKER = "snapflow.json"
+SAFETENSORS_FILE = "model.safetensors"  # LeRobot's name for a policy's weights
 
 
 def _write_marker(directory: Path, policy_type: str, distilled: bool, val_fraction: float) -> None:
@@ -23,7 +25,26 @@ def _write_marker(directory: Path, policy_type: str, distilled: bool, val_fracti
         "target_time": distilled,
         "val_fraction": val_fraction,
     }
-    write_json(directory / SNAPFLOW_MARKER, marker)
+    write_marker(directory, marker)
+
+
+def write_marker(directory: str | Path, marker: dict[str, Any]) -> None:
+    """``snapflow.json`` of a LeRobot policy folder, written whole."""
+    write_json(Path(directory) / SNAPFLOW_MARKER, marker)
+
+
+def load_student_config(directory: str | Path) -> Any:
+    """The LeRobot config of a policy folder, a SnapFlow student's type included; a config that does not load (an
+    unknown sampling mode, a bad field) is named."""
+    from lerobot.configs.policies import PreTrainedConfig
+
+    import snapflow.adapters.lerobot.plugin  # noqa: F401 - registers the student types
+
+    directory = Path(directory)
+    try:
+        return PreTrainedConfig.from_pretrained(directory)
+    except Exception as error:  # draccus wraps the config's own error
+        raise CheckpointError(f"{directory / 'config.json'} does not load: {error.__cause__ or error}") from None
 
 
 def read_marker(directory: str | Path) -> dict | None:
@@ -71,8 +92,6 @@ def load_distilled(directory: str | Path, mode: SamplingMode = SNAPFLOW_1) -> Le
     """Rebuild a saved SnapFlow policy as its student type, load every tensor strictly, and make LeRobot's own
     action API sample with ``mode`` (SnapFlow 1-NFE by default). (LeRobot's ``from_pretrained`` loads a plain
     SmolVLA non-strictly, so on its own it would silently drop phi_s and give back the teacher.)"""
-    from lerobot.configs.policies import PreTrainedConfig
-
     from snapflow.adapters.lerobot.plugin import STUDENT_POLICIES, student_config
 
     directory = Path(directory)
@@ -82,16 +101,22 @@ def load_distilled(directory: str | Path, mode: SamplingMode = SNAPFLOW_1) -> Le
     if not marker["target_time"]:
         raise CheckpointError(f"{directory} is a flow-matching teacher snapflow trained, not a distilled policy")
     policy_type = marker["policy"]
-    try:
-        config = PreTrainedConfig.from_pretrained(directory)
-    except Exception as error:  # draccus wraps the config's own error (an unknown sampling mode, a bad field)
-        raise CheckpointError(f"{directory / 'config.json'} does not load: {error.__cause__ or error}") from None
+    config = load_student_config(directory)
     if base_policy_type(config) != policy_type:
         raise CheckpointError(f"{directory} holds a {config.type!r} config but its marker says {policy_type!r}")
     adapter_class(policy_type)  # the installed LeRobot serves it
     policy = STUDENT_POLICIES[policy_type](student_config(config, mode))  # a plain config: an older export
-    load_state_strict(policy, read_tensors(directory / "model.safetensors"), directory / "model.safetensors")
+    load_state_strict(policy, read_tensors(directory / SAFETENSORS_FILE), directory / SAFETENSORS_FILE)
     return wrap_policy(policy)
 
 
-__all__ = ["SNAPFLOW_MARKER", "read_marker", "save_distilled", "save_teacher", "load_distilled"]
+__all__ = [
+    "SAFETENSORS_FILE",
+    "SNAPFLOW_MARKER",
+    "write_marker",
+    "load_student_config",
+    "read_marker",
+    "save_distilled",
+    "save_teacher",
+    "load_distilled",
+]

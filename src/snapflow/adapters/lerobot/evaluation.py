@@ -4,6 +4,8 @@ batched evaluator and the same numbers as for a built-in policy."""
 
 from __future__ import annotations
 
+import json
+import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,13 +15,23 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
-from snapflow.adapters.lerobot.checkpoint import load_distilled, read_marker
+from snapflow.adapters.lerobot.base import OBS_LANGUAGE_ATTENTION_MASK, OBS_LANGUAGE_TOKENS, LeRobotFlowPolicy
+from snapflow.adapters.lerobot.checkpoint import (
+    SAFETENSORS_FILE,
+    SNAPFLOW_MARKER,
+    load_distilled,
+    load_student_config,
+    read_marker,
+    write_marker,
+)
 from snapflow.adapters.lerobot.registry import load_pretrained_policy, wrap_policy
-from snapflow.flow.modes import SamplingMode
-from snapflow.policies.checkpoint import CheckpointError
+from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
+from snapflow.inference.onnx import ONNX_FILE, OPSET, OnnxOneStepPolicy, export_onnx
+from snapflow.policies.checkpoint import CheckpointError, load_onnx_graph
+from snapflow.reporting.files import atomic_write, write_json
 
 STATE = "observation.state"
+PREPROCESSOR_FILE = "policy_preprocessor.json"  # LeRobot's name for a saved pre-processor
 
 
 class LeRobotProcessor:
@@ -82,21 +94,46 @@ class LeRobotProcessor:
 @dataclass
 class LoadedLeRobotPolicy:
     """A LeRobot policy folder loaded for snapflow's evaluation (as :class:`~snapflow.policies.checkpoint.LoadedPolicy`
-    is for a built-in one)."""
+    is for a built-in one); ``onnx``: the record of an ONNX export (:func:`export_lerobot_onnx`), whose ``policy`` is
+    the onnxruntime graph."""
 
-    policy: LeRobotFlowPolicy
+    policy: LeRobotFlowPolicy | OnnxOneStepPolicy
     processor: LeRobotProcessor
     path: Path
     distilled: bool
     val_fraction: float  # the share of each task's episodes its training held out (0 when unknown)
+    onnx: dict[str, Any] | None = None
+
+    @property
+    def exported(self) -> bool:
+        return self.onnx is not None
 
     def check_mode(self, mode: SamplingMode) -> None:
-        """Refuse ``snapflow-N`` on a policy never distilled: its phi_s is zero, so the jump is the naive step."""
+        """Refuse ``snapflow-N`` on a policy never distilled: its phi_s is zero, so the jump is the naive step; and
+        any mode but ``snapflow-1`` on an ONNX export, whose graph holds that one jump."""
+        if self.exported and mode != SNAPFLOW_1:
+            raise CheckpointError(
+                f"{self.path} is an ONNX export of a one-step student: it runs snapflow-1 only; for {mode.name}, "
+                f"evaluate the folder it was exported from ({self.onnx['source']})"
+            )
         if mode.jump and not self.distilled:
             raise CheckpointError(
                 f"{self.path} is not SnapFlow-distilled: {mode.name} would be the naive step under SnapFlow's "
                 "name; use teacher-N or naive, or distill it first (snapflow distill --policy ...)"
             )
+
+
+def lerobot_observation(config: Any, device: torch.device) -> dict[str, Tensor]:
+    """A batch-1 observation as LeRobot's pre-processor hands it to the model of ``config``: images in [0, 1],
+    normalised state, a full-length token sequence (for timing and tracing, which the values do not change)."""
+    observation = {key: torch.rand(1, *feature.shape, device=device) for key, feature in config.image_features.items()}
+    if config.robot_state_feature is not None:
+        observation[STATE] = torch.randn(1, *config.robot_state_feature.shape, device=device)
+    length = config.tokenizer_max_length
+    # id 0: in every vocabulary
+    observation[OBS_LANGUAGE_TOKENS] = torch.zeros(1, length, dtype=torch.long, device=device)
+    observation[OBS_LANGUAGE_ATTENTION_MASK] = torch.ones(1, length, dtype=torch.bool, device=device)
+    return observation
 
 
 def load_lerobot_policy(path: str | Path) -> LoadedLeRobotPolicy:
@@ -106,14 +143,79 @@ def load_lerobot_policy(path: str | Path) -> LoadedLeRobotPolicy:
 
     path = Path(path)
     marker = read_marker(path) or {}
-    distilled = bool(marker.get("target_time"))
-    adapter = load_distilled(path) if distilled else wrap_policy(load_pretrained_policy(str(path)))
-    adapter.policy.config.device = "cpu"
+    if "onnx" in marker:
+        config = load_student_config(path)
+        policy = load_onnx_graph(path / marker["onnx"]["file"])
+    else:
+        distilled = bool(marker.get("target_time"))
+        policy = load_distilled(path) if distilled else wrap_policy(load_pretrained_policy(str(path)))
+        config = policy.policy.config
+    config.device = "cpu"
     preprocessor, postprocessor = make_pre_post_processors(
-        adapter.policy.config, pretrained_path=str(path), preprocessor_overrides={"device_processor": {"device": "cpu"}}
+        config, pretrained_path=str(path), preprocessor_overrides={"device_processor": {"device": "cpu"}}
     )
-    processor = LeRobotProcessor(adapter.policy.config, preprocessor, postprocessor)
-    return LoadedLeRobotPolicy(adapter, processor, path, distilled, marker.get("val_fraction", 0.0))
+    processor = LeRobotProcessor(config, preprocessor, postprocessor)
+    distilled = bool(marker.get("target_time"))
+    return LoadedLeRobotPolicy(policy, processor, path, distilled, marker.get("val_fraction", 0.0), marker.get("onnx"))
 
 
-__all__ = ["LeRobotProcessor", "LoadedLeRobotPolicy", "load_lerobot_policy"]
+def _pad_prompts_to_full_length(folder: Path) -> None:
+    """The graph is traced at the full prompt length (``tokenizer_max_length``): the exported folder's tokenizer pads
+    every prompt to it, where LeRobot's may pad to the batch's longest (padding is masked out of the attention)."""
+    config = json.loads((folder / "config.json").read_text())
+    if "pad_language_to" in config:
+        write_json(folder / "config.json", {**config, "pad_language_to": "max_length"})
+    preprocessor = json.loads((folder / PREPROCESSOR_FILE).read_text())
+    for step in preprocessor["steps"]:
+        if step.get("registry_name") == "tokenizer_processor":
+            step["config"]["padding"] = "max_length"
+    write_json(folder / PREPROCESSOR_FILE, preprocessor)
+
+
+def export_lerobot_onnx(path: str | Path, output: str | Path) -> dict[str, Any]:
+    """Export the distilled LeRobot policy at ``path`` to ``output``: ``model.onnx``, its one-step graph over the
+    pre-processed batch (:func:`snapflow.inference.onnx.export_onnx`), beside the folder's config and processors
+    (its weights live in the graph) and a marker with an ``onnx`` record. ``snapflow eval`` loads it back. Returns
+    the record."""
+    from importlib.metadata import version
+
+    loaded = load_lerobot_policy(path)
+    if loaded.exported:
+        raise CheckpointError(f"{loaded.path} is already an ONNX export")
+    if not loaded.distilled:
+        raise CheckpointError(
+            f"{loaded.path} is not SnapFlow-distilled: its one step is the naive one; distil it first "
+            "(snapflow distill --policy ...) and export the student"
+        )
+    adapter, output = loaded.policy.eval(), Path(output)
+    config = adapter.policy.config
+    noise = torch.randn(1, config.chunk_size, config.max_action_dim, generator=torch.Generator().manual_seed(0))
+    observation = lerobot_observation(config, torch.device("cpu"))
+    output.mkdir(parents=True, exist_ok=True)
+    difference = export_onnx(adapter, observation, noise, output / ONNX_FILE)
+    for source in sorted(loaded.path.iterdir()):
+        if source.is_file() and source.name not in {SAFETENSORS_FILE, SNAPFLOW_MARKER, ONNX_FILE}:
+            atomic_write(output / source.name, lambda target, source=source: shutil.copyfile(source, target))
+    _pad_prompts_to_full_length(output)
+    record = {
+        "file": ONNX_FILE,
+        "source": str(loaded.path),
+        "inputs": ["noise", *observation],
+        "outputs": ["actions"],
+        "opset": OPSET,
+        "batch": 1 if OnnxOneStepPolicy(output / ONNX_FILE).fixed_batch else "free",
+        "max_abs_difference_to_pytorch": difference,
+        "torch": torch.__version__,
+        "onnxruntime": version("onnxruntime"),
+    }
+    write_marker(output, {**(read_marker(loaded.path) or {}), "onnx": record})  # last: it makes the export whole
+    return record
+
+
+__all__ = [
+    "LeRobotProcessor",
+    "LoadedLeRobotPolicy",
+    "lerobot_observation",
+    "load_lerobot_policy",
+    "export_lerobot_onnx",
+]
