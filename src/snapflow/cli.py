@@ -527,7 +527,13 @@ def _bench(args: argparse.Namespace) -> int:
     dtype = {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch.float16}[args.dtype]
     subject = make_subject(args.policy, args.architecture, device, dtype, args.vlm)
     report = run_bench(
-        subject, args.warmup, args.repeats, args.compile, profile=not args.no_profile, batch_sizes=args.batch_sizes
+        subject,
+        args.warmup,
+        args.repeats,
+        args.compile,
+        profile=not args.no_profile,
+        batch_sizes=args.batch_sizes,
+        tf32=args.tf32,
     )
     write_bench(report, args.output)
     print(markdown_bench(report))
@@ -993,6 +999,11 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--warmup", type=NON_NEGATIVE_COUNT, default=10, help="untimed calls of each quantity first")
     bench.add_argument("--repeats", type=COUNT, default=50, help="timed calls of each quantity, round-robin")
     bench.add_argument("--no-profile", action="store_true", help="skip the torch.profiler table of the 1-NFE path")
+    bench.add_argument(
+        "--tf32",
+        action="store_true",
+        help="float32 matrix products in TF32 where the GPU has it (off in LeRobot); reports how far actions move",
+    )
     bench.add_argument(
         "--batch-sizes",
         type=_counts,

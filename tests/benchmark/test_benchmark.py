@@ -155,6 +155,8 @@ def test_bench_cli_times_a_built_in_architecture_and_writes_every_result_file(ar
     expected = random_builtin_policy(architecture)
     assert report["details"]["parameters"] == sum(parameter.numel() for parameter in expected.policy.parameters())
     assert report["details"]["config"] == expected.processor.config.to_dict()
+    assert report["details"]["dtypes"] == {"(all)": {"float32": report["details"]["parameters"]}}
+    assert "weights " in (output / "bench.md").read_text()
     assert "profile_table" not in report
     if profile:
         summary = report["profile_one_step"]
@@ -205,3 +207,23 @@ def test_a_teacher_checkpoint_is_timed_at_its_naive_one_step_not_under_snapflows
     assert subject.one_step == NAIVE_1
     report = run_bench(subject, warmup=0, repeats=1, profile=False)
     assert list(report["latency"]["modes"]) == ["teacher-10", "teacher-5", "teacher-2", "naive-1"]
+
+
+def test_parameter_dtypes_lists_the_groups_that_run_in_each_precision():
+    from torch import nn
+
+    from snapflow.benchmark.subjects import parameter_dtypes
+
+    model = nn.Sequential(nn.Linear(2, 3), nn.Sequential(nn.Linear(3, 4), nn.Linear(4, 1)))
+    assert parameter_dtypes(model) == {"(all)": {"float32": 9 + 16 + 5}}
+    model[1][1].to(torch.bfloat16)  # a policy that keeps some layers in another precision
+    assert parameter_dtypes(model) == {"0": {"float32": 9}, "1.0": {"float32": 16}, "1.1": {"bfloat16": 5}}
+
+
+def test_a_bfloat16_built_in_policy_is_timed_in_bfloat16(tmp_path):
+    arguments = ["bench", "--architecture", "minivla", "--dtype", "bfloat16", "--warmup", "0", "--repeats", "1"]
+    assert main([*arguments, "--no-profile", "--batch-sizes", "1", "--tf32", "--output", str(tmp_path)]) == 0
+    report = json.loads((tmp_path / "bench.json").read_text())
+    assert set(report["details"]["dtypes"]["(all)"]) == {"bfloat16"}
+    assert "M bfloat16" in (tmp_path / "bench.md").read_text()
+    assert report["tf32"]["max_abs_action_difference"] >= 0 and "TF32 on" in (tmp_path / "bench.md").read_text()

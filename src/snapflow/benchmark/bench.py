@@ -7,8 +7,10 @@ and the policy runs in bfloat16 / float16. The profile of the one-step path show
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import time
+from collections.abc import Iterator
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -89,6 +91,28 @@ def measure_throughput(
     return results
 
 
+@contextlib.contextmanager
+def _tf32() -> Iterator[None]:
+    """Float32 matrix products in TF32 (on GPUs that have it; LeRobot leaves it off) while active."""
+    before = (
+        torch.backends.cuda.matmul.allow_tf32,
+        torch.backends.cudnn.allow_tf32,
+        torch.get_float32_matmul_precision(),
+    )
+    torch.backends.cuda.matmul.allow_tf32 = torch.backends.cudnn.allow_tf32 = True
+    torch.set_float32_matmul_precision("high")
+    try:
+        yield
+    finally:
+        torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32 = before[:2]
+        torch.set_float32_matmul_precision(before[2])
+
+
+@torch.inference_mode()
+def _one_step_actions(subject: BenchSubject) -> torch.Tensor:
+    return sample_actions(subject.policy, subject.observation, subject.noise, subject.one_step).float()
+
+
 def run_bench(
     subject: BenchSubject,
     warmup: int = 10,
@@ -97,15 +121,28 @@ def run_bench(
     profile: bool = True,
     modes: tuple[SamplingMode, ...] | None = None,
     batch_sizes: tuple[int, ...] = (),
+    tf32: bool = False,
 ) -> dict[str, Any]:
     """Time ``subject`` at batch 1 at every mode (default: the teacher's 10, 5, 2 steps and the subject's one-step
     mode; the first is the reference of the speedups), the throughput of the first and last mode at
     ``batch_sizes``, and, optionally, profile its one-step mode. ``compile_mode`` runs the fast path
     (:func:`snapflow.inference.compile_policy`)."""
     modes = modes or subject.only_modes or (*TEACHER_MODES, subject.one_step)
-    if compile_mode:
-        compile_policy(subject.policy, compile_mode)
-    latency = measure_latency(subject.policy, subject.observation, subject.noise, list(modes), warmup, repeats)
+    exact = _one_step_actions(subject) if tf32 else None
+    with _tf32() if tf32 else contextlib.nullcontext():
+        # what TF32 costs in accuracy, measured on the subject's inputs before it is timed
+        tf32_difference = (_one_step_actions(subject) - exact).abs().max().item() if exact is not None else None
+        if compile_mode:
+            compile_policy(subject.policy, compile_mode)
+        latency = measure_latency(subject.policy, subject.observation, subject.noise, list(modes), warmup, repeats)
+        throughput = (
+            measure_throughput(
+                subject, tuple(dict.fromkeys((modes[0], modes[-1]))), batch_sizes, min(warmup, 3), max(3, repeats // 5)
+            )
+            if batch_sizes
+            else None
+        )
+        profiled = profile_one_step(subject) if profile else None
     report: dict[str, Any] = {
         "subject": subject.name,
         "details": subject.details,
@@ -114,21 +151,33 @@ def run_bench(
         "compile": compile_mode,
         "latency": latency.to_dict(),
     }
+    if tf32_difference is not None:
+        report["tf32"] = {"max_abs_action_difference": tf32_difference}
     teacher, one_step = latency.modes[modes[0].name], latency.modes[modes[-1].name]
     if modes[-1].jump and not modes[0].jump:
         # what one jump costs against one teacher step: phi_s's s path should add nothing measurable
         report["jump_to_teacher_pass_ratio"] = one_step.per_pass_ms / teacher.per_pass_ms
-    if batch_sizes:
-        ends = tuple(dict.fromkeys((modes[0], modes[-1])))
-        report["throughput"] = measure_throughput(subject, ends, batch_sizes, min(warmup, 3), max(3, repeats // 5))
+    if throughput is not None:
+        report["throughput"] = throughput
     paper = PAPER_A800.get(subject.details.get("policy_type", ""))
     if paper:
         report["paper_a800"] = {**paper, "end_to_end_speedup": paper["teacher_10_ms"] / paper["snapflow_1_ms"]}
-    if profile:
-        table, summary = profile_one_step(subject)
-        report["profile_one_step"] = summary
-        report["profile_table"] = table
+    if profiled is not None:
+        report["profile_table"], report["profile_one_step"] = profiled
     return report
+
+
+def _precision(report: dict[str, Any]) -> str:
+    """The precision the weights actually run in: parameter counts per dtype over every module group (a single
+    requested dtype hides the layers a policy keeps in float32)."""
+    groups = report["details"].get("dtypes")
+    if not groups:
+        return f"inputs {report['dtype']}"
+    totals: dict[str, int] = {}
+    for counts in groups.values():
+        for name, count in counts.items():
+            totals[name] = totals.get(name, 0) + count
+    return "weights " + " + ".join(f"{count / 1e6:.1f}M {name}" for name, count in sorted(totals.items()))
 
 
 def markdown_bench(report: dict[str, Any]) -> str:
@@ -137,7 +186,7 @@ def markdown_bench(report: dict[str, Any]) -> str:
     lines = [
         f"# Latency: {report['subject']}",
         "",
-        f"Batch 1 on {device}, {report['dtype']}, torch {host['torch']}, compile: {report['compile'] or 'off'}; medians (P90) of "
+        f"Batch 1 on {device}, {_precision(report)}, torch {host['torch']}, compile: {report['compile'] or 'off'}; medians (P90) of "
         f"{latency['repeats']} round-robin repeats after {latency['warmup']} warm-up calls of each.",
         "",
         f"Prefix (VLM) encoding: {latency['prefix']['median_ms']:.2f} ms (P90 {latency['prefix']['p90_ms']:.2f}).",
@@ -168,6 +217,25 @@ def markdown_bench(report: dict[str, Any]) -> str:
             ],
         ),
     ]
+    if len(report["details"].get("dtypes", {})) > 1:
+        lines += [
+            "",
+            "Parameters by module group and dtype:",
+            "",
+            markdown_table(
+                ["module group", "parameters by dtype"],
+                [
+                    [group, ", ".join(f"{count:,} {name}" for name, count in counts.items())]
+                    for group, counts in report["details"]["dtypes"].items()
+                ],
+            ),
+        ]
+    if "tf32" in report:
+        lines += [
+            "",
+            f"TF32 on: the one-step actions move by at most {report['tf32']['max_abs_action_difference']:.2e} "
+            "(normalised units) on these inputs.",
+        ]
     if "jump_to_teacher_pass_ratio" in report:
         lines += [
             "",

@@ -64,6 +64,7 @@ def builtin_subject(
         noise,
         {
             "parameters": _parameter_count(policy),
+            "dtypes": parameter_dtypes(policy),
             "policy_type": loaded.metadata["policy"],
             "config": processor.config.to_dict(),
             **({"onnx": loaded.metadata["onnx"]} if loaded.exported else {}),
@@ -138,6 +139,7 @@ def lerobot_subject(policy: nn.Module, name: str, device: torch.device, dtype: t
         {
             "parameters": _parameter_count(adapter),
             "expert_parameters": expert,
+            "dtypes": parameter_dtypes(inner),
             "policy_type": adapter.policy_type,
             "chunk_size": config.chunk_size,
             "tokens": config.tokenizer_max_length,
@@ -172,7 +174,36 @@ def lerobot_architecture(policy_type: str, device: torch.device, vlm: str | None
     config = make_policy_config(policy_type, device=str(device), push_to_hub=False, **features, **extra)
     if policy_type == "smolvla":  # named in one line before the build reads the VLM's config and processor
         check_source(config.vlm_model_name, CONFIG_NAME, "a VLM for SmolVLA")
-    return get_policy_class(policy_type)(config)
+    with torch.device(device):  # built where it runs: a full-size pi0.5 takes minutes on the CPU, seconds on a GPU
+        return get_policy_class(policy_type)(config)
+
+
+def parameter_dtypes(module: nn.Module, depth: int = 3) -> dict[str, dict[str, int]]:
+    """Parameter count per dtype of each module group (the module's children down to ``depth`` levels, where a
+    group's parameters are not all of one dtype, its children are listed instead): what actually runs in which
+    precision, which a single dtype would hide (LeRobot keeps some layers in float32 under bfloat16)."""
+    groups: dict[str, dict[str, int]] = {}
+
+    def visit(prefix: str, child: nn.Module, level: int) -> None:
+        counts: dict[str, int] = {}
+        for parameter in child.parameters():
+            name = str(parameter.dtype).removeprefix("torch.")
+            counts[name] = counts.get(name, 0) + parameter.numel()
+        if not counts:
+            return
+        if len(counts) > 1 and level < depth and any(True for _ in child.children()):
+            for name, grandchild in child.named_children():
+                visit(f"{prefix}.{name}" if prefix else name, grandchild, level + 1)
+            own = {str(p.dtype).removeprefix("torch."): 0 for p in child.parameters(recurse=False)}
+            for parameter in child.parameters(recurse=False):
+                own[str(parameter.dtype).removeprefix("torch.")] += parameter.numel()
+            if own:
+                groups[f"{prefix} (own)"] = own
+            return
+        groups[prefix or "(all)"] = counts
+
+    visit("", module, 0)
+    return groups
 
 
 def make_subject(
@@ -205,13 +236,18 @@ def make_subject(
     except ImportError as error:  # LeRobot is an optional extra
         raise ValueError(f"{policy} is not a built-in checkpoint, and {error}") from None
 
-    distilled = folder is not None and bool((read_marker(folder) or {}).get("target_time"))
-    loaded = load_distilled(folder) if distilled else load_pretrained_policy(policy)
+    marker = (read_marker(folder) or {}) if folder is not None else {}
+    if "onnx" in marker:
+        from snapflow.adapters.lerobot.evaluation import load_lerobot_policy
+
+        return exported_lerobot_subject(load_lerobot_policy(folder), policy)
+    loaded = load_distilled(folder) if marker.get("target_time") else load_pretrained_policy(policy)
     return lerobot_subject(loaded, policy, device, dtype)
 
 
 __all__ = [
     "exported_lerobot_subject",
+    "parameter_dtypes",
     "BenchSubject",
     "builtin_subject",
     "random_builtin_policy",

@@ -42,7 +42,7 @@ class MLPFlowModel(nn.Module):
         return self.observation_encoder(observation)
 
     def embed_time(self, t: Tensor) -> Tensor:
-        return self.time_mlp(sinusoidal_features(t, self.time_embedding_dim))
+        return self.time_mlp(sinusoidal_features(t, self.time_embedding_dim).to(self.time_mlp[0].weight.dtype))
 
     def velocity_from_time_embedding(self, x_t: Tensor, time_embedding: Tensor, context: Tensor) -> Tensor:
         expected = (self.config.chunk_length, self.config.action_dim)
