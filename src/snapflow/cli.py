@@ -526,6 +526,20 @@ def _bench(args: argparse.Namespace) -> int:
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     dtype = {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch.float16}[args.dtype]
     subject = make_subject(args.policy, args.architecture, device, dtype, args.vlm)
+    distill_step = None
+    if args.distill_batch_sizes:  # first, in place: before anything is compiled
+        from snapflow.benchmark.training_cost import distillation_step_cost
+        from snapflow.flow.time_sampling import BetaTimeSampler
+        from snapflow.training.recipes import TIME_SAMPLER
+
+        lerobot = hasattr(subject.policy, "policy_type")  # LeRobot's policies train on Beta(1.5, 1) times
+        distill_step = distillation_step_cost(
+            subject.policy,
+            subject.observation,
+            subject.noise,
+            args.distill_batch_sizes,
+            BetaTimeSampler() if lerobot else TIME_SAMPLER,
+        )
     report = run_bench(
         subject,
         args.warmup,
@@ -535,6 +549,8 @@ def _bench(args: argparse.Namespace) -> int:
         batch_sizes=args.batch_sizes,
         tf32=args.tf32,
     )
+    if distill_step is not None:
+        report["distill_step"] = distill_step
     write_bench(report, args.output)
     print(markdown_bench(report))
     print(f"wrote bench.json, bench.md, latency.png{'' if args.no_profile else ' and profile.txt'} to {args.output}")
@@ -999,6 +1015,12 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--warmup", type=NON_NEGATIVE_COUNT, default=10, help="untimed calls of each quantity first")
     bench.add_argument("--repeats", type=COUNT, default=50, help="timed calls of each quantity, round-robin")
     bench.add_argument("--no-profile", action="store_true", help="skip the torch.profiler table of the 1-NFE path")
+    bench.add_argument(
+        "--distill-batch-sizes",
+        type=_counts,
+        help="also time a distillation step (the paper's objective, AdamW on the expert) and its peak memory at "
+        "these batch sizes, e.g. 4,32",
+    )
     bench.add_argument(
         "--tf32",
         action="store_true",

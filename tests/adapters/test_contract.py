@@ -452,6 +452,10 @@ class LeRobotAdapterContract(FlowPolicyContract):
                         "--repeats",
                         "2",
                         "--no-profile",
+                        "--batch-sizes",
+                        "1,2",
+                        "--distill-batch-sizes",
+                        "2",
                         "--output",
                         str(output),
                     ]
@@ -460,6 +464,14 @@ class LeRobotAdapterContract(FlowPolicyContract):
             )
         report = json.loads((output / "bench.json").read_text())
         assert report["details"]["policy_type"] == self.policy_type
+        # the plan of a full run: a distillation step at batch 2 and the throughput at batch 1 and 2
+        (step,) = report["distill_step"]["rows"]
+        assert (
+            step["batch_size"] == 2
+            and 0 < step["step_ms_median"] <= step["step_ms_p90"]
+            and step["peak_memory_gib"] > 0
+        )
+        assert list(report["throughput"]) == ["1", "2"] and 0 < report["jump_to_teacher_pass_ratio"]
         expert_tensors = {id(p): p for module in policy.expert_modules() for p in module.parameters()}  # each once
         expert = sum(parameter.numel() for parameter in expert_tensors.values())
         assert report["details"]["expert_parameters"] == expert

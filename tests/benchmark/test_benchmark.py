@@ -222,8 +222,11 @@ def test_parameter_dtypes_lists_the_groups_that_run_in_each_precision():
 
 def test_a_bfloat16_built_in_policy_is_timed_in_bfloat16(tmp_path):
     arguments = ["bench", "--architecture", "minivla", "--dtype", "bfloat16", "--warmup", "0", "--repeats", "1"]
-    assert main([*arguments, "--no-profile", "--batch-sizes", "1", "--tf32", "--output", str(tmp_path)]) == 0
+    extra = ["--batch-sizes", "1", "--tf32", "--distill-batch-sizes", "2,3"]
+    assert main([*arguments, "--no-profile", *extra, "--output", str(tmp_path)]) == 0
     report = json.loads((tmp_path / "bench.json").read_text())
     assert set(report["details"]["dtypes"]["(all)"]) == {"bfloat16"}
     assert "M bfloat16" in (tmp_path / "bench.md").read_text()
     assert report["tf32"]["max_abs_action_difference"] >= 0 and "TF32 on" in (tmp_path / "bench.md").read_text()
+    assert [row["batch_size"] for row in report["distill_step"]["rows"]] == [2, 3]
+    assert all(row["step_ms_median"] > 0 and row["peak_memory_gib"] > 0 for row in report["distill_step"]["rows"])

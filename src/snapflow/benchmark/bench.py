@@ -230,6 +230,26 @@ def markdown_bench(report: dict[str, Any]) -> str:
                 ],
             ),
         ]
+    if "distill_step" in report:
+        step = report["distill_step"]
+        lines += [
+            "",
+            f"One distillation step (the paper's objective and target, backward, AdamW on the expert; medians of "
+            f"{step['repeats']} after {step['warmup']} warm-up steps; peak memory: {step['peak_memory']}):",
+            "",
+            markdown_table(
+                ["batch", "ms per step", "P90", "peak memory GiB"],
+                [
+                    [
+                        row["batch_size"],
+                        f"{row['step_ms_median']:.1f}",
+                        f"{row['step_ms_p90']:.1f}",
+                        f"{row['peak_memory_gib']:.2f}",
+                    ]
+                    for row in step["rows"]
+                ],
+            ),
+        ]
     if "tf32" in report:
         lines += [
             "",

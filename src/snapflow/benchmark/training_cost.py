@@ -22,6 +22,7 @@ from snapflow.flow.time_sampling import TimeSampler
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
 from snapflow.objective.options import target_stages
 from snapflow.policies.checkpoint import load_policy
+from snapflow.protocol import map_tensors
 from snapflow.reporting.machine import machine
 from snapflow.reporting.tables import markdown_table
 from snapflow.training.config import PAPER_STUDENT_TRAINING
@@ -40,17 +41,19 @@ def time_training_steps(
     warmup: int = 5,
     repeats: int = 30,
     learning_rate: float = PAPER_STUDENT_TRAINING.learning_rate,
+    copy_student: bool = True,
 ) -> dict[str, Any]:
     """Median and P90 seconds of one training step (:func:`snapflow.training.trainer.train_step`) per option; with
     ``freeze_prefix`` the optimiser updates the student's ``expert_parameters()``, as ``snapflow distill`` does.
-    The student is copied per option, so the options never see each other's updates."""
+    The student is copied per option, so the options never see each other's updates (with one option and
+    ``copy_student=False`` it trains in place: no second copy in memory)."""
     if not options:
         raise ValueError("time at least one target option")
     if warmup < 0 or repeats < 1:
         raise ValueError(f"need warmup >= 0 and repeats >= 1, got {warmup} and {repeats}")
     runners = []
     for option in options:
-        policy = copy.deepcopy(student)
+        policy = copy.deepcopy(student) if copy_student or len(options) > 1 else student
         parameters = policy.expert_parameters() if freeze_prefix else list(policy.parameters())
         optimizer = torch.optim.AdamW(parameters, lr=learning_rate)
         runners.append((option, ObjectiveModule(policy, option.settings().objective(time_sampler)), optimizer))
@@ -114,6 +117,55 @@ def checkpoint_training_cost(
     )
 
 
+def _peak_memory_gib(device: torch.device) -> float:
+    """Peak memory so far: allocated on a GPU (reset per batch size), the process's peak resident set elsewhere."""
+    if device.type == "cuda":
+        return torch.cuda.max_memory_allocated(device) / 2**30
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # KiB on Linux
+
+
+def distillation_step_cost(
+    student: Any,
+    observation: Any,
+    noise: torch.Tensor,
+    batch_sizes: tuple[int, ...],
+    time_sampler: TimeSampler,
+    warmup: int = 3,
+    repeats: int = 10,
+) -> dict[str, Any]:
+    """ms per distillation step (the paper's objective and target, backward, AdamW on ``expert_parameters()``) and
+    peak memory at each batch size, on the batch-1 ``observation`` repeated and random actions shaped as ``noise``: what a full-size run
+    costs, to plan it. The student trains in place (its weights move; timing does not depend on them)."""
+    device = noise.device
+    rows = []
+    for size in batch_sizes:
+        batch = map_tensors(observation, lambda tensor, size=size: tensor[:1].expand(size, *tensor.shape[1:]).clone())
+        actions = torch.randn(size, *noise.shape[1:], device=device, dtype=noise.dtype)
+        if device.type == "cuda":
+            torch.cuda.reset_peak_memory_stats(device)
+        paper_target = [TargetOption.parse("euler:2")]
+        timed = time_training_steps(
+            student, batch, actions, paper_target, time_sampler, warmup=warmup, repeats=repeats, copy_student=False
+        )
+        row = timed["rows"][0]
+        rows.append(
+            {
+                "batch_size": size,
+                "step_ms_median": row["step_ms_median"],
+                "step_ms_p90": row["step_ms_p90"],
+                "peak_memory_gib": _peak_memory_gib(device),
+            }
+        )
+    return {
+        "warmup": warmup,
+        "repeats": repeats,
+        "peak_memory": "allocated on the GPU" if device.type == "cuda" else "process peak resident set",
+        "rows": rows,
+    }
+
+
 def markdown_training_cost(result: dict[str, Any]) -> str:
     first = result["rows"][0]["label"]
     lines = [
@@ -138,4 +190,4 @@ def markdown_training_cost(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["checkpoint_training_cost", "markdown_training_cost", "time_training_steps"]
+__all__ = ["checkpoint_training_cost", "distillation_step_cost", "markdown_training_cost", "time_training_steps"]
