@@ -520,12 +520,13 @@ def _bench(args: argparse.Namespace) -> int:
     _check_writable(args.output)
     import torch
 
-    from snapflow.benchmark.bench import markdown_bench, run_bench, write_bench
+    from snapflow.benchmark.bench import markdown_bench, run_bench, vision_in_bfloat16, write_bench
     from snapflow.benchmark.subjects import make_subject
 
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     dtype = {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch.float16}[args.dtype]
     subject = make_subject(args.policy, args.architecture, device, dtype, args.vlm)
+    vision_difference = vision_in_bfloat16(subject) if args.vision_dtype else None
     distill_step = None
     if args.distill_batch_sizes:  # first, in place: before anything is compiled
         from snapflow.benchmark.training_cost import distillation_step_cost
@@ -551,6 +552,8 @@ def _bench(args: argparse.Namespace) -> int:
     )
     if distill_step is not None:
         report["distill_step"] = distill_step
+    if vision_difference is not None:
+        report["vision_bfloat16"] = {"max_abs_action_difference": vision_difference}
     write_bench(report, args.output)
     print(markdown_bench(report))
     print(f"wrote bench.json, bench.md, latency.png{'' if args.no_profile else ' and profile.txt'} to {args.output}")
@@ -1020,6 +1023,11 @@ def build_parser() -> argparse.ArgumentParser:
         type=_counts,
         help="also time a distillation step (the paper's objective, AdamW on the expert) and its peak memory at "
         "these batch sizes, e.g. 4,32",
+    )
+    bench.add_argument(
+        "--vision-dtype",
+        choices=["bfloat16"],
+        help="pi0 / pi0.5: run the vision tower in this dtype (LeRobot keeps it in float32); reports how far actions move",
     )
     bench.add_argument(
         "--tf32",

@@ -280,3 +280,21 @@ def test_dataset_image_channels_are_read_from_either_layout_even_without_names()
         check_dataset_features(
             config, {"image": {"shape": (32, 32, 4), "names": ["height", "width", "channels"]}}, "local/x"
         )
+
+
+@PI_SKIP
+@pytest.mark.parametrize("policy_type", ["pi0", "pi05"])
+def test_the_vision_tower_runs_in_bfloat16_on_request_and_moves_the_actions_little(policy_type):
+    from snapflow.benchmark.bench import vision_in_bfloat16
+    from snapflow.benchmark.subjects import lerobot_subject
+
+    with tiny_pi_configs(policy_type):
+        subject = lerobot_subject(
+            randomise_target_time(wrap_policy(build_tiny_pi(policy_type))), "tiny", torch.device("cpu"), torch.float32
+        )
+    difference = vision_in_bfloat16(subject)
+    tower = subject.policy.policy.model.paligemma_with_expert.paligemma.model.vision_tower
+    assert {parameter.dtype for parameter in tower.parameters()} == {torch.bfloat16}
+    assert any("bfloat16" in counts for counts in subject.details["dtypes"].values())
+    # bfloat16 rounding of the image features, nothing more: a change, and a small one
+    assert 0 < difference < 0.5

@@ -230,3 +230,10 @@ def test_a_bfloat16_built_in_policy_is_timed_in_bfloat16(tmp_path):
     assert report["tf32"]["max_abs_action_difference"] >= 0 and "TF32 on" in (tmp_path / "bench.md").read_text()
     assert [row["batch_size"] for row in report["distill_step"]["rows"]] == [2, 3]
     assert all(row["step_ms_median"] > 0 and row["peak_memory_gib"] > 0 for row in report["distill_step"]["rows"])
+
+
+def test_a_bfloat16_vision_tower_is_refused_where_there_is_none(tmp_path, capsys):
+    arguments = ["bench", "--architecture", "mlp", "--vision-dtype", "bfloat16", "--output", str(tmp_path)]
+    assert main(arguments) == 2
+    assert "--vision-dtype applies to LeRobot's pi0 and pi0.5" in capsys.readouterr().err
+    assert not (tmp_path / "bench.json").exists()

@@ -18,7 +18,7 @@ from typing import Any
 import torch
 
 from snapflow.benchmark.latency import measure_latency, time_round_robin
-from snapflow.benchmark.subjects import BenchSubject
+from snapflow.benchmark.subjects import BenchSubject, parameter_dtypes
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.solver import sample_actions
 from snapflow.inference.compile import compile_policy
@@ -109,8 +109,22 @@ def _tf32() -> Iterator[None]:
 
 
 @torch.inference_mode()
-def _one_step_actions(subject: BenchSubject) -> torch.Tensor:
+def one_step_actions(subject: BenchSubject) -> torch.Tensor:
+    """The subject's one-step actions on its own inputs, in float32: what a precision option is measured by."""
     return sample_actions(subject.policy, subject.observation, subject.noise, subject.one_step).float()
+
+
+def vision_in_bfloat16(subject: BenchSubject) -> float:
+    """Run a pi0 / pi0.5 subject's vision tower in bfloat16 (LeRobot keeps it in float32) and return how far that
+    moves its one-step actions on its inputs."""
+    if not callable(getattr(subject.policy, "run_vision_in", None)):
+        raise ValueError(
+            "--vision-dtype applies to LeRobot's pi0 and pi0.5, whose vision tower LeRobot keeps in float32"
+        )
+    exact = one_step_actions(subject)
+    subject.policy.run_vision_in(torch.bfloat16)
+    subject.details["dtypes"] = parameter_dtypes(subject.policy.policy)
+    return (one_step_actions(subject) - exact).abs().max().item()
 
 
 def run_bench(
@@ -128,10 +142,10 @@ def run_bench(
     ``batch_sizes``, and, optionally, profile its one-step mode. ``compile_mode`` runs the fast path
     (:func:`snapflow.inference.compile_policy`)."""
     modes = modes or subject.only_modes or (*TEACHER_MODES, subject.one_step)
-    exact = _one_step_actions(subject) if tf32 else None
+    exact = one_step_actions(subject) if tf32 else None
     with _tf32() if tf32 else contextlib.nullcontext():
         # what TF32 costs in accuracy, measured on the subject's inputs before it is timed
-        tf32_difference = (_one_step_actions(subject) - exact).abs().max().item() if exact is not None else None
+        tf32_difference = (one_step_actions(subject) - exact).abs().max().item() if exact is not None else None
         if compile_mode:
             compile_policy(subject.policy, compile_mode)
         latency = measure_latency(subject.policy, subject.observation, subject.noise, list(modes), warmup, repeats)
@@ -250,6 +264,12 @@ def markdown_bench(report: dict[str, Any]) -> str:
                 ],
             ),
         ]
+    if "vision_bfloat16" in report:
+        lines += [
+            "",
+            f"Vision tower in bfloat16: the one-step actions move by at most "
+            f"{report['vision_bfloat16']['max_abs_action_difference']:.2e} (normalised units) on these inputs.",
+        ]
     if "tf32" in report:
         lines += [
             "",
@@ -350,6 +370,8 @@ __all__ = [
     "PAPER_A800",
     "profile_one_step",
     "measure_throughput",
+    "one_step_actions",
+    "vision_in_bfloat16",
     "run_bench",
     "markdown_bench",
     "plot_bench",

@@ -51,8 +51,8 @@ def _repeat_rows(tensors: dict[str, Tensor], rows: int) -> dict[str, Tensor]:
 
 def export_onnx(policy: FlowPolicy, observation: Tensor | dict[str, Tensor], noise: Tensor, path: str | Path) -> float:
     """Write ``policy``'s one-step graph to ``path`` (one self-contained file, written whole or not at all), with the
-    batch dimension free, and return the largest difference between onnxruntime's actions and PyTorch's on the
-    example at batch 1 and 3. ``observation`` / ``noise``: one example of what the policy's processor gives it.
+    batch dimension free (or, where the policy's code pins it, traced at batch 1), and return the largest difference
+    between onnxruntime's actions and PyTorch's on the example at batch 1 and 3. ``observation`` / ``noise``: one example of what the policy's processor gives it.
     Raises ``ValueError`` when the difference exceeds :data:`TOLERANCE`."""
     import onnxruntime  # noqa: F401 - fail before the export if the runtime is missing
 

@@ -153,6 +153,20 @@ class PI0FlowPolicy(LeRobotFlowPolicy):
             context["state"], context["prefix_pad_masks"], cache_for_one_pass(context["cache"]), x_t, timestep
         )
 
+    def run_vision_in(self, dtype: torch.dtype) -> None:
+        """Run the vision tower and its projector in ``dtype``. LeRobot keeps them in float32 under bfloat16 (its
+        ``embed_image`` casts every image to float32); here the images are cast to ``dtype`` as they enter the
+        tower, and LeRobot casts the features back as before."""
+        paligemma = self.policy.model.paligemma_with_expert.paligemma.model
+        paligemma.vision_tower.to(dtype)
+        paligemma.multi_modal_projector.to(dtype)
+        image_features = paligemma.get_image_features
+
+        def get_image_features(pixel_values: Tensor, *args: Any, **kwargs: Any) -> Any:
+            return image_features(pixel_values.to(dtype), *args, **kwargs)
+
+        paligemma.get_image_features = get_image_features
+
 
 class PI05FlowPolicy(PI0FlowPolicy):
     """SnapFlow view of a LeRobot ``PI05Policy``; its state reaches the model as tokens of the prompt."""
