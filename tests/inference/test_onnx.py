@@ -74,6 +74,9 @@ def test_the_onnx_student_gives_the_pytorch_students_actions_in_one_graph(name, 
 
     eager, exported = load_policy(student), load_policy(tmp_path / "onnx")
     assert exported.exported and not eager.exported
+    record = exported.metadata["onnx"]
+    assert record["source"] == str(student) and record["batch"] == "free" and record["opset"] == 18
+    assert record["inputs"][0] == "noise" and record["max_abs_difference_to_pytorch"] <= 1e-4
     for rows in (1, 5):  # the batch dimension is free
         observation, noise = _batch(eager, rows, seed=rows)
         expected = sample_actions(eager.policy, observation, noise, SNAPFLOW_1)

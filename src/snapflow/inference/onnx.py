@@ -49,11 +49,16 @@ def _repeat_rows(tensors: dict[str, Tensor], rows: int) -> dict[str, Tensor]:
     return {name: tensor[:1].expand(rows, *tensor.shape[1:]).clone() for name, tensor in tensors.items()}
 
 
-def export_onnx(policy: FlowPolicy, observation: Tensor | dict[str, Tensor], noise: Tensor, path: str | Path) -> float:
+def export_onnx(
+    policy: FlowPolicy, observation: Tensor | dict[str, Tensor], noise: Tensor, path: str | Path
+) -> dict[str, Any]:
     """Write ``policy``'s one-step graph to ``path`` (one self-contained file, written whole or not at all), with the
-    batch dimension free (or, where the policy's code pins it, traced at batch 1), and return the largest difference
-    between onnxruntime's actions and PyTorch's on the example at batch 1 and 3. ``observation`` / ``noise``: one example of what the policy's processor gives it.
-    Raises ``ValueError`` when the difference exceeds :data:`TOLERANCE`."""
+    batch dimension free (or, where the policy's code pins it, traced at batch 1), checked against PyTorch on the
+    example at batch 1 and 3. ``observation`` / ``noise``: one example of what the policy's processor gives it.
+    Returns the export's record (file, inputs, outputs, opset, batch, the largest difference to PyTorch, versions);
+    raises ``ValueError`` when the difference exceeds :data:`TOLERANCE`."""
+    from importlib.metadata import version
+
     import onnxruntime  # noqa: F401 - fail before the export if the runtime is missing
 
     single = torch.is_tensor(observation)
@@ -61,10 +66,9 @@ def export_onnx(policy: FlowPolicy, observation: Tensor | dict[str, Tensor], noi
     if not isinstance(observation, dict) or not all(torch.is_tensor(value) for value in observation.values()):
         raise ValueError("an exported policy's observation must be a tensor or a dict of tensors")
     graph = OneStepGraph(policy, single).eval()
-    difference = 0.0
+    checked: dict[str, Any] = {"difference": 0.0}
 
     def export_and_check(temporary: Path) -> None:
-        nonlocal difference
         _trace(graph, observation, noise, temporary, free_batch=True)
         exported = OnnxOneStepPolicy(temporary)
         if exported.fixed_batch:  # the policy's code pins the batch somewhere: a graph for batch 1, run row by row
@@ -74,12 +78,23 @@ def export_onnx(policy: FlowPolicy, observation: Tensor | dict[str, Tensor], noi
             example, example_noise = _repeat_rows(observation, rows), _repeat_rows({"noise": noise}, rows)["noise"]
             with torch.no_grad():
                 expected = graph(example_noise, example)
-            difference = max(difference, (exported.actions(example, example_noise) - expected).abs().max().item())
-        if not difference <= TOLERANCE:
-            raise ValueError(f"the ONNX graph differs from PyTorch by {difference:.2e} (> {TOLERANCE:.0e})")
+            difference = (exported.actions(example, example_noise) - expected).abs().max().item()
+            checked["difference"] = max(checked["difference"], difference)
+        if not checked["difference"] <= TOLERANCE:
+            raise ValueError(f"the ONNX graph differs from PyTorch by {checked['difference']:.2e} (> {TOLERANCE:.0e})")
+        checked["batch"] = 1 if exported.fixed_batch else "free"
 
     atomic_write(path, export_and_check)
-    return difference
+    return {
+        "file": Path(path).name,
+        "inputs": ["noise", *observation],
+        "outputs": ["actions"],
+        "opset": OPSET,
+        "batch": checked["batch"],
+        "max_abs_difference_to_pytorch": checked["difference"],
+        "torch": torch.__version__,
+        "onnxruntime": version("onnxruntime"),
+    }
 
 
 def _trace(graph: OneStepGraph, observation: dict[str, Tensor], noise: Tensor, path: Path, free_batch: bool) -> None:

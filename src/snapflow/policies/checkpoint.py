@@ -18,7 +18,7 @@ from safetensors.torch import load_file, save_file
 from torch import nn
 
 from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
-from snapflow.inference.onnx import ONNX_FILE, OPSET, SINGLE, OnnxOneStepPolicy, export_onnx
+from snapflow.inference.onnx import ONNX_FILE, OnnxOneStepPolicy, export_onnx
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
 from snapflow.policies.factory import make_model, make_processor, policy_type, policy_type_of
 from snapflow.policies.normalization import NormalizationStats
@@ -212,7 +212,6 @@ def export_onnx_checkpoint(path: str | Path, output: str | Path) -> dict[str, An
     (:func:`snapflow.inference.onnx.export_onnx`), and a ``policy.json`` with the student's processor and an ``onnx``
     record (source, inputs, opset, versions, the difference to PyTorch measured at export). ``load_policy(output)``
     loads it back for ``snapflow eval`` / ``bench``. Returns the ``onnx`` record."""
-    from importlib.metadata import version
 
     loaded = load_policy(path)
     if loaded.exported:
@@ -225,17 +224,7 @@ def export_onnx_checkpoint(path: str | Path, output: str | Path) -> dict[str, An
     processor, output = loaded.processor, Path(output)
     observation = processor.example_observation()
     noise = torch.randn(1, processor.chunk_length, processor.action_dim, generator=torch.Generator().manual_seed(0))
-    difference = export_onnx(loaded.policy.eval(), observation, noise, output / ONNX_FILE)
-    record = {
-        "file": ONNX_FILE,
-        "source": str(loaded.path),
-        "inputs": ["noise", *(observation if isinstance(observation, dict) else [SINGLE])],
-        "outputs": ["actions"],
-        "opset": OPSET,
-        "max_abs_difference_to_pytorch": difference,
-        "torch": torch.__version__,
-        "onnxruntime": version("onnxruntime"),
-    }
+    record = {"source": str(loaded.path), **export_onnx(loaded.policy.eval(), observation, noise, output / ONNX_FILE)}
     write_json(output / POLICY_CONFIG, {**loaded.metadata, "onnx": record})  # last: it makes the folder a checkpoint
     return record
 

@@ -26,7 +26,7 @@ from snapflow.adapters.lerobot.checkpoint import (
 )
 from snapflow.adapters.lerobot.registry import load_pretrained_policy, wrap_policy
 from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
-from snapflow.inference.onnx import ONNX_FILE, OPSET, OnnxOneStepPolicy, export_onnx
+from snapflow.inference.onnx import ONNX_FILE, OnnxOneStepPolicy, export_onnx
 from snapflow.policies.checkpoint import CheckpointError, load_onnx_graph
 from snapflow.reporting.files import atomic_write, write_json
 
@@ -177,8 +177,6 @@ def export_lerobot_onnx(path: str | Path, output: str | Path) -> dict[str, Any]:
     pre-processed batch (:func:`snapflow.inference.onnx.export_onnx`), beside the folder's config and processors
     (its weights live in the graph) and a marker with an ``onnx`` record. ``snapflow eval`` loads it back. Returns
     the record."""
-    from importlib.metadata import version
-
     loaded = load_lerobot_policy(path)
     if loaded.exported:
         raise CheckpointError(f"{loaded.path} is already an ONNX export")
@@ -192,22 +190,11 @@ def export_lerobot_onnx(path: str | Path, output: str | Path) -> dict[str, Any]:
     noise = torch.randn(1, config.chunk_size, config.max_action_dim, generator=torch.Generator().manual_seed(0))
     observation = lerobot_observation(config, torch.device("cpu"))
     output.mkdir(parents=True, exist_ok=True)
-    difference = export_onnx(adapter, observation, noise, output / ONNX_FILE)
+    record = {"source": str(loaded.path), **export_onnx(adapter, observation, noise, output / ONNX_FILE)}
     for source in sorted(loaded.path.iterdir()):
         if source.is_file() and source.name not in {SAFETENSORS_FILE, SNAPFLOW_MARKER, ONNX_FILE}:
             atomic_write(output / source.name, lambda target, source=source: shutil.copyfile(source, target))
     _pad_prompts_to_full_length(output)
-    record = {
-        "file": ONNX_FILE,
-        "source": str(loaded.path),
-        "inputs": ["noise", *observation],
-        "outputs": ["actions"],
-        "opset": OPSET,
-        "batch": 1 if OnnxOneStepPolicy(output / ONNX_FILE).fixed_batch else "free",
-        "max_abs_difference_to_pytorch": difference,
-        "torch": torch.__version__,
-        "onnxruntime": version("onnxruntime"),
-    }
     write_marker(output, {**(read_marker(loaded.path) or {}), "onnx": record})  # last: it makes the export whole
     return record
 
