@@ -56,7 +56,10 @@ EXTRAS = {
     "onnxruntime": "onnx",
     "onnxscript": "onnx",
 }
-TASKS_HELP = "a set of the benchmark's tasks (metaworld: mt10, the default, or mt50) or comma-separated task names"
+TASKS_HELP = (
+    "comma-separated sets of the benchmark's tasks (metaworld: mt10, the default, or mt50; libero: libero_spatial, "
+    "the default, libero_object, libero_goal, libero_10) and task names (libero: <suite>_<index>)"
+)
 INTERRUPTED = 130  # what main returns after Ctrl-C: 128 + SIGINT, the status a shell shows for it
 
 
@@ -256,7 +259,9 @@ def _experts(args: argparse.Namespace) -> int:
     _check_writable(args.output)
     from snapflow.evaluation.experts import EXPERTS_MD, run_experts
 
-    report = run_experts(make_benchmark(args.env), tasks, args.output, args.split, args.episodes, not args.no_progress)
+    report = run_experts(
+        make_benchmark(args.env), tasks, args.output, args.split, args.episodes, not args.no_progress, args.workers
+    )
     mean = report["tasks"]["mean"]
     print(
         f"scripted experts: {100 * mean['success_rate']:.1f}% mean success over {len(tasks)} task(s) "
@@ -822,6 +827,7 @@ def build_parser() -> argparse.ArgumentParser:
     experts.add_argument("--tasks", help=TASKS_HELP)
     experts.add_argument("--split", choices=list(SPLITS), default="eval", help="whose variations the experts run on")
     experts.add_argument("--episodes", type=COUNT, default=50, help="episodes per task (one per variation)")
+    experts.add_argument("--workers", type=COUNT, default=1, help="tasks run side by side, one process each")
     _add_output(experts, "outputs/experts", "where experts.json and experts.md go")
 
     train = _command(

@@ -6,20 +6,24 @@ import pytest
 
 from snapflow.envs.base import Benchmark
 from snapflow.envs.factory import BENCHMARKS, DEFAULT_BENCHMARK, make_benchmark
+from snapflow.envs.libero import Libero
 from snapflow.envs.metaworld import MetaWorld
 
 
 def test_each_registered_name_builds_the_benchmark_of_that_name():
-    """metaworld is plain MT10 (and the default), metaworld-via-points its multimodal variant."""
-    assert set(BENCHMARKS) == {"metaworld", "metaworld-via-points"} and DEFAULT_BENCHMARK == "metaworld"
+    """metaworld is plain MT10 (and the default), metaworld-via-points its multimodal variant, libero LIBERO."""
+    assert set(BENCHMARKS) == {"metaworld", "metaworld-via-points", "libero"} and DEFAULT_BENCHMARK == "metaworld"
     for name, via in (("metaworld", False), ("metaworld-via-points", True)):
         benchmark = make_benchmark(name)
         assert isinstance(benchmark, MetaWorld) and isinstance(benchmark, Benchmark)
         assert benchmark.name == name and benchmark.via_points is via
     assert make_benchmark().name == DEFAULT_BENCHMARK
+    assert isinstance(make_benchmark("libero"), Libero) and make_benchmark("libero").name == "libero"
 
 
 def test_an_unknown_environment_is_named_with_the_known_ones():
     """The error names the environment asked for and lists the registered ones."""
-    with pytest.raises(ValueError, match="unknown environment 'libero'; choose one of metaworld, metaworld-via-points"):
-        make_benchmark("libero")
+    with pytest.raises(
+        ValueError, match="unknown environment 'pusht'; choose one of metaworld, metaworld-via-points, libero"
+    ):
+        make_benchmark("pusht")

@@ -14,10 +14,11 @@ from snapflow.reporting.statistics import wilson_interval
 
 @pytest.mark.slow
 def test_experts_command_writes_each_tasks_success_with_its_interval(tmp_path, capsys):
-    """Two tasks (one of MT10, one beyond it), 2 evaluation variations each: the counts add up, every episode ran
-    to success or the step limit, and the report's mean is the mean of the tasks' rates."""
+    """Two tasks (one of MT10, one beyond it), 2 evaluation variations each, each task in a worker process of its
+    own: the counts add up, every episode ran to success or the step limit, the report's mean is the mean of the
+    tasks' rates, and each task's time per episode and the workers' peak memory are recorded."""
     output = tmp_path / "experts"
-    arguments = ["experts", "--tasks", "reach-v3,handle-press-v3", "--episodes", "2", "--no-progress"]
+    arguments = ["experts", "--tasks", "reach-v3,handle-press-v3", "--episodes", "2", "--no-progress", "--workers", "2"]
     assert main([*arguments, "--output", str(output)]) == 0
     report = json.loads((output / EXPERTS_JSON).read_text())
     assert (report["env"], report["split"], report["episodes_per_task"]) == ("metaworld", "eval", 2)
@@ -28,7 +29,8 @@ def test_experts_command_writes_each_tasks_success_with_its_interval(tmp_path, c
         assert entry["episodes"] == 2 and entry["success_rate"] == entry["successes"] / 2
         assert entry["interval"] == list(wilson_interval(entry["successes"], 2))
         assert 1 <= entry["mean_steps"] <= MetaWorld.max_episode_steps
-    assert tasks["mean"]["episodes"] == 4
+        assert entry["seconds_per_episode"] > 0
+    assert tasks["mean"]["episodes"] == 4 and report["workers"] == 2 and report["peak_rss_mb"] > 50
     assert tasks["mean"]["success_rate"] == pytest.approx(
         (tasks["reach-v3"]["success_rate"] + tasks["handle-press-v3"]["success_rate"]) / 2
     )

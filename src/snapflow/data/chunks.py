@@ -42,6 +42,9 @@ class ChunkData:
                 f"the demonstrations' images are {demonstrations.images.shape[1]}x{demonstrations.images.shape[2]}, "
                 f"the policy expects {size}x{size}"
             )
+        missing = [name for name in processor.extra_cameras if name not in demonstrations.extra_images]
+        if missing:
+            raise ValueError(f"the policy reads cameras {missing} that the demonstrations hold no frames of")
         rows = demonstrations.rows(episodes)
         following = chunk_rows(demonstrations, rows, processor.chunk_length)
         self.actions = processor.normalize_actions(torch.from_numpy(demonstrations.actions[following]))
@@ -49,7 +52,8 @@ class ChunkData:
             demonstrations.instructions[demonstrations.episodes[e].task] for e in demonstrations.episode_index[rows]
         ]
         images = demonstrations.images[rows] if size else None
-        self.observation = processor.observation(demonstrations.states[rows], instructions, images)
+        extra = {name: demonstrations.extra_images[name][rows] for name in processor.extra_cameras}
+        self.observation = processor.observation(demonstrations.states[rows], instructions, images, extra)
 
     def __len__(self) -> int:
         return len(self.actions)

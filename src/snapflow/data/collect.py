@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -26,22 +27,33 @@ def check_collection(benchmark: Benchmark, tasks: list[str], episodes_per_task: 
     return available
 
 
-def expert_episode(
-    env: Environment, expert: Expert, variation: int
-) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray], bool]:
-    """One episode of ``expert`` on ``variation``: the states it saw, its actions, the camera images (when ``env``
-    renders) and whether the episode succeeded."""
+@dataclass
+class ExpertEpisode:
+    """One episode of a scripted expert: the states it saw, its actions, the camera frames (when the environment
+    renders: the main camera's, and the other cameras' by name) and whether it succeeded."""
+
+    states: list[np.ndarray] = field(default_factory=list)
+    actions: list[np.ndarray] = field(default_factory=list)
+    images: list[np.ndarray] = field(default_factory=list)
+    extra_images: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    success: bool = False
+
+
+def expert_episode(env: Environment, expert: Expert, variation: int) -> ExpertEpisode:
+    """One episode of ``expert`` on ``variation``, to its end."""
     observation = env.reset(variation, render=True)
     expert.reset(observation)
-    states, actions, images, success, done = [], [], [], False, False
+    episode, done = ExpertEpisode(), False
     while not done:
         action = expert.act(observation)
-        states.append(observation.state)
-        actions.append(action)
+        episode.states.append(observation.state)
+        episode.actions.append(action)
         if observation.image is not None:
-            images.append(observation.image)
-        observation, success, done = env.step(action, render=observation.image is not None)
-    return states, actions, images, success
+            episode.images.append(observation.image)
+        for name, image in observation.extra_images.items():
+            episode.extra_images.setdefault(name, []).append(image)
+        observation, episode.success, done = env.step(action, render=observation.image is not None)
+    return episode
 
 
 def collect_demonstrations(
@@ -53,7 +65,7 @@ def collect_demonstrations(
 ) -> Demonstrations:
     """Run each task's expert on successive training variations until ``episodes_per_task`` succeed."""
     available = check_collection(benchmark, tasks, episodes_per_task)
-    states, actions, images, episodes = [], [], [], []
+    states, actions, images, extra_images, episodes = [], [], [], {}, []
     bar = tqdm(total=len(tasks) * episodes_per_task, desc="collecting expert demonstrations", disable=not progress)
     for task in tasks:
         env, expert = benchmark.make_env(task, "train", image_size), benchmark.make_expert(task)
@@ -61,13 +73,15 @@ def collect_demonstrations(
         for variation in range(available):
             if kept == episodes_per_task:
                 break
-            episode_states, episode_actions, episode_images, success = expert_episode(env, expert, variation)
-            if success:
-                start = sum(episode.length for episode in episodes)
-                episodes.append(Episode(task, variation, start, len(episode_actions)))
-                states += episode_states
-                actions += episode_actions
-                images += episode_images
+            episode = expert_episode(env, expert, variation)
+            if episode.success:
+                start = sum(kept_episode.length for kept_episode in episodes)
+                episodes.append(Episode(task, variation, start, len(episode.actions)))
+                states += episode.states
+                actions += episode.actions
+                images += episode.images
+                for name, frames in episode.extra_images.items():
+                    extra_images.setdefault(name, []).extend(frames)
                 kept += 1
                 bar.update()
         env.close()
@@ -83,6 +97,7 @@ def collect_demonstrations(
         {task: benchmark.instruction(task) for task in tasks},
         np.stack(images) if images else None,
         benchmark.name,
+        {name: np.stack(frames) for name, frames in extra_images.items()},
     )
 
 
@@ -106,4 +121,11 @@ def collect(
     return demonstrations
 
 
-__all__ = ["EPISODES_PER_TASK", "check_collection", "expert_episode", "collect_demonstrations", "collect"]
+__all__ = [
+    "EPISODES_PER_TASK",
+    "ExpertEpisode",
+    "check_collection",
+    "expert_episode",
+    "collect_demonstrations",
+    "collect",
+]

@@ -4,7 +4,8 @@
     states         float32 (N, state_dim)     observation state at each step
     actions        float32 (N, action_dim)    action taken at that step
     episode_index  int64   (N,)               which episode each step belongs to (episodes are contiguous)
-    images         uint8   (N, H, W, 3)       optional camera frames
+    images         uint8   (N, H, W, 3)       optional camera frames (the benchmark's main camera)
+    images.<name>  uint8   (N, H, W, 3)       the frames of each of its other cameras (LIBERO's wrist camera)
 ``meta.json``: ``format``, ``version``, ``env`` (the benchmark's registered name), ``state_dim``, ``action_dim``,
 ``episodes`` (task, variation, start, length), ``instructions`` (task -> text) and ``stats`` (mean / std of states
 and actions).
@@ -13,7 +14,7 @@ and actions).
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +28,7 @@ FORMAT = "snapflow-demonstrations"
 VERSION = 1
 ARRAYS_FILE = "demonstrations.npz"
 META_FILE = "meta.json"
+IMAGE_ARRAY_PREFIX = "images."  # the npz array of another camera's frames: images.<camera>
 
 
 @dataclass(frozen=True)
@@ -50,6 +52,7 @@ class Demonstrations:
     instructions: dict[str, str]
     images: np.ndarray | None = None
     env: str = DEFAULT_BENCHMARK
+    extra_images: dict[str, np.ndarray] = field(default_factory=dict)  # other cameras' frames, by camera name
 
     def __post_init__(self) -> None:
         self.validate()
@@ -84,10 +87,13 @@ class Demonstrations:
             position += episode.length
         if position != len(self.states) or len(self.episode_index) != position:
             raise DemonstrationError(f"episodes cover {position} steps but the arrays hold {len(self.states)}")
-        if self.images is not None and (self.images.shape[0] != position or self.images.dtype != np.uint8):
-            raise DemonstrationError(
-                f"images must be uint8 (N, H, W, 3) with N = {position}, got {self.images.dtype} {self.images.shape}"
-            )
+        if self.extra_images and self.images is None:
+            raise DemonstrationError("frames of other cameras without the main camera's")
+        for name, images in {"images": self.images, **{f"images.{k}": v for k, v in self.extra_images.items()}}.items():
+            if images is not None and (images.shape[0] != position or images.dtype != np.uint8 or images.ndim != 4):
+                raise DemonstrationError(
+                    f"{name} must be uint8 (N, H, W, 3) with N = {position}, got {images.dtype} {images.shape}"
+                )
 
     def stats(self, episodes: list[int] | None = None, state_dim: int | None = None) -> NormalizationStats:
         """Normalisation of the given episodes (default all); ``state_dim``: of the leading state entries only."""
@@ -108,6 +114,7 @@ class Demonstrations:
         arrays = {"states": self.states, "actions": self.actions, "episode_index": self.episode_index}
         if self.images is not None:
             arrays["images"] = self.images
+        arrays.update({f"{IMAGE_ARRAY_PREFIX}{name}": images for name, images in self.extra_images.items()})
         atomic_write(directory / ARRAYS_FILE, lambda path: np.savez_compressed(open(path, "wb"), **arrays))
         write_json(
             directory / META_FILE,
@@ -119,6 +126,7 @@ class Demonstrations:
                 "action_dim": int(self.actions.shape[1]),
                 "num_steps": int(len(self.states)),
                 "has_images": self.images is not None,
+                "extra_cameras": list(self.extra_images),
                 "instructions": self.instructions,
                 "episodes": [asdict(e) for e in self.episodes],
                 "stats": asdict(self.stats()),
@@ -160,6 +168,11 @@ class Demonstrations:
             _instructions(meta["instructions"], meta_path),
             loaded.get("images"),
             _env(meta.get("env", DEFAULT_BENCHMARK), meta_path),
+            {
+                key.removeprefix(IMAGE_ARRAY_PREFIX): array
+                for key, array in loaded.items()
+                if key.startswith(IMAGE_ARRAY_PREFIX)
+            },
         )
 
 

@@ -9,8 +9,8 @@ nothing else, so a new simulator is one module implementing :class:`Benchmark` a
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -23,6 +23,10 @@ class Observation:
     state: np.ndarray  # (state_dim,) float32
     instruction: str
     image: np.ndarray | None = None  # (H, W, 3) uint8, only when rendering was asked for
+    # the other cameras' frames by name (a benchmark with several cameras; ``image`` is its first camera)
+    extra_images: Mapping[str, np.ndarray] = field(default_factory=dict)
+    # simulator facts only scripted experts read (object poses): never part of what a policy is shown
+    privileged: Mapping[str, np.ndarray] = field(default_factory=dict)
 
 
 class Environment(ABC):
@@ -62,6 +66,9 @@ class Benchmark(ABC):
     max_episode_steps: int
     fps: int  # control steps per simulated second (a LeRobotDataset records it)
     camera: str  # the camera its images are rendered from
+    extra_cameras: tuple[str, ...] = ()  # the other cameras it renders (Observation.extra_images), if any
+    # environments one evaluation process holds at once, which their memory decides: Meta-World's 200 take ~4 GB
+    max_envs: int = 200
 
     @property
     @abstractmethod
@@ -115,13 +122,13 @@ class Benchmark(ABC):
         return list(tasks)
 
     def resolve_tasks(self, value: str | Sequence[str]) -> list[str]:
-        """The tasks ``value`` names: a set of :attr:`task_sets` by name, or task names (a list, or one string of
-        comma-separated names), checked by :meth:`check_tasks`."""
+        """The tasks ``value`` names: sets of :attr:`task_sets` and task names, in a list or one string of
+        comma-separated names (``libero_spatial,libero_object``), in order without repeats, checked by
+        :meth:`check_tasks`."""
         if isinstance(value, str):
-            if value in self.task_sets:
-                return list(self.task_sets[value])
-            value = [task.strip() for task in value.split(",") if task.strip()]
-        return self.check_tasks(list(value))
+            value = [name.strip() for name in value.split(",") if name.strip()]
+        tasks = [task for name in value for task in self.task_sets.get(name, (name,))]
+        return self.check_tasks(list(dict.fromkeys(tasks)))
 
     def check_split(self, split: str) -> None:
         if split not in SPLITS:

@@ -5,11 +5,13 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from snapflow.envs.base import Benchmark
+from snapflow.envs.libero import Libero
 from snapflow.envs.metaworld import MetaWorld
 
 BENCHMARKS: dict[str, Callable[[], Benchmark]] = {
     "metaworld": MetaWorld,
     "metaworld-via-points": lambda: MetaWorld(via_points=True),
+    "libero": Libero,
 }
 DEFAULT_BENCHMARK = "metaworld"
 

@@ -1,7 +1,8 @@
 """Closed-loop success on a benchmark: the episodes of all tasks run side by side, one batched policy call for every
 environment that needs a new chunk, so inference uses every core while environments step. At most ``max_envs``
-environments exist, made once and reset to each variation in turn: a Meta-World environment holds ~21 MB, 500
-episodes side by side took 10.5 GB, and environments made anew for each wave did not hand their memory back."""
+environments exist (by default the benchmark's :attr:`~snapflow.envs.base.Benchmark.max_envs`), made once and reset
+to each variation in turn: a Meta-World environment holds ~21 MB, 500 episodes side by side took 10.5 GB, and
+environments made anew for each wave did not hand their memory back."""
 
 from __future__ import annotations
 
@@ -19,8 +20,6 @@ from snapflow.flow.solver import sample_actions
 from snapflow.policies.processor import Processor
 from snapflow.protocol import FlowPolicy
 
-MAX_ENVS = 200  # the demo's 200 episodes side by side, ~4 GB of Meta-World environments
-
 
 class ClosedLoopEvaluator:
     """Runs every (task, episode) slot of the benchmark's evaluation split, for one policy and mode per ``run``.
@@ -36,7 +35,7 @@ class ClosedLoopEvaluator:
         tasks: list[str],
         episodes_per_task: int,
         image_size: int | None = None,
-        max_envs: int = MAX_ENVS,
+        max_envs: int | None = None,
     ) -> None:
         benchmark.check_tasks(tasks)
         available = benchmark.num_variations("eval")
@@ -44,6 +43,7 @@ class ClosedLoopEvaluator:
             raise ValueError(
                 f"episodes per task must be in [1, {available}] ({benchmark.name}'s evaluation variations), got {episodes_per_task}"
             )
+        max_envs = benchmark.max_envs if max_envs is None else max_envs
         if max_envs < 1:
             raise ValueError(f"max_envs must be at least 1, got {max_envs}")
         self.benchmark, self.tasks, self.image_size = benchmark, tasks, image_size
@@ -119,6 +119,10 @@ class ClosedLoopEvaluator:
                     np.stack([observations[i].state for i in replan]),
                     [observations[i].instruction for i in replan],
                     np.stack([observations[i].image for i in replan]) if processor.image_size else None,
+                    {
+                        name: np.stack([observations[i].extra_images[name] for i in replan])
+                        for name in processor.extra_cameras
+                    },
                 )
                 noise = torch.randn(len(replan), processor.chunk_length, processor.action_dim, generator=generator)
                 chunks = processor.unnormalize_actions(sample_actions(policy, batch, noise, mode)).numpy()
@@ -143,4 +147,4 @@ class ClosedLoopEvaluator:
         self._envs = []
 
 
-__all__ = ["MAX_ENVS", "ClosedLoopEvaluator"]
+__all__ = ["ClosedLoopEvaluator"]

@@ -204,6 +204,10 @@ def diagnose_task(
                 np.repeat(observation.state[None], draws, 0),
                 [observation.instruction] * draws,
                 np.repeat(observation.image[None], draws, 0) if loaded.processor.image_size else None,
+                {
+                    name: np.repeat(observation.extra_images[name][None], draws, 0)
+                    for name in loaded.processor.extra_cameras
+                },
             )
             chunks = loaded.processor.unnormalize_actions(sample_actions(loaded.policy, batch, noise, mode)).numpy()
             comparison.chunks[label] = chunks.tolist()

@@ -4,10 +4,15 @@ are asked for (``snapflow experts``)."""
 
 from __future__ import annotations
 
+import resource
 import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from tqdm.auto import tqdm
 
 from snapflow.data.collect import expert_episode
@@ -30,27 +35,66 @@ def _check(benchmark: Benchmark, tasks: list[str], split: str, episodes_per_task
         raise ValueError(f"episodes_per_task must be in [1, {available}] ({split} variations), got {episodes_per_task}")
 
 
-def expert_success(
-    benchmark: Benchmark, tasks: list[str], split: str = "eval", episodes_per_task: int = 50, progress: bool = True
-) -> list[EpisodeResult]:
-    """Each task's scripted expert on the first ``episodes_per_task`` variations of ``split``, one episode each."""
-    _check(benchmark, tasks, split, episodes_per_task)
-    results = []
-    bar = tqdm(total=len(tasks) * episodes_per_task, desc="scripted experts", disable=not progress)
-    for task in tasks:
-        env, expert = benchmark.make_env(task, split), benchmark.make_expert(task)
+@dataclass(frozen=True)
+class TaskExperts:
+    """One task's expert episodes, with the wall time of each and the peak memory of the process that ran them."""
+
+    results: list[EpisodeResult]
+    episode_seconds: list[float]
+    peak_rss_mb: float
+
+
+def task_experts(benchmark: Benchmark, task: str, split: str, episodes_per_task: int) -> TaskExperts:
+    """``task``'s scripted expert on the first ``episodes_per_task`` variations of ``split``, one episode each."""
+    env, expert = benchmark.make_env(task, split), benchmark.make_expert(task)
+    results, seconds = [], []
+    try:
         for variation in range(episodes_per_task):
-            _, actions, _, success = expert_episode(env, expert, variation)
-            results.append(EpisodeResult(task, variation, success, len(actions)))
-            bar.update()
+            start = time.perf_counter()
+            episode = expert_episode(env, expert, variation)
+            seconds.append(time.perf_counter() - start)
+            results.append(EpisodeResult(task, variation, episode.success, len(episode.actions)))
+    finally:
         env.close()
-    bar.close()
-    return results
+    return TaskExperts(results, seconds, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
 
 
-def expert_report(benchmark: Benchmark, split: str, results: list[EpisodeResult], seconds: float) -> dict[str, Any]:
+def expert_success(
+    benchmark: Benchmark,
+    tasks: list[str],
+    split: str = "eval",
+    episodes_per_task: int = 50,
+    progress: bool = True,
+    workers: int = 1,
+) -> list[TaskExperts]:
+    """:func:`task_experts` of each task, in order; ``workers`` > 1 runs tasks side by side, each in a process of
+    its own (spawned afresh: a simulator's memory is not handed back within a process)."""
+    _check(benchmark, tasks, split, episodes_per_task)
+    if workers < 1:
+        raise ValueError(f"workers must be at least 1, got {workers}")
+    with tqdm(total=len(tasks), desc="scripted experts (tasks)", disable=not progress) as bar:
+        if workers == 1:
+            done = []
+            for task in tasks:
+                done.append(task_experts(benchmark, task, split, episodes_per_task))
+                bar.update()
+            return done
+        context = get_context("spawn")
+        with ProcessPoolExecutor(max_workers=workers, mp_context=context, max_tasks_per_child=1) as pool:
+            futures = [pool.submit(task_experts, benchmark, task, split, episodes_per_task) for task in tasks]
+            for future in as_completed(futures):
+                future.result()  # a failed task stops the run here
+                bar.update()
+            return [future.result() for future in futures]
+
+
+def expert_report(
+    benchmark: Benchmark, split: str, task_runs: list[TaskExperts], seconds: float, workers: int = 1
+) -> dict[str, Any]:
     """``experts.json``: per task (and ``mean``, the mean of the tasks' rates) successes, episodes, rate, 95% Wilson
-    interval and mean episode length."""
+    interval, mean episode length and wall time per episode; the run's wall time and peak memory per process."""
+    results = [result for run in task_runs for result in run.results]
+    episode_seconds = {run.results[0].task: run.episode_seconds for run in task_runs}
     counts = success_by_task(results)
 
     def entry(task: str, count: SuccessCount) -> dict[str, Any]:
@@ -61,6 +105,9 @@ def expert_report(benchmark: Benchmark, split: str, results: list[EpisodeResult]
             "success_rate": count.success_rate,
             "interval": list(wilson_interval(count.successes, count.episodes)),
             "mean_steps": sum(steps) / len(steps),
+            "seconds_per_episode": float(
+                np.mean(episode_seconds[task] if task != "mean" else sum(episode_seconds.values(), []))
+            ),
         }
 
     return {
@@ -69,6 +116,9 @@ def expert_report(benchmark: Benchmark, split: str, results: list[EpisodeResult]
         "episodes_per_task": counts[results[0].task].episodes,
         "tasks": {task: entry(task, count) for task, count in counts.items()},
         "wall_time_s": seconds,
+        "workers": workers,
+        # the largest peak resident memory of a process that ran a task's episodes (one environment each)
+        "peak_rss_mb": max(run.peak_rss_mb for run in task_runs),
         "machine": machine(),
     }
 
@@ -82,6 +132,7 @@ def expert_markdown(report: dict[str, Any]) -> str:
             f"{100 * entry['success_rate']:.1f}",
             "{:.1f}-{:.1f}".format(*(100 * bound for bound in entry["interval"])),
             f"{entry['mean_steps']:.0f}",
+            f"{entry['seconds_per_episode']:.1f}",
         ]
         for task, entry in tasks.items()
     ]
@@ -93,9 +144,13 @@ def expert_markdown(report: dict[str, Any]) -> str:
             f"{len(tasks) - 1} task(s), the first {report['episodes_per_task']} {report['split']} variations of each, "
             f"one episode each; success = the benchmark's own. Mean of the tasks' rates: "
             f"**{100 * mean['success_rate']:.1f}%** ({mean['successes']} / {mean['episodes']} episodes). "
-            f"{report['wall_time_s']:.0f} s on {machine_description()}.",
+            f"{report['wall_time_s']:.0f} s with {report.get('workers', 1)} worker process(es) on "
+            f"{machine_description()}; {mean['seconds_per_episode']:.1f} s an episode, peak memory "
+            f"{report.get('peak_rss_mb', float('nan')):.0f} MB a process (one environment).",
             "",
-            markdown_table(["task", "successes / episodes", "success %", "95% interval", "mean steps"], rows),
+            markdown_table(
+                ["task", "successes / episodes", "success %", "95% interval", "mean steps", "s / episode"], rows
+            ),
             "",
         ]
     )
@@ -108,16 +163,26 @@ def run_experts(
     split: str = "eval",
     episodes_per_task: int = 50,
     progress: bool = True,
+    workers: int = 1,
 ) -> dict[str, Any]:
     """:func:`expert_success`, written to ``output/experts.{json,md}`` (checked before the folder is made)."""
     _check(benchmark, tasks, split, episodes_per_task)
     with hold_run_lock(output, "snapflow experts"):
         start = time.perf_counter()
-        results = expert_success(benchmark, tasks, split, episodes_per_task, progress)
-        report = expert_report(benchmark, split, results, time.perf_counter() - start)
+        task_runs = expert_success(benchmark, tasks, split, episodes_per_task, progress, workers)
+        report = expert_report(benchmark, split, task_runs, time.perf_counter() - start, workers)
         write_json(Path(output) / EXPERTS_JSON, report)
         write_text(Path(output) / EXPERTS_MD, expert_markdown(report))
     return report
 
 
-__all__ = ["EXPERTS_JSON", "EXPERTS_MD", "expert_success", "expert_report", "expert_markdown", "run_experts"]
+__all__ = [
+    "EXPERTS_JSON",
+    "EXPERTS_MD",
+    "TaskExperts",
+    "task_experts",
+    "expert_success",
+    "expert_report",
+    "expert_markdown",
+    "run_experts",
+]

@@ -5,26 +5,40 @@ sampling mode. The numbers are LeRobot's: ``pc_success`` over ``n_episodes``, re
 from __future__ import annotations
 
 import os
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
 
 import torch
 
 from snapflow.adapters.lerobot.checkpoint import load_distilled
+from snapflow.adapters.lerobot.libero import packaged_initial_states
+from snapflow.envs.libero import SUITES, Libero, suite_of
 from snapflow.flow.modes import SamplingMode
 from snapflow.inference.compile import CompileMode, compile_policy
 from snapflow.reporting.files import write_json, write_text
 from snapflow.reporting.tables import markdown_table
 
 
-def make_lerobot_env_config(env_type: str, task: str | None = None) -> Any:
-    """LeRobot's registered ``EnvConfig`` for ``env_type``, with its default task unless one is given."""
+def make_lerobot_env_config(env_type: str, task: str | None = None, image_size: int | None = None) -> Any:
+    """LeRobot's registered ``EnvConfig`` for ``env_type``, with its default task unless one is given. For LIBERO,
+    ``task`` may also name snapflow's LIBERO tasks of one suite (``libero_spatial_0,libero_spatial_3``: LeRobot's
+    suite and ``task_ids``), and ``image_size`` sets the cameras' side (LeRobot renders 360 pixels by default)."""
     from lerobot.envs.configs import EnvConfig
 
     choices = sorted(EnvConfig.get_known_choices())
     if env_type not in choices:
         raise ValueError(f"unknown LeRobot environment {env_type!r}; LeRobot knows {', '.join(choices)}")
-    return EnvConfig.get_choice_class(env_type)(**({"task": task} if task else {}))
+    options: dict[str, Any] = {"task": task} if task else {}
+    if env_type == "libero":
+        if task and task not in SUITES:
+            suites = {suite_of(name)[0] for name in Libero().resolve_tasks(task)}
+            if len(suites) != 1:
+                raise ValueError(f"--env-task names tasks of one LIBERO suite at a time, got {sorted(suites)}")
+            options.update(task=suites.pop(), task_ids=[suite_of(name)[1] for name in Libero().resolve_tasks(task)])
+        if image_size:
+            options.update(observation_height=image_size, observation_width=image_size)
+    return EnvConfig.get_choice_class(env_type)(**options)
 
 
 def evaluate_in_lerobot_env(
@@ -67,14 +81,16 @@ def evaluate_in_lerobot_env(
     if compile_mode:
         compile_policy(adapter, compile_mode)
 
-    env_config = make_lerobot_env_config(env_type, task)
+    cameras = [feature.shape[-1] for feature in policy.config.image_features.values()]
+    env_config = make_lerobot_env_config(env_type, task, cameras[0] if cameras else None)
     preprocessor, postprocessor = make_pre_post_processors(
         policy.config,
         pretrained_path=str(policy_directory),
         preprocessor_overrides={"device_processor": {"device": device}},
     )
     env_preprocessor, env_postprocessor = make_env_pre_post_processors(env_config, policy.config)
-    environments = make_env(env_config, n_envs=n_envs)
+    with packaged_initial_states() if env_type == "libero" else nullcontext():
+        environments = make_env(env_config, n_envs=n_envs)
     if max_episode_steps:
         for suite in environments.values():
             for vector_env in suite.values():

@@ -7,7 +7,7 @@ nothing else of a policy, so they work for every policy in the registry (:mod:`s
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -71,6 +71,12 @@ class Processor(ABC):
         """Side of the square camera image the policy reads, or None for a policy without images."""
         return None
 
+    @property
+    def extra_cameras(self) -> tuple[str, ...]:
+        """The cameras it reads beyond the benchmark's main one, by the benchmark's names (LIBERO's wrist camera,
+        ``image2``): :meth:`observation` is given their frames as ``extra_images``. None for built-in policies."""
+        return ()
+
     def normalized_state(self, states: np.ndarray | Tensor) -> Tensor:
         """The leading ``state_dim`` entries of a batch of raw states (B, >= state_dim), normalised."""
         states = torch.as_tensor(np.asarray(states, dtype=np.float32))
@@ -80,16 +86,22 @@ class Processor(ABC):
 
     @abstractmethod
     def observation(
-        self, states: np.ndarray | Tensor, instructions: list[str], images: np.ndarray | Tensor | None = None
+        self,
+        states: np.ndarray | Tensor,
+        instructions: list[str],
+        images: np.ndarray | Tensor | None = None,
+        extra_images: Mapping[str, np.ndarray] | None = None,
     ) -> Any:
-        """Model input for a batch of raw states (B, >= state_dim), instructions and optional uint8 images (B, S, S, 3)."""
+        """Model input for a batch of raw states (B, >= state_dim), instructions, optional uint8 images (B, S, S, 3)
+        of the main camera and, by name, of the :attr:`extra_cameras`."""
 
     def example_observation(self, batch: int = 1) -> Any:
         """A batch of what the policy reads with neutral values (a zero state, the first instruction it knows, a
         black image where it reads one): for timing and tracing, which the values do not change."""
         images = np.zeros((batch, self.image_size, self.image_size, 3), dtype=np.uint8) if self.image_size else None
         instruction = self.instructions[0] if self.instructions else "push the puck to the goal"
-        return self.observation(np.zeros((batch, self.state_dim), dtype=np.float32), [instruction] * batch, images)
+        states = np.zeros((batch, self.state_dim), dtype=np.float32)
+        return self.observation(states, [instruction] * batch, images, dict.fromkeys(self.extra_cameras, images))
 
     def normalize_actions(self, actions: Tensor) -> Tensor:
         return (actions - self.action_mean) / self.action_std

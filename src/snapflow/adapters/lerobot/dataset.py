@@ -1,9 +1,11 @@
 """Demonstrations as a LeRobotDataset, written by LeRobot's own writer (``LeRobotDataset.create``, ``add_frame``,
 ``save_episode``, ``finalize``), so that LeRobot's statistics, loaders and tools read it like any of theirs.
 
-One demonstration is one episode; each frame holds ``observation.state`` (the benchmark's full state),
-``observation.images.<camera>`` when camera frames were collected (stored as images, not video, so no encoder is
-needed), ``action``, and the task's instruction as the frame's task."""
+One demonstration is one episode; each frame holds ``observation.state`` (the benchmark's state: Meta-World's full
+state, LIBERO's 8-D proprioception), ``observation.images.<camera>`` for each camera whose frames were collected
+(stored as images, not video, so no encoder is needed), ``action``, and the task's instruction as the frame's task.
+A LIBERO dataset's names and shapes are those LeRobot's ``LiberoEnv`` gives a policy (``image``, ``image2``), so
+``lerobot-eval --env.type=libero`` runs a policy trained on it unchanged."""
 
 from __future__ import annotations
 
@@ -23,18 +25,22 @@ ACTION = "action"
 IMAGE_PREFIX = "observation.images."
 
 
+def camera_frames(demonstrations: Demonstrations, camera: str) -> dict[str, Any]:
+    """Each camera's frames by its feature name: ``camera`` names the main one, the others carry their own names."""
+    if demonstrations.images is None:
+        return {}
+    cameras = {camera: demonstrations.images, **demonstrations.extra_images}
+    return {IMAGE_PREFIX + name: frames for name, frames in cameras.items()}
+
+
 def lerobot_features(demonstrations: Demonstrations, camera: str) -> dict[str, dict[str, Any]]:
     """The dataset's features in LeRobot's schema (dtype, shape, names)."""
     features = {
         STATE: {"dtype": "float32", "shape": demonstrations.states.shape[1:], "names": None},
         ACTION: {"dtype": "float32", "shape": demonstrations.actions.shape[1:], "names": None},
     }
-    if demonstrations.images is not None:
-        features[IMAGE_PREFIX + camera] = {
-            "dtype": "image",
-            "shape": demonstrations.images.shape[1:],
-            "names": ["height", "width", "channels"],
-        }
+    for name, frames in camera_frames(demonstrations, camera).items():
+        features[name] = {"dtype": "image", "shape": frames.shape[1:], "names": ["height", "width", "channels"]}
     return features
 
 
@@ -64,7 +70,8 @@ def write_lerobot_dataset(
     camera: str = "camera",
     progress: bool = True,
 ) -> Path:
-    """Write ``demonstrations`` as the LeRobotDataset ``repo_id`` (default ``local/<root's name>``) at ``root``.
+    """Write ``demonstrations`` as the LeRobotDataset ``repo_id`` (default ``local/<root's name>``) at ``root``;
+    ``camera`` names the main camera's frames (the others carry their own names).
 
     It is built in a temporary folder beside ``root`` and moved there only once LeRobot has finalised it, so an
     interrupted export leaves no half-written dataset. Returns ``root``."""
@@ -85,12 +92,12 @@ def write_lerobot_dataset(
             image_writer_threads=0,  # frames are written as they are added: nothing is pending at finalize
             image_writer_processes=0,
         )
+        cameras = camera_frames(demonstrations, camera)
         for episode in tqdm(demonstrations.episodes, desc="writing the LeRobotDataset", disable=not progress):
             instruction = demonstrations.instructions[episode.task]
             for row in range(episode.start, episode.start + episode.length):
                 frame = {STATE: demonstrations.states[row], ACTION: demonstrations.actions[row], "task": instruction}
-                if demonstrations.images is not None:
-                    frame[IMAGE_PREFIX + camera] = demonstrations.images[row]
+                frame.update({name: frames[row] for name, frames in cameras.items()})
                 dataset.add_frame(frame)
             dataset.save_episode()
         dataset.finalize()

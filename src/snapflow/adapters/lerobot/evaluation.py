@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import json
 import shutil
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,28 +24,33 @@ from snapflow.adapters.lerobot.checkpoint import (
     read_marker,
     write_marker,
 )
+from snapflow.adapters.lerobot.dataset import IMAGE_PREFIX, STATE
 from snapflow.adapters.lerobot.registry import load_pretrained_policy, wrap_policy
 from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
 from snapflow.inference.onnx import ONNX_FILE, OnnxOneStepPolicy, export_onnx
 from snapflow.policies.checkpoint import CheckpointError, load_onnx_graph
 from snapflow.reporting.files import atomic_write, write_json
 
-STATE = "observation.state"
 PREPROCESSOR_FILE = "policy_preprocessor.json"  # LeRobot's name for a saved pre-processor
 
 
 class LeRobotProcessor:
     """What the closed-loop evaluator and :class:`~snapflow.data.chunks.ChunkData` use of a processor, for a
-    LeRobot policy that reads a state and one camera: raw states, instructions and uint8 images through the
-    policy's pre-processor (normalisation, tokenizer); chunks back through its post-processor."""
+    LeRobot policy that reads a state and cameras: raw states, instructions and uint8 images through the policy's
+    pre-processor (normalisation, tokenizer); chunks back through its post-processor. Its first camera is the
+    benchmark's main one; the others (``observation.images.<name>``) are the benchmark's cameras of those names
+    (LIBERO's ``image2``)."""
 
     def __init__(self, config: Any, preprocessor: Any, postprocessor: Any) -> None:
         cameras = list(config.image_features)
-        if len(cameras) != 1 or config.robot_state_feature is None:
+        if not cameras or config.robot_state_feature is None:
             raise ValueError(
-                f"snapflow's benchmarks give a state and one camera; this {config.type} reads cameras {cameras} "
+                f"snapflow's benchmarks give a state and cameras; this {config.type} reads cameras {cameras} "
                 f"and {'a' if config.robot_state_feature else 'no'} state"
             )
+        sizes = {config.image_features[camera].shape[-1] for camera in cameras}
+        if len(sizes) != 1:
+            raise ValueError(f"this {config.type} reads cameras of different sizes {sorted(sizes)}")
         (action,) = config.output_features.values()
         if action.shape[0] != config.max_action_dim:
             raise ValueError(
@@ -53,7 +58,7 @@ class LeRobotProcessor:
                 "snapflow's evaluator needs max_action_dim equal to the action's width"
             )
         self.config, self.preprocessor, self.postprocessor = config, preprocessor, postprocessor
-        self.camera = cameras[0]
+        self.camera, self._extra_cameras = cameras[0], cameras[1:]
         self._unnormalizer = next(step for step in postprocessor.steps if hasattr(step, "_normalize_action"))
 
     @property
@@ -72,14 +77,34 @@ class LeRobotProcessor:
     def image_size(self) -> int:
         return self.config.image_features[self.camera].shape[-1]
 
-    def observation(self, states: np.ndarray, instructions: Sequence[str], images: np.ndarray | None) -> Any:
+    @property
+    def extra_cameras(self) -> tuple[str, ...]:
+        return tuple(camera.removeprefix(IMAGE_PREFIX) for camera in self._extra_cameras)
+
+    def observation(
+        self,
+        states: np.ndarray,
+        instructions: Sequence[str],
+        images: np.ndarray | None,
+        extra_images: Mapping[str, np.ndarray] | None = None,
+    ) -> Any:
         """LeRobot's batch for the model: what its dataset would hold (float state, CHW images in [0, 1], the
         instruction as task) through the policy's pre-processor."""
-        if images is None:
-            raise ValueError(f"this {self.config.type} reads camera images; evaluate with images rendered")
+        extra_images = extra_images or {}
+        missing = [name for name in self.extra_cameras if name not in extra_images]
+        if images is None or missing:
+            raise ValueError(
+                f"this {self.config.type} reads cameras {[self.camera, *self._extra_cameras]}; evaluate with images "
+                f"rendered{f' (no frames of {missing})' if missing else ''}"
+            )
+
+        def chw(frames: np.ndarray) -> Tensor:
+            return torch.from_numpy(np.ascontiguousarray(frames)).permute(0, 3, 1, 2).float() / 255
+
         raw = {
             STATE: torch.as_tensor(np.asarray(states, dtype=np.float32)[:, : self.state_dim]),
-            self.camera: torch.from_numpy(np.ascontiguousarray(images)).permute(0, 3, 1, 2).float() / 255,
+            self.camera: chw(images),
+            **{IMAGE_PREFIX + name: chw(extra_images[name]) for name in self.extra_cameras},
             "task": list(instructions),
         }
         return self.preprocessor(raw)

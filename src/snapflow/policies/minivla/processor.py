@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import re
 import zlib
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -45,7 +45,11 @@ class MiniVLAProcessor(Processor):
         return tokens, tokens != 0
 
     def observation(
-        self, states: np.ndarray | Tensor, instructions: list[str], images: np.ndarray | Tensor | None = None
+        self,
+        states: np.ndarray | Tensor,
+        instructions: list[str],
+        images: np.ndarray | Tensor | None = None,
+        extra_images: Mapping[str, np.ndarray] | None = None,
     ) -> dict[str, Tensor]:
         tokens, token_mask = self.tokenize(instructions)
         batch = {"state": self.normalized_state(states), "tokens": tokens, "token_mask": token_mask}

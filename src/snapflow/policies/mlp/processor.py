@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -47,7 +47,11 @@ class MLPProcessor(Processor):
         )
 
     def observation(
-        self, states: np.ndarray | Tensor, instructions: list[str], images: np.ndarray | Tensor | None = None
+        self,
+        states: np.ndarray | Tensor,
+        instructions: list[str],
+        images: np.ndarray | Tensor | None = None,
+        extra_images: Mapping[str, np.ndarray] | None = None,
     ) -> Tensor:
         unknown = sorted(set(instructions) - set(self._index))
         if unknown:

