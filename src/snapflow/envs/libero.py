@@ -24,6 +24,8 @@ from typing import Any
 import numpy as np
 
 from snapflow.envs.base import Benchmark, Environment, Observation
+from snapflow.envs.libero_expert import NoExpertError, PickAndPlace, make_libero_expert, privileged_extras
+from snapflow.envs.rotations import quaternion_to_axis_angle
 
 SUITES: tuple[str, ...] = ("libero_spatial", "libero_object", "libero_goal", "libero_10")
 TASKS_PER_SUITE = 10
@@ -79,16 +81,6 @@ def initial_states(task: str) -> np.ndarray:
     package ships them as NumPy files, where LeRobot's ``LiberoEnv`` expects ``torch.load`` pickles."""
     suite, index = suite_of(task)
     return np.asarray(_suite(suite).get_task_init_states(index))
-
-
-def quaternion_to_axis_angle(quaternion: np.ndarray) -> np.ndarray:
-    """Axis-angle (3,) of a unit quaternion (x, y, z, w), as LeRobot's LIBERO processor computes the state's
-    orientation: zero for the identity."""
-    w = float(np.clip(quaternion[3], -1.0, 1.0))
-    sine = np.sqrt(1.0 - w * w)
-    if np.isclose(sine, 0.0):
-        return np.zeros(3, dtype=np.float32)
-    return (quaternion[:3] * 2.0 * np.arccos(w) / sine).astype(np.float32)
 
 
 def proprioception(raw: Mapping[str, np.ndarray]) -> np.ndarray:
@@ -154,7 +146,7 @@ class LiberoEnv(Environment):
             self.instruction,
             images.get(main),
             {name: images[name] for name in others if name in images},
-            dict(raw),
+            {**raw, **privileged_extras(self._env)},
         )
 
     def reset(self, variation: int, render: bool = True) -> Observation:
@@ -224,12 +216,10 @@ class Libero(Benchmark):
     def make_env(self, task: str, split: str, image_size: int | None = None) -> LiberoEnv:
         return LiberoEnv(task, split, image_size)
 
-    def make_expert(self, task: str) -> Any:
+    def make_expert(self, task: str) -> PickAndPlace:
         """The waypoint controller of ``task``'s goal, or :class:`~snapflow.envs.libero_expert.NoExpertError`
         naming the task when no controller covers it."""
         self.check_tasks([task])
-        from snapflow.envs.libero_expert import NoExpertError, make_libero_expert
-
         try:
             return make_libero_expert([list(predicate) for predicate in task_goal(task)])
         except NoExpertError as error:
@@ -249,5 +239,4 @@ __all__ = [
     "task_goal",
     "initial_states",
     "proprioception",
-    "quaternion_to_axis_angle",
 ]
