@@ -1,32 +1,44 @@
-"""LIBERO demonstrations as a LeRobotDataset: `snapflow collect --env libero --lerobot-dataset` writes the scripted
-experts' episodes with LeRobot's own writer, LeRobot's ``LeRobotDataset`` reads them back, and their features are
-those LeRobot's own LIBERO environment gives a policy, so ``lerobot-eval --env.type=libero`` runs a policy trained on
-them unchanged."""
+"""LeRobot on LIBERO end to end (the README's chain, ``BENCH=libero SHORT=1 bash scripts/lerobot-smolvla.sh``):
+`snapflow collect --env libero --lerobot-dataset` writes the scripted experts' episodes with LeRobot's own writer,
+LeRobot's ``LeRobotDataset`` reads them back, their features are those LeRobot's own LIBERO environment gives a
+policy (so ``lerobot-eval --env.type=libero`` runs a policy trained on them unchanged), and a SmolVLA teacher trained
+on them and its student are evaluated by snapflow's evaluator and by LeRobot's LIBERO environment."""
 
 from __future__ import annotations
 
+import json
+import os
 import subprocess
-import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from snapflow.data.demonstrations import Demonstrations
 
-pytest.importorskip("lerobot")
-IMAGE_SIZE = 32
+pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test command; this environment lacks it")
+pytest.importorskip("libero")
+
+ROOT = Path(__file__).resolve().parents[2]
+IMAGE_SIZE = 32  # the short chain's
 
 
 @pytest.fixture(scope="module")
 def collected(tmp_path_factory):
-    """Two LIBERO-Spatial demonstrations of one task with 32-pixel images, as npz and as a LeRobotDataset."""
-    root = tmp_path_factory.mktemp("libero")
-    command = [sys.executable, "-m", "snapflow.cli", "collect", "--env", "libero", "--tasks", "libero_spatial_0"]
-    command += ["--episodes", "2", "--image-size", str(IMAGE_SIZE), "--output", str(root / "data")]
-    command += ["--lerobot-dataset", str(root / "lerobot"), "--no-progress"]
-    finished = subprocess.run(command, capture_output=True, text=True, stdin=subprocess.DEVNULL, timeout=600)
+    """The short chain on one LIBERO-Spatial task: two demonstrations with 32-pixel images from both cameras as npz
+    and as a LeRobotDataset, a tiny SmolVLA teacher, its student, one episode of each row in snapflow's evaluator and
+    one of the student in LeRobot's LIBERO environment, from LIBERO's first initial state."""
+    folder = tmp_path_factory.mktemp("libero")
+    finished = subprocess.run(
+        ["bash", str(ROOT / "scripts" / "lerobot-smolvla.sh"), str(folder)],
+        env={**os.environ, "SHORT": "1", "BENCH": "libero"},
+        capture_output=True,
+        text=True,
+        stdin=subprocess.DEVNULL,
+        timeout=1800,
+    )
     assert finished.returncode == 0, finished.stderr[-3000:]
-    return root
+    return folder
 
 
 @pytest.mark.slow
@@ -34,10 +46,7 @@ def test_lerobot_reads_back_both_cameras_state_and_actions(collected):
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     demonstrations = Demonstrations.load(collected / "data")
-    assert (
-        demonstrations.env == "libero"
-        and [e.variation for e in demonstrations.episodes] == [0, 1][: len(demonstrations.episodes)]
-    )
+    assert demonstrations.env == "libero" and demonstrations.images.shape[1:] == (IMAGE_SIZE, IMAGE_SIZE, 3)
     assert demonstrations.states.shape[1] == 8 and demonstrations.actions.shape[1] == 7
     assert set(demonstrations.extra_images) == {"image2"}
     dataset = LeRobotDataset("local/lerobot", root=collected / "lerobot")
@@ -80,3 +89,19 @@ def test_its_features_are_those_lerobots_libero_environment_gives_a_policy(colle
     assert theirs["observation.state"] == PolicyFeature(type=FeatureType.STATE, shape=(8,))
     assert theirs["observation.images.image2"].shape == (3, IMAGE_SIZE, IMAGE_SIZE)
     assert ours["action"] == PolicyFeature(type=FeatureType.ACTION, shape=(7,))
+
+
+@pytest.mark.slow
+def test_the_student_runs_in_snapflows_evaluator_and_in_lerobots_libero_environment(collected):
+    """Both cameras reach the SmolVLA through LeRobot's processors in snapflow's evaluator (teacher, naive and
+    student rows on LIBERO's first initial state), and LeRobot's own LIBERO environment, built on this package
+    through snapflow's initial-state shim, runs the student's one-step sampling."""
+    report = json.loads((collected / "eval" / "report.json").read_text())
+    rows = report["rows"]
+    assert [row["mode"] for row in rows.values()] == ["teacher-10", "naive-1", "snapflow-1"]
+    for row in rows.values():
+        assert set(row["success"]) == {"libero_spatial_0", "mean"} and row["success"]["mean"]["episodes"] == 1
+    lerobot = json.loads((collected / "lerobot-eval" / "libero_spatial_0" / "report.json").read_text())
+    assert (lerobot["env"], lerobot["task"], list(lerobot["modes"])) == ("libero", "libero_spatial", ["snapflow-1"])
+    assert lerobot["modes"]["snapflow-1"]["nfe"] == 1
+    assert lerobot["modes"]["snapflow-1"]["overall"]["n_episodes"] == 1

@@ -24,12 +24,12 @@ IMAGE_SIZE = 32  # the short chain's
 
 @pytest.fixture(scope="module")
 def collected(tmp_path_factory):
-    """The README's LeRobot SmolVLA chain in its short form (scripts/lerobot-smolvla-mt10.sh, SHORT=1): two
+    """The README's LeRobot SmolVLA chain in its short form (scripts/lerobot-smolvla.sh, SHORT=1): two
     tasks, two demonstrations each with 32-pixel images as npz and as a LeRobotDataset, a tiny SmolVLA teacher,
     its student, and their evaluation."""
     folder = tmp_path_factory.mktemp("chain")
     finished = subprocess.run(
-        ["bash", str(ROOT / "scripts" / "lerobot-smolvla-mt10.sh"), str(folder)],
+        ["bash", str(ROOT / "scripts" / "lerobot-smolvla.sh"), str(folder)],
         env={**os.environ, "SHORT": "1"},
         capture_output=True,
         text=True,

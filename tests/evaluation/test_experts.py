@@ -48,3 +48,17 @@ def test_experts_refuses_unknown_tasks_and_too_many_episodes_in_one_line(tmp_pat
     assert main(["experts", "--tasks", "reach-v3", "--episodes", "51", "--output", str(tmp_path / "c")]) == 2
     assert "episodes_per_task must be in [1, 50] (eval variations), got 51" in capsys.readouterr().err
     assert not any((tmp_path / name).exists() for name in "abc")
+
+
+def test_a_named_set_that_ran_whole_gets_its_mean_and_lowest_task():
+    """MT10 ran whole: its mean is the mean of its tasks' rates; MT50 did not, so it has none."""
+    from snapflow.envs.metaworld import MT10_TASKS
+    from snapflow.evaluation.experts import set_means
+
+    tasks = {
+        task: {"success_rate": rate, "successes": round(50 * rate), "episodes": 50}
+        for task, rate in zip(MT10_TASKS, [1.0, 0.9, 0.8, 1.0, 1.0, 1.0, 0.5, 1.0, 1.0, 1.0], strict=True)
+    }
+    assert set_means(MetaWorld(), tasks) == {
+        "mt10": {"success_rate": pytest.approx(0.92), "successes": 460, "episodes": 500, "lowest_task_rate": 0.5}
+    }

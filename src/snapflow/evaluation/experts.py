@@ -110,17 +110,35 @@ def expert_report(
             ),
         }
 
+    tasks = {task: entry(task, count) for task, count in counts.items()}
     return {
         "env": benchmark.name,
         "split": split,
         "episodes_per_task": counts[results[0].task].episodes,
-        "tasks": {task: entry(task, count) for task, count in counts.items()},
+        "tasks": tasks,
+        "sets": set_means(benchmark, tasks),
         "wall_time_s": seconds,
         "workers": workers,
         # the largest peak resident memory of a process that ran a task's episodes (one environment each)
         "peak_rss_mb": max(run.peak_rss_mb for run in task_runs),
         "machine": machine(),
     }
+
+
+def set_means(benchmark: Benchmark, tasks: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """For each named task set of ``benchmark`` whose every task ran (LIBERO's suites): the mean of its tasks' rates,
+    its successes and episodes, and its lowest task's rate."""
+    means = {}
+    for name, members in benchmark.task_sets.items():
+        if len(members) > 1 and all(task in tasks for task in members):
+            entries = [tasks[task] for task in members]
+            means[name] = {
+                "success_rate": float(np.mean([entry["success_rate"] for entry in entries])),
+                "successes": sum(entry["successes"] for entry in entries),
+                "episodes": sum(entry["episodes"] for entry in entries),
+                "lowest_task_rate": min(entry["success_rate"] for entry in entries),
+            }
+    return means
 
 
 def expert_markdown(report: dict[str, Any]) -> str:
@@ -150,6 +168,20 @@ def expert_markdown(report: dict[str, Any]) -> str:
             "",
             markdown_table(
                 ["task", "successes / episodes", "success %", "95% interval", "mean steps", "s / episode"], rows
+            ),
+            *(
+                [
+                    "",
+                    "Per set: "
+                    + "; ".join(
+                        f"{name} **{100 * entry['success_rate']:.1f}%** ({entry['successes']} / {entry['episodes']}, "
+                        f"lowest task {100 * entry['lowest_task_rate']:.0f}%)"
+                        for name, entry in report["sets"].items()
+                    )
+                    + ".",
+                ]
+                if report.get("sets")
+                else []
             ),
             "",
         ]
