@@ -27,8 +27,8 @@ if [ "${SHORT:-0}" = 1 ]; then
     teacher=(--steps 4 --batch-size 4 --checkpoint-every 2) student=(--steps 2 --batch-size 4) episodes=1
 elif [ "$bench" = libero ]; then
     demos=20 image=64 size=small episodes=10  # the paper's 10 initial states per task
-    teacher=(--steps 2000 --batch-size 32 --learning-rate 3e-4 --checkpoint-every 250)
-    student=(--steps 500 --batch-size 32 --learning-rate 3e-5 --warmup-steps 50 --checkpoint-every 250)
+    teacher=(--steps 1000 --batch-size 32 --learning-rate 3e-4 --checkpoint-every 250)
+    student=(--steps 300 --batch-size 32 --learning-rate 3e-5 --warmup-steps 50 --checkpoint-every 100)
 else
     demos=30 image=64 size=small episodes=20
     teacher=(--steps 5000 --batch-size 32 --learning-rate 3e-4 --checkpoint-every 500)

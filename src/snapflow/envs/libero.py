@@ -105,13 +105,15 @@ class LiberoEnv(Environment):
         self.max_steps = MAX_EPISODE_STEPS[suite_of(task)[0]]
         self._initial_states = initial_states(task) if split == "eval" else None
         # Cameras are rendered here, only on the steps that ask, not by robosuite at every step, and an environment
-        # without images has no render context (~400 MB an environment instead of ~850). A soft reset keeps the model
-        # (and the render settings below) instead of reloading it (5 s against 0.04 s).
+        # without images has no render context (~400 MB an environment instead of ~850). Evaluation resets softly,
+        # keeping the model (0.04 s against 5 s), since an initial state then sets every body; a fresh placement needs
+        # the model reloaded: a soft reset places the objects that start on a fixture (the bowl on the stove or on the
+        # cabinet) wrongly, off the table.
         self._env = ControlEnv(
             bddl_file_name=task_bddl(task),
             use_camera_obs=False,
             has_offscreen_renderer=bool(image_size),
-            hard_reset=False,
+            hard_reset=split == "train",
             camera_heights=image_size or 128,
             camera_widths=image_size or 128,
         )
@@ -156,6 +158,8 @@ class LiberoEnv(Environment):
         if self._initial_states is None:
             self._env.seed(variation)  # LIBERO's placement samplers draw from NumPy's global generator
             self._env.reset()
+            if self.image_size:  # the reloaded model came with a render context of its own
+                self._cheap_rendering(self.image_size)
         else:
             self._env.reset()
             self._env.set_init_state(self._initial_states[variation])
