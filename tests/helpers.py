@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import copy
+import os
+import subprocess
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -72,3 +75,18 @@ class RecordingPolicy(nn.Module):
         inputs = (tensor.detach().clone() for tensor in (x_t, t, s))
         self.calls.append(Call(*inputs, output, torch.is_grad_enabled()))
         return output
+
+
+def run_short_lerobot_chain(folder: Path, bench: str) -> Path:
+    """The README's LeRobot SmolVLA chain in its short form (``SHORT=1 BENCH=<bench> scripts/lerobot-smolvla.sh``)
+    into ``folder``, which it returns; the chain's stderr tail is the failure message."""
+    finished = subprocess.run(
+        ["bash", str(Path(__file__).resolve().parents[1] / "scripts" / "lerobot-smolvla.sh"), str(folder)],
+        env={**os.environ, "SHORT": "1", "BENCH": bench},
+        capture_output=True,
+        text=True,
+        stdin=subprocess.DEVNULL,
+        timeout=1800,
+    )
+    assert finished.returncode == 0, finished.stderr[-3000:]
+    return folder

@@ -7,19 +7,16 @@ on them and its student are evaluated by snapflow's evaluator and by LeRobot's L
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from snapflow.data.demonstrations import Demonstrations
+from tests.helpers import run_short_lerobot_chain
 
 pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test command; this environment lacks it")
 pytest.importorskip("libero")
 
-ROOT = Path(__file__).resolve().parents[2]
 IMAGE_SIZE = 32  # the short chain's
 
 
@@ -28,17 +25,7 @@ def collected(tmp_path_factory):
     """The short chain on one LIBERO-Spatial task: two demonstrations with 32-pixel images from both cameras as npz
     and as a LeRobotDataset, a tiny SmolVLA teacher, its student, one episode of each row in snapflow's evaluator and
     one of the student in LeRobot's LIBERO environment, from LIBERO's first initial state."""
-    folder = tmp_path_factory.mktemp("libero")
-    finished = subprocess.run(
-        ["bash", str(ROOT / "scripts" / "lerobot-smolvla.sh"), str(folder)],
-        env={**os.environ, "SHORT": "1", "BENCH": "libero"},
-        capture_output=True,
-        text=True,
-        stdin=subprocess.DEVNULL,
-        timeout=1800,
-    )
-    assert finished.returncode == 0, finished.stderr[-3000:]
-    return folder
+    return run_short_lerobot_chain(tmp_path_factory.mktemp("libero"), "libero")
 
 
 @pytest.mark.slow

@@ -5,10 +5,8 @@ and evaluated closed loop by snapflow's evaluator through LeRobot's processors (
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,8 +15,8 @@ pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test
 pytest.importorskip("metaworld")
 
 from snapflow.data.demonstrations import Demonstrations  # noqa: E402
+from tests.helpers import run_short_lerobot_chain  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[2]
 IMAGE_SIZE = 32  # the short chain's
 
 
@@ -27,16 +25,7 @@ def collected(tmp_path_factory):
     """The README's LeRobot SmolVLA chain in its short form (scripts/lerobot-smolvla.sh, SHORT=1): two
     tasks, two demonstrations each with 32-pixel images as npz and as a LeRobotDataset, a tiny SmolVLA teacher,
     its student, and their evaluation."""
-    folder = tmp_path_factory.mktemp("chain")
-    finished = subprocess.run(
-        ["bash", str(ROOT / "scripts" / "lerobot-smolvla.sh"), str(folder)],
-        env={**os.environ, "SHORT": "1"},
-        capture_output=True,
-        text=True,
-        timeout=1200,
-    )
-    assert finished.returncode == 0, finished.stderr[-3000:]
-    return folder
+    return run_short_lerobot_chain(tmp_path_factory.mktemp("chain"), "mt10")
 
 
 @pytest.mark.slow
