@@ -16,6 +16,7 @@ import pytest
 from snapflow.envs.base import Benchmark
 from snapflow.envs.factory import make_benchmark
 from snapflow.envs.libero import (
+    CAMERAS,
     MAX_EPISODE_STEPS,
     SETTLE_ACTION,
     SETTLE_STEPS,
@@ -46,7 +47,7 @@ def test_libero_implements_the_benchmark_interface():
     assert benchmark.instruction("libero_object_1") == "pick up the cream cheese and place it in the basket"
     assert (benchmark.state_dim, benchmark.action_dim) == (8, 7)
     assert MAX_EPISODE_STEPS == {"libero_spatial": 280, "libero_object": 280, "libero_goal": 300, "libero_10": 520}
-    assert (benchmark.camera, benchmark.extra_cameras) == ("image", ("image2",))
+    assert benchmark.camera == "image" and tuple(CAMERAS) == ("image", "image2")
     assert benchmark.num_variations("eval") == 50 == len(initial_states("libero_spatial_0"))
 
 

@@ -66,7 +66,6 @@ class Benchmark(ABC):
     max_episode_steps: int
     fps: int  # control steps per simulated second (a LeRobotDataset records it)
     camera: str  # the camera its images are rendered from
-    extra_cameras: tuple[str, ...] = ()  # the other cameras it renders (Observation.extra_images), if any
     # environments one evaluation process holds at once, which their memory decides: Meta-World's 200 take ~4 GB
     max_envs: int = 200
 

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from snapflow.envs.base import Benchmark, Environment, Observation
-from snapflow.envs.libero_expert import NoExpertError, PickAndPlace, make_libero_expert, privileged_extras
+from snapflow.envs.libero_expert import LiberoExpert, NoExpertError, make_libero_expert, privileged_extras
 from snapflow.envs.rotations import quaternion_to_axis_angle
 
 SUITES: tuple[str, ...] = ("libero_spatial", "libero_object", "libero_goal", "libero_10")
@@ -188,8 +188,7 @@ class Libero(Benchmark):
     action_dim = ACTION_DIM
     max_episode_steps = max(MAX_EPISODE_STEPS.values())  # the longest suite's; each task stops at its suite's
     fps = FPS
-    camera = next(iter(CAMERAS))
-    extra_cameras = tuple(CAMERAS)[1:]
+    camera = next(iter(CAMERAS))  # the others' frames travel in Observation.extra_images
     max_envs = 16  # ~850 MB an environment with cameras (~400 without): ~14 GB, room for a second process's
 
     @property
@@ -220,7 +219,7 @@ class Libero(Benchmark):
     def make_env(self, task: str, split: str, image_size: int | None = None) -> LiberoEnv:
         return LiberoEnv(task, split, image_size)
 
-    def make_expert(self, task: str) -> PickAndPlace:
+    def make_expert(self, task: str) -> LiberoExpert:
         """The waypoint controller of ``task``'s goal, or :class:`~snapflow.envs.libero_expert.NoExpertError`
         naming the task when no controller covers it."""
         self.check_tasks([task])

@@ -32,10 +32,11 @@ def make_lerobot_env_config(env_type: str, task: str | None = None, image_size: 
     options: dict[str, Any] = {"task": task} if task else {}
     if env_type == "libero":
         if task and task not in SUITES:
-            suites = {suite_of(name)[0] for name in Libero().resolve_tasks(task)}
+            named = [suite_of(name) for name in Libero().resolve_tasks(task)]
+            suites = {suite for suite, _ in named}
             if len(suites) != 1:
                 raise ValueError(f"--env-task names tasks of one LIBERO suite at a time, got {sorted(suites)}")
-            options.update(task=suites.pop(), task_ids=[suite_of(name)[1] for name in Libero().resolve_tasks(task)])
+            options.update(task=suites.pop(), task_ids=[index for _, index in named])
         if image_size:
             options.update(observation_height=image_size, observation_width=image_size)
     return EnvConfig.get_choice_class(env_type)(**options)
