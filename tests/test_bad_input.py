@@ -216,7 +216,8 @@ def _corrupt(directory: Path, kind: str, where: int) -> None:
     elif kind == "instructions not a mapping":
         meta["instructions"] = ["reach the goal"]
     elif kind == "images wrong dtype":
-        arrays["images"] = arrays["images"].astype(np.float32)
+        images_path = directory / "images.npy"
+        np.save(images_path, np.load(images_path).astype(np.float32))
     np.savez(arrays_path, **arrays)
     meta_path.write_text(json.dumps(meta))
 

@@ -112,7 +112,7 @@ def test_camera_images_flow_through_collect_train_and_closed_loop(tmp_path_facto
     loaded = load_policy(tmp_path / "teacher")
     assert (
         loaded.processor.config.use_image
-        and loaded.processor.config.num_patches == 4
+        and loaded.processor.config.image_tokens == 4
         and loaded.processor.image_size == 32
     )
     code = main(

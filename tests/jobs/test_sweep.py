@@ -14,7 +14,7 @@ import pytest
 
 from snapflow.cli import main
 from snapflow.jobs.runner import Job, is_done, read_record, run_jobs, write_record
-from snapflow.jobs.sweep import CollectJob, EvalJob, TrainJob, jobs, load_sweep, plan, replace_block, run_sweeps
+from snapflow.jobs.sweep import CollectJob, DataJob, EvalJob, TrainJob, jobs, load_sweep, plan, replace_block, run_sweeps
 from snapflow.jobs.sweep.planning import train_job
 from snapflow.jobs.sweep.results import TableResult, markdown_blocks, tables_markdown, write_results
 from snapflow.policies.minivla import MiniVLAConfig
@@ -90,11 +90,13 @@ rows = [
 
 
 def names(planned: list[Job]) -> set[tuple]:
-    """What each job is, in a few words: ("collect",), ("train", run, seed), ("eval", run, seed, mode)."""
+    """What each job is, in a few words: ("collect", task), ("data",), ("train", run, seed), ("eval", run, seed, mode)."""
 
     def name(job: Job) -> tuple:
         if isinstance(job, CollectJob):
-            return ("collect",)
+            return ("collect", *job.data.tasks)
+        if isinstance(job, DataJob):
+            return ("data",)
         if isinstance(job, TrainJob):
             return ("train", job.run_name, job.seed)
         assert isinstance(job, EvalJob)
@@ -120,6 +122,7 @@ ALL_EVALS = {
     ("eval", "teacher", 0, "teacher-2"),
     ("eval", "meanflow", 0, "snapflow-1"),
 }
+DATA = {("collect", "reach-v3"), ("collect", "push-v3"), ("data",)}
 ALL_TRAINS = {
     ("train", "teacher", 0),
     ("train", "teacher", 1),
@@ -129,10 +132,10 @@ ALL_TRAINS = {
 }
 
 
-def test_a_new_sweep_plans_collect_every_run_per_seed_and_one_evaluation_per_cell(tmp_path):
+def test_a_new_sweep_plans_collect_each_task_every_run_per_seed_and_one_evaluation_per_cell(tmp_path):
     planned = plan(load_sweep(write_config(tmp_path)))
-    assert names(planned) == {("collect",)} | ALL_TRAINS | ALL_EVALS
-    assert len(planned) == 1 + len(ALL_TRAINS) + len(ALL_EVALS)
+    assert names(planned) == DATA | ALL_TRAINS | ALL_EVALS
+    assert len(planned) == len(DATA) + len(ALL_TRAINS) + len(ALL_EVALS)
     position = {job: index for index, job in enumerate(planned)}
     assert all(position[dep] < position[job] for job in planned for dep in job.dependencies), "dependencies come first"
 
@@ -198,7 +201,9 @@ def test_job_settings_are_complete_and_keys_follow_the_dependencies(tmp_path):
     assert teacher.settings()["policy"] == {"type": "minivla", **asdict(config.runs["teacher"].policy)}
     assert student.settings()["train"]["learning_rate"] == RECIPES[DEFAULT_RECIPE].train.learning_rate
     assert student.settings()["distill"]["target_steps"] == (2, 4) and student.settings()["train"]["seed"] == 1
-    assert student.teacher == by_name[("train", "teacher", 1)] and student.teacher.data == by_name[("collect",)]
+    assert student.teacher == by_name[("train", "teacher", 1)] and student.teacher.data == by_name[("data",)]
+    assert student.data.parts == (by_name[("collect", "reach-v3")], by_name[("collect", "push-v3")])
+    assert student.data.parts[1].settings() == {**student.data.settings(), "tasks": ("push-v3",)}
     assert len({job.key for job in jobs(config)}) == len(jobs(config)), "every job has its own key"
     evaluation = by_name[("eval", "snapflow", 1, "snapflow-1")]
     assert not evaluation.record_path.exists()
@@ -242,8 +247,7 @@ def test_the_committed_results_render_to_the_committed_markdown_byte_for_byte(mo
 
 def test_one_table_plans_only_what_it_needs(tmp_path):
     config = load_sweep(write_config(tmp_path))
-    assert names(plan(config.only(["nfe"]))) == {
-        ("collect",),
+    assert names(plan(config.only(["nfe"]))) == DATA | {
         ("train", "teacher", 0),
         ("train", "meanflow", 0),
         ("eval", "teacher", 0, "naive-1"),

@@ -10,7 +10,6 @@ from torch import Tensor
 
 from snapflow.data.demonstrations import Demonstrations
 from snapflow.policies.processor import Processor
-from snapflow.protocol import index_batch
 
 
 def chunk_rows(demonstrations: Demonstrations, rows: np.ndarray, length: int) -> np.ndarray:
@@ -21,7 +20,10 @@ def chunk_rows(demonstrations: Demonstrations, rows: np.ndarray, length: int) ->
 
 class ChunkData:
     """Sample i: the observation at one step and the next ``chunk_length`` actions, the last repeated
-    past the episode's end (the robot holds its final command). Observations and actions are normalised."""
+    past the episode's end (the robot holds its final command). Observations and actions are normalised.
+
+    Observations are made a batch at a time from the demonstrations' arrays: camera frames stay uint8 (and
+    memory-mapped, as loaded), so a suite of 128-px frames is never held in memory as floats."""
 
     def __init__(self, demonstrations: Demonstrations, episodes: list[int], processor: Processor) -> None:
         if not episodes:
@@ -45,21 +47,28 @@ class ChunkData:
         missing = [name for name in processor.extra_cameras if name not in demonstrations.extra_images]
         if missing:
             raise ValueError(f"the policy reads cameras {missing} that the demonstrations hold no frames of")
-        rows = demonstrations.rows(episodes)
-        following = chunk_rows(demonstrations, rows, processor.chunk_length)
+        self.demonstrations, self.processor = demonstrations, processor
+        self.rows = demonstrations.rows(episodes)
+        following = chunk_rows(demonstrations, self.rows, processor.chunk_length)
         self.actions = processor.normalize_actions(torch.from_numpy(demonstrations.actions[following]))
-        instructions = [
-            demonstrations.instructions[demonstrations.episodes[e].task] for e in demonstrations.episode_index[rows]
+        self.instructions = [
+            demonstrations.instructions[demonstrations.episodes[e].task]
+            for e in demonstrations.episode_index[self.rows]
         ]
-        images = demonstrations.images[rows] if size else None
-        extra = {name: demonstrations.extra_images[name][rows] for name in processor.extra_cameras}
-        self.observation = processor.observation(demonstrations.states[rows], instructions, images, extra)
 
     def __len__(self) -> int:
         return len(self.actions)
 
     def batch(self, indices: Tensor) -> tuple[Any, Tensor]:
-        return index_batch(self.observation, indices), self.actions[indices]
+        """The observations (model inputs) and normalised action chunks of samples ``indices``."""
+        indices = indices.numpy()
+        rows, demonstrations = self.rows[indices], self.demonstrations
+        images = demonstrations.images[rows] if self.processor.image_size else None
+        extra = {name: demonstrations.extra_images[name][rows] for name in self.processor.extra_cameras}
+        observation = self.processor.observation(
+            demonstrations.states[rows], [self.instructions[index] for index in indices], images, extra
+        )
+        return observation, self.actions[torch.from_numpy(indices)]
 
 
 def split_chunk_data(

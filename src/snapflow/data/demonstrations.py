@@ -1,20 +1,25 @@
-"""Demonstrations on disk: ``demonstrations.npz`` (arrays) + ``meta.json`` (schema, episodes, statistics).
+"""Demonstrations on disk: ``demonstrations.npz`` (arrays) + one ``.npy`` file per camera + ``meta.json`` (schema,
+episodes, statistics).
 
 ``demonstrations.npz``:
     states         float32 (N, state_dim)     observation state at each step
     actions        float32 (N, action_dim)    action taken at that step
     episode_index  int64   (N,)               which episode each step belongs to (episodes are contiguous)
-    images         uint8   (N, H, W, 3)       optional camera frames (the benchmark's main camera)
-    images.<name>  uint8   (N, H, W, 3)       the frames of each of its other cameras (LIBERO's wrist camera)
+``images.npy``         uint8 (N, H, W, 3)     optional camera frames (the benchmark's main camera)
+``images.<name>.npy``  uint8 (N, H, W, 3)     the frames of each of its other cameras (LIBERO's wrist camera)
 ``meta.json``: ``format``, ``version``, ``env`` (the benchmark's registered name), ``state_dim``, ``action_dim``,
 ``episodes`` (task, variation, start, length), ``instructions`` (task -> text) and ``stats`` (mean / std of states
 and actions).
+
+Frames are stored uncompressed and loaded memory-mapped: a LIBERO suite's 128-px frames of two cameras are ~6 GB,
+which training and evaluation processes then read a batch at a time and share through the page cache instead of
+each decompressing a copy. Version 1 kept the frames inside the npz; it still loads.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -25,10 +30,11 @@ from snapflow.policies.normalization import NormalizationStats
 from snapflow.reporting.files import atomic_write, write_json
 
 FORMAT = "snapflow-demonstrations"
-VERSION = 1
+VERSION = 2
+READABLE_VERSIONS = (1, 2)
 ARRAYS_FILE = "demonstrations.npz"
 META_FILE = "meta.json"
-IMAGE_ARRAY_PREFIX = "images."  # the npz array of another camera's frames: images.<camera>
+IMAGES = "images"  # the main camera's frames: images.npy; another camera's: images.<camera>.npy
 
 
 @dataclass(frozen=True)
@@ -111,12 +117,13 @@ class Demonstrations:
 
     def save(self, directory: str | Path) -> Path:
         directory = Path(directory)
+        cameras = {IMAGES: self.images} if self.images is not None else {}
+        cameras.update({f"{IMAGES}.{name}": frames for name, frames in self.extra_images.items()})
+        for name, frames in cameras.items():
+            atomic_write(directory / f"{name}.npy", lambda path, frames=frames: np.save(path, frames))
         arrays = {"states": self.states, "actions": self.actions, "episode_index": self.episode_index}
-        if self.images is not None:
-            arrays["images"] = self.images
-        arrays.update({f"{IMAGE_ARRAY_PREFIX}{name}": images for name, images in self.extra_images.items()})
         atomic_write(directory / ARRAYS_FILE, lambda path: np.savez_compressed(open(path, "wb"), **arrays))
-        write_json(
+        write_json(  # last: a folder without it holds no demonstrations yet
             directory / META_FILE,
             {
                 "format": FORMAT,
@@ -135,6 +142,36 @@ class Demonstrations:
         return directory
 
     @classmethod
+    def concatenate(cls, parts: list[Demonstrations]) -> Demonstrations:
+        """One set of the parts' episodes in order (each part, say, one task's); they must share benchmark and cameras."""
+        if not parts:
+            raise DemonstrationError("nothing to concatenate")
+        first = parts[0]
+        for part in parts[1:]:
+            if part.env != first.env or list(part.extra_images) != list(first.extra_images):
+                raise DemonstrationError(
+                    f"parts differ in benchmark or cameras: {first.env} {list(first.extra_images)} and "
+                    f"{part.env} {list(part.extra_images)}"
+                )
+            if (part.images is None) != (first.images is None):
+                raise DemonstrationError("some parts hold camera frames and others do not")
+        episodes, offset = [], 0
+        for part in parts:
+            episodes += [replace(episode, start=episode.start + offset) for episode in part.episodes]
+            offset += len(part.states)
+        counts = np.cumsum([0] + [len(part.episodes) for part in parts[:-1]])
+        return cls(
+            np.concatenate([part.states for part in parts]),
+            np.concatenate([part.actions for part in parts]),
+            np.concatenate([part.episode_index + count for part, count in zip(parts, counts)]),
+            episodes,
+            {task: text for part in parts for task, text in part.instructions.items()},
+            np.concatenate([part.images for part in parts]) if first.images is not None else None,
+            first.env,
+            {name: np.concatenate([part.extra_images[name] for part in parts]) for name in first.extra_images},
+        )
+
+    @classmethod
     def load(cls, directory: str | Path) -> Demonstrations:
         directory = Path(directory)
         meta_path, arrays_path = directory / META_FILE, directory / ARRAYS_FILE
@@ -145,7 +182,7 @@ class Demonstrations:
             meta = json.loads(meta_path.read_text())
         except json.JSONDecodeError as error:
             raise DemonstrationError(f"{meta_path} is not valid JSON: {error}") from None
-        if meta.get("format") != FORMAT or meta.get("version") != VERSION:
+        if meta.get("format") != FORMAT or meta.get("version") not in READABLE_VERSIONS:
             raise DemonstrationError(
                 f"{meta_path}: expected format {FORMAT!r} version {VERSION}, got {meta.get('format')!r} {meta.get('version')!r}"
             )
@@ -160,18 +197,23 @@ class Demonstrations:
         missing = [key for key in ("states", "actions", "episode_index") if key not in loaded]
         if missing:
             raise DemonstrationError(f"{arrays_path} lacks arrays {missing}")
+        for path in sorted(directory.glob(f"{IMAGES}*.npy")):
+            try:
+                loaded[path.stem] = np.load(path, mmap_mode="r", allow_pickle=False)
+            except (OSError, ValueError) as error:
+                raise DemonstrationError(f"{path} cannot be read: {error}") from None
         return cls(
             loaded["states"],
             loaded["actions"],
             loaded["episode_index"],
             _episodes(meta["episodes"], meta_path),
             _instructions(meta["instructions"], meta_path),
-            loaded.get("images"),
+            loaded.get(IMAGES),
             _env(meta.get("env", DEFAULT_BENCHMARK), meta_path),
             {
-                key.removeprefix(IMAGE_ARRAY_PREFIX): array
+                key.removeprefix(f"{IMAGES}."): array
                 for key, array in loaded.items()
-                if key.startswith(IMAGE_ARRAY_PREFIX)
+                if key.startswith(f"{IMAGES}.")
             },
         )
 

@@ -14,7 +14,8 @@ Config = TypeVar("Config", bound="PolicyConfig")
 class PolicyConfig:
     """Base of the built-in policies' frozen dataclass configurations.
 
-    Every field is an ``int`` (at least 1) or a ``bool``; a flag given for a size (or a size for a flag) is as wrong
+    Every field is an ``int`` (at least 1 unless its metadata says ``minimum``), a ``bool``, a ``str`` or a
+    ``tuple[str, ...]`` (given as a list in JSON and TOML); a flag given for a size (or a size for a flag) is as wrong
     as a string, so ``bool`` is not accepted where an ``int`` is expected. Subclasses add their own checks in
     ``__post_init__`` after calling ``super().__post_init__()``. Each has ``chunk_length`` and ``action_dim`` fields.
     """
@@ -23,11 +24,17 @@ class PolicyConfig:
         name = type(self).__name__
         for field in fields(self):
             value = getattr(self, field.name)
-            expected = {"int": int, "bool": bool}[field.type]
+            if field.type == "tuple[str, ...]":
+                if not isinstance(value, (list, tuple)) or not all(isinstance(item, str) for item in value):
+                    raise ValueError(f"{name}.{field.name} must be a list of names, got {value!r}")
+                object.__setattr__(self, field.name, tuple(value))
+                continue
+            expected = {"int": int, "bool": bool, "str": str}[field.type]
             if not isinstance(value, expected) or (expected is int and isinstance(value, bool)):
                 raise ValueError(f"{name}.{field.name} must be {field.type}, got {value!r}")
-            if expected is int and value < 1:
-                raise ValueError(f"{name}.{field.name} must be at least 1, got {value}")
+            minimum = field.metadata.get("minimum", 1)
+            if expected is int and value < minimum:
+                raise ValueError(f"{name}.{field.name} must be at least {minimum}, got {value}")
 
     def to_dict(self) -> dict[str, Any]:
         return as_record(self)

@@ -15,9 +15,9 @@ from typing import Any
 _ADDED = "snapflow_added_option"
 
 
-def added_option(default: Any, **kwargs: Any) -> Any:
+def added_option(default: Any, metadata: dict[str, Any] | None = None, **kwargs: Any) -> Any:
     """A dataclass field added after records existed: ``default`` must reproduce the behaviour from before it."""
-    return field(default=default, metadata={_ADDED: True}, **kwargs)
+    return field(default=default, metadata={**(metadata or {}), _ADDED: True}, **kwargs)
 
 
 def _left_out(definition: Field, value: Any) -> bool:

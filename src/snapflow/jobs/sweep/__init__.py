@@ -34,7 +34,7 @@ __getattr__, __dir__, __all__ = lazy_exports(
     __name__,
     {
         "snapflow.jobs.sweep.schema": ["SweepConfig", "load_sweep"],
-        "snapflow.jobs.sweep.planning": ["CollectJob", "TrainJob", "EvalJob", "jobs", "plan", "run_sweeps"],
+        "snapflow.jobs.sweep.planning": ["CollectJob", "DataJob", "TrainJob", "EvalJob", "jobs", "plan", "run_sweeps"],
         "snapflow.jobs.sweep.results": ["SweepRow", "TableResult", "table_results", "write_results", "replace_block"],
     },
 )

@@ -1,5 +1,8 @@
-"""A sweep's work as typed jobs for :mod:`snapflow.jobs.runner`: collect -> train teachers -> distill students ->
-evaluate, each keyed by its full resolved settings and those of the jobs it reads."""
+"""A sweep's work as typed jobs for :mod:`snapflow.jobs.runner`: collect each task -> put the tasks together -> train
+teachers -> distill students -> evaluate, each keyed by its full resolved settings and those of the jobs it reads.
+
+Collection is one job a task so that a long one (LIBERO with cameras: ~15 s an episode) runs on several workers and
+an interrupted sweep keeps the tasks it finished."""
 
 from __future__ import annotations
 
@@ -9,6 +12,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from snapflow.data.collect import collect
+from snapflow.data.demonstrations import Demonstrations
 from snapflow.envs.factory import make_benchmark
 from snapflow.evaluation.config import OFFLINE_SAMPLES
 from snapflow.evaluation.pipeline import evaluate
@@ -29,7 +33,7 @@ RECORD = "job.json"  # a collect or train job's record, inside the folder it fil
 
 @dataclass(frozen=True)
 class CollectJob(Job):
-    """The sweep's expert demonstrations, in ``directory``."""
+    """The expert demonstrations of one task (``data.tasks`` holds it alone), in ``directory``."""
 
     kind: ClassVar[str] = "collect"
     sweep: str
@@ -60,7 +64,40 @@ class CollectJob(Job):
         return {}
 
     def describe(self) -> str:
-        return f"{self.sweep}: collect demonstrations"
+        return f"{self.sweep}: collect {self.data.tasks[0]}"
+
+
+@dataclass(frozen=True)
+class DataJob(Job):
+    """The sweep's demonstrations: every task's collected part, in task order, in one folder."""
+
+    kind: ClassVar[str] = "data"
+    sweep: str
+    directory: Path
+    data: DataSpec
+    parts: tuple[CollectJob, ...]
+
+    def settings(self) -> dict[str, Any]:
+        return as_record(self.data)
+
+    @property
+    def dependencies(self) -> tuple[Job, ...]:
+        return self.parts
+
+    @property
+    def record_path(self) -> Path:
+        return self.directory / RECORD
+
+    @property
+    def outputs(self) -> tuple[Path, ...]:
+        return (self.directory,)
+
+    def run(self) -> dict[str, Any]:
+        Demonstrations.concatenate([Demonstrations.load(part.directory) for part in self.parts]).save(self.directory)
+        return {}
+
+    def describe(self) -> str:
+        return f"{self.sweep}: demonstrations of {len(self.parts)} tasks"
 
 
 @dataclass(frozen=True)
@@ -74,7 +111,7 @@ class TrainJob(Job):
     sweep: str
     run_name: str
     directory: Path
-    data: CollectJob
+    data: DataJob
     train: TrainConfig  # its seed is the run's
     policy: PolicyConfig | None = None
     teacher: TrainJob | None = None
@@ -173,8 +210,13 @@ class EvalJob(Job):
         return f"{policy.sweep}: evaluate {policy.run_name} seed {policy.seed} ({self.mode.name}; n_act {self.n_act})"
 
 
-def collect_job(config: SweepConfig) -> CollectJob:
-    return CollectJob(config.name, config.data_dir, config.data)
+def data_job(config: SweepConfig) -> DataJob:
+    """The sweep's demonstrations, from one collection job a task."""
+    parts = tuple(
+        CollectJob(config.name, config.collect_dir(task), replace(config.data, tasks=(task,)))
+        for task in config.data.tasks
+    )
+    return DataJob(config.name, config.data_dir, config.data, parts)
 
 
 def train_job(config: SweepConfig, run: str, seed: int) -> TrainJob:
@@ -183,7 +225,7 @@ def train_job(config: SweepConfig, run: str, seed: int) -> TrainJob:
     teacher = train_job(config, spec.teacher, seed) if spec.teacher is not None else None
     train = replace(spec.train, seed=seed)
     return TrainJob(
-        config.name, run, config.run_dir(run, seed), collect_job(config), train, spec.policy, teacher, spec.distill
+        config.name, run, config.run_dir(run, seed), data_job(config), train, spec.policy, teacher, spec.distill
     )
 
 
@@ -195,11 +237,12 @@ def eval_job(config: SweepConfig, table: TableSpec, row: RowSpec, seed: int) -> 
 
 def jobs(config: SweepConfig) -> list[Job]:
     """Every job the sweep's tables need, done or not: collect, the runs (each teacher before its students), evals."""
+    data = data_job(config)
     evals = [
         eval_job(config, table, row, seed) for table in config.tables for row in table.rows for seed in table.seeds
     ]
     trains = [train for job in evals for train in (job.policy.teacher, job.policy) if train is not None]
-    return list(dict.fromkeys([collect_job(config), *trains, *evals]))
+    return list(dict.fromkeys([*data.parts, data, *trains, *evals]))
 
 
 def plan(config: SweepConfig) -> list[Job]:
@@ -227,9 +270,10 @@ def run_sweeps(configs: list[SweepConfig], workers: int = 1, progress: bool = Tr
 __all__ = [
     "RECORD",
     "CollectJob",
+    "DataJob",
     "TrainJob",
     "EvalJob",
-    "collect_job",
+    "data_job",
     "train_job",
     "eval_job",
     "jobs",

@@ -104,6 +104,10 @@ class SweepConfig:
     def data_dir(self) -> Path:
         return self.output_dir / "data"
 
+    def collect_dir(self, task: str) -> Path:
+        """Where one task's demonstrations are collected before :attr:`data_dir` puts them together."""
+        return self.output_dir / "collect" / task
+
     def eval_path(self, run: str, seed: int, mode: SamplingMode, n_act: int, episodes_per_task: int) -> Path:
         return self.output_dir / "evals" / run / f"seed-{seed}" / f"{mode.name}_nact{n_act}_eps{episodes_per_task}.json"
 

@@ -1,7 +1,8 @@
 """MiniVLA: a compact vision-language-action flow-matching policy with pi0.5's structure.
 
-* Prefix encoder (the "VLM"): instruction tokens, one state token and optional image patches through
-  bidirectional transformer layers. ``encode`` runs it once per observation and caches each layer's keys
+* Prefix encoder (the "VLM"): instruction tokens, one state token and optional image tokens (patches, or
+  keypoints of a small ConvNet a camera: :mod:`snapflow.policies.minivla.vision`) through bidirectional
+  transformer layers. ``encode`` runs it once per observation and caches each layer's keys
   and values, which is all the action expert needs: prefix cost and denoising cost are separate.
 * Action expert: one token per action of the chunk; layer l attends to [prefix keys/values of layer l ;
   its own tokens] and is conditioned on time through adaptive RMSNorm (scale, shift, gate), as pi0.5 is.
@@ -17,6 +18,7 @@ from torch.nn import functional as F
 
 from snapflow.nn.time_embedding import sinusoidal_features
 from snapflow.policies.minivla.configuration import MiniVLAConfig
+from snapflow.policies.minivla.vision import ConvEncoder
 
 
 class RMSNorm(nn.Module):
@@ -89,6 +91,11 @@ class ExpertLayer(nn.Module):
         return x + gate_m * self.mlp(self.norm(x) * (1 + scale_m) + shift_m)
 
 
+def camera_keys(config: MiniVLAConfig) -> list[str]:
+    """The observation keys of the cameras' frames: ``image`` (the main camera), then ``image.<camera>``."""
+    return ["image", *(f"image.{name}" for name in config.extra_cameras)][: config.cameras]
+
+
 class MiniVLA(nn.Module):
     """Observation dict in (see :meth:`encode`), velocity of the noisy action chunk out."""
 
@@ -98,8 +105,15 @@ class MiniVLA(nn.Module):
         self.time_embedding_dim = config.expert_width
         self.token_embedding = nn.Embedding(config.vocab_size, config.prefix_width, padding_idx=0)
         self.state_projection = nn.Linear(config.state_dim, config.prefix_width)
+        patches = config.use_image and config.image_encoder == "patch"
         self.patch_embedding = (
-            nn.Conv2d(3, config.prefix_width, config.patch_size, stride=config.patch_size) if config.use_image else None
+            nn.Conv2d(3, config.prefix_width, config.patch_size, stride=config.patch_size) if patches else None
+        )
+        self.camera_encoders = nn.ModuleList(
+            ConvEncoder(
+                config.prefix_width, config.keypoints, config.conv_width, config.image_downsample, config.random_shift
+            )
+            for _ in range(config.cameras if config.image_encoder == "conv" else 0)
         )
         self.prefix_position = nn.Parameter(0.02 * torch.randn(config.prefix_length, config.prefix_width))
         self.prefix_layers = nn.ModuleList(PrefixLayer(config) for _ in range(config.num_layers))
@@ -117,15 +131,16 @@ class MiniVLA(nn.Module):
 
     def prefix_parameters(self) -> list[nn.Parameter]:
         """The "VLM" side: frozen during distillation by default, as the paper freezes the VLM."""
-        modules = [self.token_embedding, self.state_projection, self.prefix_layers]
+        modules = [self.token_embedding, self.state_projection, self.prefix_layers, self.camera_encoders]
         if self.patch_embedding is not None:
             modules.append(self.patch_embedding)
         return [self.prefix_position] + [parameter for module in modules for parameter in module.parameters()]
 
     def encode(self, observation: dict[str, Tensor]) -> dict[str, Tensor]:
         """Prefix pass. ``observation``: ``state`` (B, state_dim), ``tokens`` (B, T) int, ``token_mask``
-        (B, T) bool, and ``image`` (B, 3, S, S) in [0, 1] when the config uses images. Returns the cached
-        keys / values (B, layers, heads, P, head_dim) and the prefix mask (B, P)."""
+        (B, T) bool, and when the config uses images, uint8 frames (B, 3, S, S): ``image`` of the main camera and
+        ``image.<camera>`` of each extra camera. Returns the cached keys / values (B, layers, heads, P, head_dim) and
+        the prefix mask (B, P)."""
         config = self.config
         state, tokens, token_mask = observation["state"], observation["tokens"], observation["token_mask"]
         batch = state.shape[0]
@@ -138,14 +153,12 @@ class MiniVLA(nn.Module):
         parts = [self.token_embedding(tokens), self.state_projection(state)[:, None]]
         masks = [token_mask, token_mask.new_ones(batch, 1)]
         if config.use_image:
-            image = observation.get("image")
-            expected = (batch, 3, config.image_size, config.image_size)
-            if image is None or tuple(image.shape) != expected:
-                raise ValueError(
-                    f"image must have shape {expected}, got {None if image is None else tuple(image.shape)}"
-                )
-            parts.append(self.patch_embedding(image).flatten(2).transpose(1, 2))
-            masks.append(token_mask.new_ones(batch, config.num_patches))
+            images = [self._camera(observation, key) for key in camera_keys(config)]
+            if self.patch_embedding is not None:
+                parts.append(self.patch_embedding(images[0].float() / 255.0).flatten(2).transpose(1, 2))
+            else:
+                parts += [encoder(image) for encoder, image in zip(self.camera_encoders, images)]
+            masks.append(token_mask.new_ones(batch, config.image_tokens))
         x = torch.cat(parts, dim=1) + self.prefix_position
         mask = torch.cat(masks, dim=1)
         keys, values = [], []
@@ -154,6 +167,14 @@ class MiniVLA(nn.Module):
             keys.append(k)
             values.append(v)
         return {"keys": torch.stack(keys, dim=1), "values": torch.stack(values, dim=1), "mask": mask}
+
+    def _camera(self, observation: dict[str, Tensor], key: str) -> Tensor:
+        image = observation.get(key)
+        expected = (observation["state"].shape[0], 3, self.config.image_size, self.config.image_size)
+        if image is None or tuple(image.shape) != expected or image.dtype != torch.uint8:
+            got = None if image is None else f"{tuple(image.shape)} {image.dtype}"
+            raise ValueError(f"{key} must be uint8 frames of shape {expected}, got {got}")
+        return image
 
     def embed_time(self, t: Tensor) -> Tensor:
         return self.time_mlp(sinusoidal_features(t, self.time_embedding_dim).to(self.time_mlp[0].weight.dtype))

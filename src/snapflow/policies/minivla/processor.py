@@ -35,6 +35,10 @@ class MiniVLAProcessor(Processor):
     def image_size(self) -> int | None:
         return self.config.image_size if self.config.use_image else None
 
+    @property
+    def extra_cameras(self) -> tuple[str, ...]:
+        return self.config.extra_cameras if self.config.use_image else ()
+
     def tokenize(self, instructions: list[str]) -> tuple[Tensor, Tensor]:
         """Word ids in [1, vocab) by a stable hash (0 pads), truncated to ``max_instruction_tokens``."""
         tokens = torch.zeros(len(instructions), self.config.max_instruction_tokens, dtype=torch.long)
@@ -56,5 +60,9 @@ class MiniVLAProcessor(Processor):
         if self.config.use_image:
             if images is None:
                 raise ValueError("this policy was configured with use_image=True, so every observation needs an image")
-            batch["image"] = torch.as_tensor(np.asarray(images)).permute(0, 3, 1, 2).float() / 255.0
+            frames = {"image": images, **{f"image.{name}": (extra_images or {}).get(name) for name in self.extra_cameras}}
+            for key, value in frames.items():
+                if value is None:
+                    raise ValueError(f"this policy reads camera {key.removeprefix('image.')!r}; no frames were given")
+                batch[key] = torch.as_tensor(np.asarray(value, dtype=np.uint8)).permute(0, 3, 1, 2).contiguous()
         return batch
