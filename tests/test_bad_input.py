@@ -482,7 +482,9 @@ def test_a_jump_mode_on_a_teacher_is_refused_not_reported_as_snapflow(checkpoint
     output = tmp_path / "out"
     arguments = ["eval", "--policy", str(checkpoint), "--modes", "teacher-10,snapflow-1", "--tasks", "reach-v3"]
     result = _snapflow(*arguments, "--episodes", "1", "--output", str(output), "--no-progress")
-    _assert_refused(result, "is a flow-matching teacher", "use teacher-N or naive, or distill it first")
+    _assert_refused(
+        result, "is not SnapFlow-distilled (a flow-matching teacher)", "use teacher-N or naive, or distill it first"
+    )
     assert not output.exists()
 
 

@@ -30,6 +30,7 @@ from snapflow.envs.factory import BENCHMARKS, DEFAULT_BENCHMARK, make_benchmark
 from snapflow.evaluation.config import N_ACT
 from snapflow.flow.modes import SamplingMode
 from snapflow.inference.compile import COMPILE_MODES
+from snapflow.inference.formats import EXPORT_FORMATS
 from snapflow.jobs.toy_config import ToyConfig
 from snapflow.objective.options import TEACHER_VELOCITIES
 from snapflow.policies.factory import POLICIES
@@ -400,15 +401,16 @@ def _eval(args: argparse.Namespace) -> int:
     from snapflow.evaluation.pipeline import evaluate
     from snapflow.evaluation.report import markdown_report, write_report
     from snapflow.inference.compile import compile_policy
+    from snapflow.sources import open_policy
 
     modes = dict(_policy_modes(entry, args.modes) for entry in args.policy)
-    loaded = {path: _load_evaluated(path) for path in modes}
+    loaded = {path: open_policy(path) for path in modes}
     if args.compile:
         for policy in loaded.values():
             compile_policy(policy.policy, args.compile)
     # the benchmark the first policy's demonstrations came from, unless named
     first = next(iter(loaded.values()))
-    env = args.env or getattr(first, "metadata", {}).get("data", {}).get("env", DEFAULT_BENCHMARK)
+    env = args.env or first.training_data.get("env", DEFAULT_BENCHMARK)
     names = _distinct_names(list(loaded))
     runs = [
         (f"{mode.name}" if len(loaded) == 1 else f"{names[path]} {mode.name}", policy, mode)
@@ -450,29 +452,16 @@ def _distinct_names(paths: list[str]) -> dict[str, str]:
     return {path: str(path) for path in paths}  # the same folder twice
 
 
-def _load_evaluated(path: str) -> Any:
-    """A built-in checkpoint, or a LeRobot policy folder (``config.json`` of LeRobot's layout, e.g. the
-    ``lerobot_policy/`` that `train --policy smolvla` and `distill --policy` export)."""
-    from snapflow.policies.checkpoint import is_builtin_checkpoint, load_policy
-
-    folder = Path(path)
-    if is_builtin_checkpoint(folder) or not (folder / "config.json").is_file():
-        return load_policy(path)  # which names what is wrong with anything else
-    from snapflow.adapters.lerobot.evaluation import load_lerobot_policy
-
-    return load_lerobot_policy(folder)
-
-
 def _diagnose(args: argparse.Namespace) -> int:
     _check_writable(args.output)
     from snapflow.data.demonstrations import Demonstrations
     from snapflow.evaluation.diagnosis import diagnose_task, markdown_diagnosis, write_diagnosis
-    from snapflow.policies.checkpoint import load_policy
+    from snapflow.sources import open_policy
 
-    teacher, student = load_policy(args.teacher), load_policy(args.student)
-    env = args.env or student.metadata.get("data", {}).get("env", DEFAULT_BENCHMARK)
+    teacher, student = open_policy(args.teacher), open_policy(args.student)
+    env = args.env or student.training_data.get("env", DEFAULT_BENCHMARK)
     (task,) = make_benchmark(env).check_tasks([args.task])
-    data = args.data or student.metadata.get("data", {}).get("path")
+    data = args.data or student.training_data.get("path")
     if data is None:
         raise ValueError(f"{student.path} does not name its demonstrations; pass --data")
     teacher_mode = SamplingMode.parse(f"teacher-{args.teacher_steps}")
@@ -567,19 +556,13 @@ def _bench(args: argparse.Namespace) -> int:
 
 def _export(args: argparse.Namespace) -> int:
     _check_writable(args.output)
-    from snapflow.policies.checkpoint import export_onnx_checkpoint, is_builtin_checkpoint
+    from snapflow.sources import open_policy
 
-    folder = Path(args.policy)
-    if is_builtin_checkpoint(folder) or not (folder / "config.json").is_file():
-        record = export_onnx_checkpoint(folder, args.output)  # which names what is wrong with anything else
-    else:
-        from snapflow.adapters.lerobot.evaluation import export_lerobot_onnx
-
-        record = export_lerobot_onnx(folder, args.output)
+    record = open_policy(args.policy).export_to(args.output, args.format)
     print(
         f"wrote {Path(args.output) / record['file']} (one graph: prefix and the one jump; inputs "
         f"{', '.join(record['inputs'])}; largest difference to PyTorch {record['max_abs_difference_to_pytorch']:.1e}) "
-        f"and policy.json; run it with: snapflow eval --policy {args.output} --modes snapflow-1"
+        f"and the policy's description; run it with: snapflow eval --policy {args.output} --modes snapflow-1"
     )
     return 0
 
@@ -1059,7 +1042,7 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument(
         "--policy", required=True, help="student checkpoint or run directory, or distilled LeRobot folder"
     )
-    export.add_argument("--format", choices=["onnx"], default="onnx", help="the exported format")
+    export.add_argument("--format", choices=list(EXPORT_FORMATS), default="onnx", help="the exported format")
     _add_output(export, None, "folder for model.onnx and policy.json (snapflow eval / bench load it)")
 
     targets = _command(

@@ -56,7 +56,10 @@ def test_a_distilled_smolvla_exports_to_one_graph_that_gives_its_actions(vlm_dir
         assert batch["observation.language.tokens"].shape[1] == 16
         actions = sample_actions(exported.policy, batch, noise, SNAPFLOW_1)
         torch.testing.assert_close(actions, expected, atol=1e-4, rtol=1e-4)
-    with pytest.raises(CheckpointError, match="runs snapflow-1 only; for teacher-10, evaluate the folder"):
+    with pytest.raises(
+        CheckpointError,
+        match="onnx export of a one-step student: it runs snapflow-1 only; for teacher-10, use the policy it was exported from",
+    ):
         exported.check_mode(TEACHER_10)
 
     # snapflow eval runs it closed loop beside the PyTorch student, LeRobot's processors around both

@@ -28,7 +28,7 @@ def test_unknown_task_is_a_clear_cli_error(capsys):
     assert main(["eval", "--policy", "nowhere", "--env", "metaworld", "--tasks", "teleport-v3", "--no-progress"]) == 2
     assert "unknown metaworld task(s) ['teleport-v3']" in capsys.readouterr().err
     assert main(["eval", "--policy", "nowhere", "--env", "metaworld", "--tasks", "reach-v3", "--no-progress"]) == 2
-    assert "nowhere does not exist" in capsys.readouterr().err
+    assert "no folder nowhere; hub ids are owner/name" in capsys.readouterr().err
 
 
 @pytest.mark.slow

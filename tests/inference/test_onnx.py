@@ -92,7 +92,10 @@ def test_an_onnx_student_answers_only_its_jump_and_a_teacher_or_a_bad_file_is_re
     student = _write_student(tmp_path / "student", "mlp")
     assert main(["export", "--policy", str(student), "--output", str(tmp_path / "onnx")]) == 0
     exported = load_policy(tmp_path / "onnx")
-    with pytest.raises(CheckpointError, match="runs snapflow-1 only; for teacher-10, evaluate the checkpoint"):
+    with pytest.raises(
+        CheckpointError,
+        match="onnx export of a one-step student: it runs snapflow-1 only; for teacher-10, use the policy it was exported from",
+    ):
         exported.check_mode(TEACHER_10)
     observation, noise = _batch(exported, 2)
     with pytest.raises(ValueError, match="answers only the jump from t = 1 to s = 0"):
@@ -105,10 +108,10 @@ def test_an_onnx_student_answers_only_its_jump_and_a_teacher_or_a_bad_file_is_re
     assert "is a flow-matching teacher: its one step is the naive one" in capsys.readouterr().err
     assert not (tmp_path / "teacher_onnx" / "model.onnx").exists()
     assert main(["export", "--policy", str(tmp_path / "onnx"), "--output", str(tmp_path / "again")]) == 2
-    assert "is already an ONNX export" in capsys.readouterr().err
+    assert "is already an export (onnx)" in capsys.readouterr().err
 
     (tmp_path / "onnx" / "model.onnx").write_bytes(b"\x08\x07 not a graph")
-    with pytest.raises(CheckpointError, match="model.onnx is corrupt or not an ONNX graph"):
+    with pytest.raises(CheckpointError, match="model.onnx is corrupt or not an onnx graph"):
         load_policy(tmp_path / "onnx")
 
 

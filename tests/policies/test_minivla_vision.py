@@ -101,7 +101,9 @@ def test_every_camera_becomes_keypoint_tokens_and_a_missing_one_is_named():
     processor = MiniVLAProcessor(CONFIG, STATS, ["pick up the bowl"])
     assert processor.extra_cameras == ("image2",) and CONFIG.image_tokens == 2 * 4
     frames = np.zeros((2, 32, 32, 3), np.uint8)
-    observation = processor.observation(np.zeros((2, 2), np.float32), ["pick up the bowl"] * 2, frames, {"image2": frames})
+    observation = processor.observation(
+        np.zeros((2, 2), np.float32), ["pick up the bowl"] * 2, frames, {"image2": frames}
+    )
     assert observation["image"].dtype == torch.uint8 and observation["image.image2"].shape == (2, 3, 32, 32)
     context = MiniVLA(CONFIG).encode(observation)
     assert context["mask"].shape == (2, CONFIG.prefix_length) and CONFIG.prefix_length == 4 + 1 + 8
@@ -128,7 +130,7 @@ def _square_scenes(count: int, generator: np.random.Generator) -> tuple[np.ndarr
     """Black 32-px frames with one white 6-px square; the target is the square's centre in [-1, 1]."""
     corners = generator.integers(0, 26, size=(count, 2))
     frames = np.zeros((count, 32, 32, 3), np.uint8)
-    for frame, (row, column) in zip(frames, corners):
+    for frame, (row, column) in zip(frames, corners, strict=True):
         frame[row : row + 6, column : column + 6] = 255
     return frames, ((corners + 3) / 31.5 - 1).astype(np.float32)[:, ::-1].copy()  # (x, y)
 

@@ -14,12 +14,13 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from snapflow.adapters.hub import check_source, local_folder
+from snapflow.adapters.hub import check_source
 from snapflow.benchmark.architectures import architectures
 from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, SamplingMode
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
-from snapflow.policies.checkpoint import LoadedPolicy, is_builtin_checkpoint, load_policy, policy_metadata
+from snapflow.policies.checkpoint import LoadedPolicy, policy_metadata
 from snapflow.policies.factory import POLICIES, default_config, make_model, make_processor, policy_type
+from snapflow.policies.loaded import OpenedPolicy
 from snapflow.policies.normalization import NormalizationStats
 from snapflow.protocol import map_tensors
 
@@ -67,7 +68,7 @@ def builtin_subject(
             "dtypes": parameter_dtypes(policy),
             "policy_type": loaded.metadata["policy"],
             "config": processor.config.to_dict(),
-            **({"onnx": loaded.metadata["onnx"]} if loaded.exported else {}),
+            **({loaded.export["format"]: loaded.export} if loaded.exported else {}),
         },
         # without phi_s (a teacher checkpoint) the one step is the naive one, timed and named as such
         SNAPFLOW_1 if loaded.exported or loaded.policy.target_time_embedding is not None else NAIVE_1,
@@ -101,13 +102,13 @@ def _cast(observation: Any, device: torch.device, dtype: torch.dtype) -> Any:
 
 
 def exported_lerobot_subject(loaded: Any, name: str) -> BenchSubject:
-    """An ONNX export of a distilled LeRobot policy (``LoadedLeRobotPolicy``), timed at the one jump it runs."""
+    """An export of a distilled LeRobot policy (``LoadedLeRobotPolicy``), timed at the one jump it runs."""
     from snapflow.adapters.lerobot.evaluation import lerobot_observation
 
-    config = loaded.processor.config
+    config = loaded.config
     noise = torch.randn(1, config.chunk_size, config.max_action_dim)
     observation = lerobot_observation(config, torch.device("cpu"))
-    details = {"policy_type": config.type, "onnx": loaded.onnx}
+    details = {"policy_type": config.type, loaded.export["format"]: loaded.export}
     return BenchSubject(name, loaded.policy, observation, noise, details, SNAPFLOW_1, (SNAPFLOW_1,))
 
 
@@ -226,23 +227,21 @@ def make_subject(
             device,
             dtype,
         )
-    folder = local_folder(policy)  # None: a hub id; a mistyped folder is named here, never looked up on the hub
-    if folder is not None and is_builtin_checkpoint(folder):
-        loaded = load_policy(folder)
-        return builtin_subject(loaded, f"{loaded.metadata['policy']} ({policy})", device, dtype)
-    try:
-        from snapflow.adapters.lerobot import load_distilled, load_pretrained_policy
-        from snapflow.adapters.lerobot.checkpoint import read_marker
-    except ImportError as error:  # LeRobot is an optional extra
-        raise ValueError(f"{policy} is not a built-in checkpoint, and {error}") from None
+    from snapflow.sources import open_policy
 
-    marker = (read_marker(folder) or {}) if folder is not None else {}
-    if "onnx" in marker:
-        from snapflow.adapters.lerobot.evaluation import load_lerobot_policy
+    return opened_subject(open_policy(policy), policy, device, dtype)
 
-        return exported_lerobot_subject(load_lerobot_policy(folder), policy)
-    loaded = load_distilled(folder) if marker.get("target_time") else load_pretrained_policy(policy)
-    return lerobot_subject(loaded, policy, device, dtype)
+
+def opened_subject(
+    loaded: OpenedPolicy, name: str, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32
+) -> BenchSubject:
+    """The subject of an opened policy, by what it is: a built-in checkpoint (or its export), a LeRobot policy's
+    export, or a LeRobot policy under its adapter."""
+    if isinstance(loaded, LoadedPolicy):
+        return builtin_subject(loaded, name, device, dtype)
+    if loaded.exported:
+        return exported_lerobot_subject(loaded, name)
+    return lerobot_subject(loaded.policy, name, torch.device(device), dtype)
 
 
 __all__ = [
@@ -254,4 +253,5 @@ __all__ = [
     "lerobot_subject",
     "lerobot_architecture",
     "make_subject",
+    "opened_subject",
 ]

@@ -163,7 +163,7 @@ class Demonstrations:
         return cls(
             np.concatenate([part.states for part in parts]),
             np.concatenate([part.actions for part in parts]),
-            np.concatenate([part.episode_index + count for part, count in zip(parts, counts)]),
+            np.concatenate([part.episode_index + count for part, count in zip(parts, counts, strict=True)]),
             episodes,
             {task: text for part in parts for task, text in part.instructions.items()},
             np.concatenate([part.images for part in parts]) if first.images is not None else None,
@@ -210,11 +210,7 @@ class Demonstrations:
             _instructions(meta["instructions"], meta_path),
             loaded.get(IMAGES),
             _env(meta.get("env", DEFAULT_BENCHMARK), meta_path),
-            {
-                key.removeprefix(f"{IMAGES}."): array
-                for key, array in loaded.items()
-                if key.startswith(f"{IMAGES}.")
-            },
+            {key.removeprefix(f"{IMAGES}."): array for key, array in loaded.items() if key.startswith(f"{IMAGES}.")},
         )
 
 

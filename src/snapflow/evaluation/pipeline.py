@@ -6,12 +6,9 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, TypeAlias
-
-import torch
 
 from snapflow.benchmark.latency import LatencyRow, add_speedups, measure_latency
-from snapflow.benchmark.subjects import BenchSubject, builtin_subject, exported_lerobot_subject, lerobot_subject
+from snapflow.benchmark.subjects import opened_subject
 from snapflow.data.chunks import ChunkData
 from snapflow.data.demonstrations import Demonstrations
 from snapflow.envs.base import Benchmark
@@ -20,13 +17,9 @@ from snapflow.evaluation.config import N_ACT, OFFLINE_SAMPLES
 from snapflow.evaluation.offline import offline_metrics
 from snapflow.evaluation.results import EvaluationReport, EvaluationRow, success_by_task
 from snapflow.flow.modes import SamplingMode
-from snapflow.policies.checkpoint import LoadedPolicy
+from snapflow.policies.loaded import OpenedPolicy
 
-if TYPE_CHECKING:  # LeRobot is an extra: a built-in evaluation never imports it
-    from snapflow.adapters.lerobot.evaluation import LoadedLeRobotPolicy
-
-Loaded: TypeAlias = "LoadedPolicy | LoadedLeRobotPolicy"
-Run = tuple[str, Loaded, SamplingMode]  # (label, policy, sampling mode)
+Run = tuple[str, OpenedPolicy, SamplingMode]  # (label, policy, sampling mode)
 
 
 def evaluate(
@@ -77,19 +70,11 @@ def checkpoint_latency(runs: list[Run], warmup: int = 10, repeats: int = 50) -> 
     """Batch-1 timing of each (label, policy, mode), each row with its own policy's prefix; speedups over the first."""
     rows: dict[str, LatencyRow] = {}
     for label, loaded, mode in runs:
-        subject = _subject(loaded, label)
+        subject = opened_subject(loaded, label)
         measured = measure_latency(subject.policy, subject.observation, subject.noise, [mode], warmup, repeats)
         rows[label] = measured.modes[mode.name]
         rows[label].prefix = measured.prefix
     return add_speedups(rows)
 
 
-def _subject(loaded: Loaded, label: str) -> BenchSubject:
-    if isinstance(loaded, LoadedPolicy):
-        return builtin_subject(loaded, label)
-    if loaded.exported:
-        return exported_lerobot_subject(loaded, label)
-    return lerobot_subject(loaded.policy, label, torch.device("cpu"), torch.float32)
-
-
-__all__ = ["Loaded", "Run", "evaluate", "checkpoint_latency"]
+__all__ = ["Run", "evaluate", "checkpoint_latency"]

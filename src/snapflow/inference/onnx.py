@@ -24,7 +24,6 @@ from snapflow.flow.solver import euler_sample
 from snapflow.protocol import FlowPolicy
 from snapflow.reporting.files import atomic_write
 
-ONNX_FILE = "model.onnx"
 SINGLE = "observation"  # the input name of an observation that is one tensor
 OPSET = 18
 #: the largest difference to PyTorch an export may show on its example (float32 arithmetic reordered)
@@ -174,4 +173,4 @@ def _numpy(value: Any) -> np.ndarray:
     return value.detach().cpu().numpy() if torch.is_tensor(value) else np.asarray(value)
 
 
-__all__ = ["ONNX_FILE", "SINGLE", "OPSET", "TOLERANCE", "OneStepGraph", "OnnxOneStepPolicy", "export_onnx"]
+__all__ = ["SINGLE", "OPSET", "TOLERANCE", "OneStepGraph", "OnnxOneStepPolicy", "export_onnx"]

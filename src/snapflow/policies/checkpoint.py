@@ -17,10 +17,10 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 from torch import nn
 
-from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
-from snapflow.inference.onnx import ONNX_FILE, OnnxOneStepPolicy, export_onnx
+from snapflow.inference.formats import ExportFormat, export_format, export_record
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
 from snapflow.policies.factory import make_model, make_processor, policy_type, policy_type_of
+from snapflow.policies.loaded import CheckpointError, OpenedPolicy
 from snapflow.policies.normalization import NormalizationStats
 from snapflow.policies.processor import Processor
 from snapflow.reporting.files import write_json
@@ -31,47 +31,59 @@ FORMAT = "snapflow-policy"
 VERSION = 1
 
 
-class CheckpointError(ValueError):
-    """A checkpoint that is missing, corrupt, or does not match what it is loaded into."""
-
-
 @dataclass
-class LoadedPolicy:
-    policy: SnapFlowPolicy | OnnxOneStepPolicy
+class LoadedPolicy(OpenedPolicy):
+    """A built-in checkpoint, or an export of one: its policy (a :class:`SnapFlowPolicy`, or the export's runtime),
+    processor and ``policy.json``."""
+
+    policy: Any
     processor: Processor
     metadata: dict[str, Any]
     path: Path
 
     @property
-    def exported(self) -> bool:
-        """Whether this is an ONNX export of a student (:func:`export_onnx_checkpoint`), which runs snapflow-1 only."""
-        return "onnx" in self.metadata
-
-    @property
     def distilled(self) -> bool:
-        """Whether the policy was distilled (a student), so that its jump modes (``snapflow-N``) mean something."""
         return "distill" in self.metadata
 
-    def check_mode(self, mode: SamplingMode) -> None:
-        """Refuse ``snapflow-N`` on a flow-matching teacher: its network has no target-time embedding and ignores
-        the target time, so the jump would be the naive step reported under SnapFlow's name. Refuse any mode but
-        ``snapflow-1`` on an ONNX export: its graph holds that one jump."""
-        if self.exported and mode != SNAPFLOW_1:
-            raise CheckpointError(
-                f"{self.path} is an ONNX export of a one-step student: it runs snapflow-1 only; for {mode.name}, "
-                f"evaluate the checkpoint it was exported from ({self.metadata['onnx']['source']})"
-            )
-        if mode.jump and not self.distilled:
-            raise CheckpointError(
-                f"{self.path} is a flow-matching teacher (never distilled, no target-time embedding): {mode.name} "
-                f"would be the naive step under SnapFlow's name; use teacher-N or naive, or distill it first "
-                f"(snapflow distill --teacher {self.path} ...)"
-            )
+    @property
+    def export(self) -> dict[str, Any] | None:
+        found = export_record(self.metadata)
+        return None if found is None else {"format": found[0].name, **found[1]}
+
+    @property
+    def distill_command(self) -> str:
+        return f"snapflow distill --teacher {self.path} ..."
+
+    @property
+    def training_data(self) -> dict[str, Any]:
+        return self.metadata.get("data", {})
 
     @property
     def val_fraction(self) -> float:
         """Share of each task's demonstration episodes the run held out (0.1 where the metadata predates it)."""
-        return self.metadata.get("data", {}).get("val_fraction", 0.1)
+        return self.training_data.get("val_fraction", 0.1)
+
+    def export_to(self, output: str | Path, format: str) -> dict[str, Any]:
+        """Export this student to ``output`` in ``format``: its one-step graph, and a ``policy.json`` with the
+        student's processor and the format's record (source, inputs, versions, the difference to PyTorch measured at
+        export) under the format's name. :func:`load_policy` on ``output`` runs it again. Returns the record."""
+        entry = export_format(format)
+        if self.exported:
+            raise CheckpointError(f"{self.path} is already an export ({self.export['format']})")
+        if not self.distilled:
+            raise CheckpointError(
+                f"{self.path} is a flow-matching teacher: its one step is the naive one, and its 10 steps are a loop "
+                "an export would unroll; distil it first (snapflow distill --teacher ...) and export the student"
+            )
+        output = Path(output)
+        output.mkdir(parents=True, exist_ok=True)
+        observation = self.processor.example_observation()
+        noise = torch.randn(
+            1, self.processor.chunk_length, self.processor.action_dim, generator=torch.Generator().manual_seed(0)
+        )
+        record = {"source": str(self.path), **entry.export(self.policy.eval(), observation, noise, output)}
+        write_json(output / POLICY_CONFIG, {**self.metadata, format: record})  # last: it makes the folder a checkpoint
+        return record
 
 
 def policy_metadata(policy: SnapFlowPolicy, processor: Processor, **extra: Any) -> dict[str, Any]:
@@ -181,10 +193,12 @@ def load_policy(path: str | Path, target_time: bool | None = None) -> LoadedPoli
         processor = make_processor(config, NormalizationStats(**metadata["stats"]), metadata.get("instructions", ()))
     except (TypeError, ValueError) as error:
         raise CheckpointError(f"{directory / POLICY_CONFIG}: invalid field: {error}") from None
-    if "onnx" in metadata:
+    exported = export_record(metadata)
+    if exported is not None:
+        entry, record = exported
         if target_time:
-            raise CheckpointError(f"{directory} is an ONNX export: it runs, it does not train; use its source")
-        return LoadedPolicy(load_onnx_graph(directory / metadata["onnx"]["file"]), processor, metadata, directory)
+            raise CheckpointError(f"{directory} is an {entry.name} export: it runs, it does not train; use its source")
+        return LoadedPolicy(load_export(entry, directory / record["file"]), processor, metadata, directory)
     saved_target_time = bool(metadata["target_time"])
     policy = SnapFlowPolicy(make_model(config), target_time=saved_target_time)
     load_state_strict(policy, read_tensors(directory / POLICY_WEIGHTS), directory / POLICY_WEIGHTS)
@@ -197,41 +211,18 @@ def load_policy(path: str | Path, target_time: bool | None = None) -> LoadedPoli
     return LoadedPolicy(policy, processor, metadata, directory)
 
 
-def load_onnx_graph(path: Path) -> OnnxOneStepPolicy:
-    """An exported one-step graph in onnxruntime, or a named error for a missing or corrupt file."""
+def load_export(entry: ExportFormat, path: Path) -> Any:
+    """An exported one-step file in its runtime, or a named error for a missing or corrupt file."""
     if not path.is_file():
         raise CheckpointError(f"{path} not found")
     try:
-        return OnnxOneStepPolicy(path)
-    except Exception as error:  # onnxruntime raises its own exception types for a truncated or foreign file
-        raise CheckpointError(f"{path} is corrupt or not an ONNX graph ({str(error).strip()[:200]})") from None
-
-
-def export_onnx_checkpoint(path: str | Path, output: str | Path) -> dict[str, Any]:
-    """Export the student at ``path`` (checkpoint or run) to ``output``: ``model.onnx``, its one-step graph
-    (:func:`snapflow.inference.onnx.export_onnx`), and a ``policy.json`` with the student's processor and an ``onnx``
-    record (source, inputs, opset, versions, the difference to PyTorch measured at export). ``load_policy(output)``
-    loads it back for ``snapflow eval`` / ``bench``. Returns the ``onnx`` record."""
-
-    loaded = load_policy(path)
-    if loaded.exported:
-        raise CheckpointError(f"{loaded.path} is already an ONNX export")
-    if not loaded.distilled:
-        raise CheckpointError(
-            f"{loaded.path} is a flow-matching teacher: its one step is the naive one, and its 10 steps are a loop "
-            "an export would unroll; distil it first (snapflow distill --teacher ...) and export the student"
-        )
-    processor, output = loaded.processor, Path(output)
-    observation = processor.example_observation()
-    noise = torch.randn(1, processor.chunk_length, processor.action_dim, generator=torch.Generator().manual_seed(0))
-    record = {"source": str(loaded.path), **export_onnx(loaded.policy.eval(), observation, noise, output / ONNX_FILE)}
-    write_json(output / POLICY_CONFIG, {**loaded.metadata, "onnx": record})  # last: it makes the folder a checkpoint
-    return record
+        return entry.load(path)
+    except Exception as error:  # runtimes raise their own exception types for a truncated or foreign file
+        raise CheckpointError(f"{path} is corrupt or not an {entry.name} graph ({str(error).strip()[:200]})") from None
 
 
 __all__ = [
-    "export_onnx_checkpoint",
-    "load_onnx_graph",
+    "load_export",
     "is_builtin_checkpoint",
     "CheckpointError",
     "LoadedPolicy",

@@ -8,6 +8,7 @@ import json
 import shutil
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -26,9 +27,9 @@ from snapflow.adapters.lerobot.checkpoint import (
 )
 from snapflow.adapters.lerobot.dataset import IMAGE_PREFIX, STATE
 from snapflow.adapters.lerobot.registry import load_pretrained_policy, wrap_policy
-from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
-from snapflow.inference.onnx import ONNX_FILE, OnnxOneStepPolicy, export_onnx
-from snapflow.policies.checkpoint import CheckpointError, load_onnx_graph
+from snapflow.inference.formats import export_format, export_record
+from snapflow.policies.checkpoint import load_export
+from snapflow.policies.loaded import CheckpointError, OpenedPolicy
 from snapflow.reporting.files import atomic_write, write_json
 
 PREPROCESSOR_FILE = "policy_preprocessor.json"  # LeRobot's name for a saved pre-processor
@@ -117,35 +118,68 @@ class LeRobotProcessor:
 
 
 @dataclass
-class LoadedLeRobotPolicy:
-    """A LeRobot policy folder loaded for snapflow's evaluation (as :class:`~snapflow.policies.checkpoint.LoadedPolicy`
-    is for a built-in one); ``onnx``: the record of an ONNX export (:func:`export_lerobot_onnx`), whose ``policy`` is
-    the onnxruntime graph."""
+class LoadedLeRobotPolicy(OpenedPolicy):
+    """A LeRobot policy folder or hub id opened for snapflow (as :class:`~snapflow.policies.checkpoint.LoadedPolicy`
+    is a built-in one): its adapter (or, for an export, the format's runtime), its ``config`` and snapflow's marker
+    (``snapflow.json``: distilled or not, held-out share, an export's record under its format's name). Its
+    pre- and post-processors, saved beside it, are loaded on first use of :attr:`processor`."""
 
-    policy: LeRobotFlowPolicy | OnnxOneStepPolicy
-    processor: LeRobotProcessor
+    policy: LeRobotFlowPolicy | Any
+    config: Any
     path: Path
-    distilled: bool
-    val_fraction: float  # the share of each task's episodes its training held out (0 when unknown)
-    onnx: dict[str, Any] | None = None
+    marker: dict[str, Any]
+
+    @cached_property
+    def processor(self) -> LeRobotProcessor:  # type: ignore[override]
+        from lerobot.policies.factory import make_pre_post_processors
+
+        self.config.device = "cpu"
+        preprocessor, postprocessor = make_pre_post_processors(
+            self.config, pretrained_path=str(self.path), preprocessor_overrides={"device_processor": {"device": "cpu"}}
+        )
+        return LeRobotProcessor(self.config, preprocessor, postprocessor)
 
     @property
-    def exported(self) -> bool:
-        return self.onnx is not None
+    def distilled(self) -> bool:
+        return bool(self.marker.get("target_time"))
 
-    def check_mode(self, mode: SamplingMode) -> None:
-        """Refuse ``snapflow-N`` on a policy never distilled: its phi_s is zero, so the jump is the naive step; and
-        any mode but ``snapflow-1`` on an ONNX export, whose graph holds that one jump."""
-        if self.exported and mode != SNAPFLOW_1:
+    @property
+    def export(self) -> dict[str, Any] | None:
+        found = export_record(self.marker)
+        return None if found is None else {"format": found[0].name, **found[1]}
+
+    @property
+    def distill_command(self) -> str:
+        return f"snapflow distill --policy {self.path} ..."
+
+    @property
+    def val_fraction(self) -> float:  # type: ignore[override]
+        return self.marker.get("val_fraction", 0.0)
+
+    def export_to(self, output: str | Path, format: str) -> dict[str, Any]:
+        """Export this distilled policy to ``output`` in ``format``: its one-step graph over the pre-processed batch,
+        beside the folder's config and processors (its weights live in the graph) and a marker with the format's
+        record. ``snapflow eval`` opens it again. Returns the record."""
+        entry = export_format(format)
+        if self.exported:
+            raise CheckpointError(f"{self.path} is already an export ({self.export['format']})")
+        if not self.distilled:
             raise CheckpointError(
-                f"{self.path} is an ONNX export of a one-step student: it runs snapflow-1 only; for {mode.name}, "
-                f"evaluate the folder it was exported from ({self.onnx['source']})"
+                f"{self.path} is not SnapFlow-distilled: its one step is the naive one; distil it first "
+                "(snapflow distill --policy ...) and export the student"
             )
-        if mode.jump and not self.distilled:
-            raise CheckpointError(
-                f"{self.path} is not SnapFlow-distilled: {mode.name} would be the naive step under SnapFlow's "
-                "name; use teacher-N or naive, or distill it first (snapflow distill --policy ...)"
-            )
+        adapter, output = self.policy.eval(), Path(output)
+        config = adapter.policy.config
+        noise = torch.randn(1, config.chunk_size, config.max_action_dim, generator=torch.Generator().manual_seed(0))
+        observation = lerobot_observation(config, torch.device("cpu"))
+        output.mkdir(parents=True, exist_ok=True)
+        record = {"source": str(self.path), **entry.export(adapter, observation, noise, output)}
+        for source in sorted(self.path.iterdir()):
+            if source.is_file() and source.name not in {SAFETENSORS_FILE, SNAPFLOW_MARKER, entry.file}:
+                atomic_write(output / source.name, lambda target, source=source: shutil.copyfile(source, target))
+        _pad_prompts_to_full_length(output)
+        write_marker(output, {**self.marker, format: record})  # last: it makes the export whole
+        return record
 
 
 def lerobot_observation(config: Any, device: torch.device) -> dict[str, Tensor]:
@@ -161,27 +195,17 @@ def lerobot_observation(config: Any, device: torch.device) -> dict[str, Tensor]:
     return observation
 
 
-def load_lerobot_policy(path: str | Path) -> LoadedLeRobotPolicy:
-    """A distilled LeRobot policy (phi_s loaded strictly) or any LeRobot SmolVLA / pi0 / pi0.5 folder, with the
-    pre- and post-processors saved beside it, on the CPU."""
-    from lerobot.policies.factory import make_pre_post_processors
-
-    path = Path(path)
+def load_lerobot_policy(source: str | Path) -> LoadedLeRobotPolicy:
+    """A distilled LeRobot policy (phi_s loaded strictly), an export of one, or any LeRobot SmolVLA / pi0 / pi0.5
+    folder or hub id, on the CPU."""
+    path = Path(source)
     marker = read_marker(path) or {}
-    if "onnx" in marker:
-        config = load_student_config(path)
-        policy = load_onnx_graph(path / marker["onnx"]["file"])
-    else:
-        distilled = bool(marker.get("target_time"))
-        policy = load_distilled(path) if distilled else wrap_policy(load_pretrained_policy(str(path)))
-        config = policy.policy.config
-    config.device = "cpu"
-    preprocessor, postprocessor = make_pre_post_processors(
-        config, pretrained_path=str(path), preprocessor_overrides={"device_processor": {"device": "cpu"}}
-    )
-    processor = LeRobotProcessor(config, preprocessor, postprocessor)
-    distilled = bool(marker.get("target_time"))
-    return LoadedLeRobotPolicy(policy, processor, path, distilled, marker.get("val_fraction", 0.0), marker.get("onnx"))
+    exported = export_record(marker)
+    if exported is not None:
+        entry, record = exported
+        return LoadedLeRobotPolicy(load_export(entry, path / record["file"]), load_student_config(path), path, marker)
+    policy = load_distilled(path) if marker.get("target_time") else wrap_policy(load_pretrained_policy(str(source)))
+    return LoadedLeRobotPolicy(policy, policy.policy.config, path, marker)
 
 
 def _pad_prompts_to_full_length(folder: Path) -> None:
@@ -197,37 +221,9 @@ def _pad_prompts_to_full_length(folder: Path) -> None:
     write_json(folder / PREPROCESSOR_FILE, preprocessor)
 
 
-def export_lerobot_onnx(path: str | Path, output: str | Path) -> dict[str, Any]:
-    """Export the distilled LeRobot policy at ``path`` to ``output``: ``model.onnx``, its one-step graph over the
-    pre-processed batch (:func:`snapflow.inference.onnx.export_onnx`), beside the folder's config and processors
-    (its weights live in the graph) and a marker with an ``onnx`` record. ``snapflow eval`` loads it back. Returns
-    the record."""
-    loaded = load_lerobot_policy(path)
-    if loaded.exported:
-        raise CheckpointError(f"{loaded.path} is already an ONNX export")
-    if not loaded.distilled:
-        raise CheckpointError(
-            f"{loaded.path} is not SnapFlow-distilled: its one step is the naive one; distil it first "
-            "(snapflow distill --policy ...) and export the student"
-        )
-    adapter, output = loaded.policy.eval(), Path(output)
-    config = adapter.policy.config
-    noise = torch.randn(1, config.chunk_size, config.max_action_dim, generator=torch.Generator().manual_seed(0))
-    observation = lerobot_observation(config, torch.device("cpu"))
-    output.mkdir(parents=True, exist_ok=True)
-    record = {"source": str(loaded.path), **export_onnx(adapter, observation, noise, output / ONNX_FILE)}
-    for source in sorted(loaded.path.iterdir()):
-        if source.is_file() and source.name not in {SAFETENSORS_FILE, SNAPFLOW_MARKER, ONNX_FILE}:
-            atomic_write(output / source.name, lambda target, source=source: shutil.copyfile(source, target))
-    _pad_prompts_to_full_length(output)
-    write_marker(output, {**(read_marker(loaded.path) or {}), "onnx": record})  # last: it makes the export whole
-    return record
-
-
 __all__ = [
     "LeRobotProcessor",
     "LoadedLeRobotPolicy",
     "lerobot_observation",
     "load_lerobot_policy",
-    "export_lerobot_onnx",
 ]

@@ -157,7 +157,7 @@ class MiniVLA(nn.Module):
             if self.patch_embedding is not None:
                 parts.append(self.patch_embedding(images[0].float() / 255.0).flatten(2).transpose(1, 2))
             else:
-                parts += [encoder(image) for encoder, image in zip(self.camera_encoders, images)]
+                parts += [encoder(image) for encoder, image in zip(self.camera_encoders, images, strict=True)]
             masks.append(token_mask.new_ones(batch, config.image_tokens))
         x = torch.cat(parts, dim=1) + self.prefix_position
         mask = torch.cat(masks, dim=1)

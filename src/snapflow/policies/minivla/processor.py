@@ -60,7 +60,10 @@ class MiniVLAProcessor(Processor):
         if self.config.use_image:
             if images is None:
                 raise ValueError("this policy was configured with use_image=True, so every observation needs an image")
-            frames = {"image": images, **{f"image.{name}": (extra_images or {}).get(name) for name in self.extra_cameras}}
+            frames = {
+                "image": images,
+                **{f"image.{name}": (extra_images or {}).get(name) for name in self.extra_cameras},
+            }
             for key, value in frames.items():
                 if value is None:
                     raise ValueError(f"this policy reads camera {key.removeprefix('image.')!r}; no frames were given")

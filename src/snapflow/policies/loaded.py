@@ -1,0 +1,73 @@
+"""What every opened policy answers, whatever it came from (a built-in checkpoint, a LeRobot folder or hub id, an
+export of either): the policy and its processor, whether it was distilled, whether it is an export and of which
+format, and so which sampling modes it runs; the others are refused by name before anything runs."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from pathlib import Path
+from typing import Any
+
+from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
+
+
+class CheckpointError(ValueError):
+    """A policy that is missing, corrupt, does not match what it is loaded into, or is asked for what it cannot
+    honestly run (a jump mode of a teacher, another mode of an export): the reason and what to do instead."""
+
+
+class OpenedPolicy(ABC):
+    """The one loaded-policy protocol (see :func:`snapflow.sources.open_policy`)."""
+
+    path: Path
+    policy: Any  # a FlowPolicy
+    processor: Any  # raw observations in, model inputs out; actions to and from the model's scale
+    #: the share of each task's demonstration episodes its training held out (0 when unknown)
+    val_fraction: float
+
+    @property
+    @abstractmethod
+    def distilled(self) -> bool:
+        """Whether it was SnapFlow-distilled (a student), so that its jump modes (``snapflow-N``) mean something."""
+
+    @property
+    @abstractmethod
+    def export(self) -> dict[str, Any] | None:
+        """The record of the export this is (its format's name under ``format``, its source, ...), or None."""
+
+    @property
+    @abstractmethod
+    def distill_command(self) -> str:
+        """The command that would distil it, for the refusal of a jump mode on a teacher."""
+
+    @abstractmethod
+    def export_to(self, output: str | Path, format: str) -> dict[str, Any]:
+        """Export this student's one jump in ``format`` (see :mod:`snapflow.inference.formats`) to the folder
+        ``output``, which then opens as this policy's export; returns the format's record."""
+
+    @property
+    def training_data(self) -> dict[str, Any]:
+        """What its training recorded of its demonstrations (``env``, ``path``, ``val_fraction``), where it did."""
+        return {}
+
+    @property
+    def exported(self) -> bool:
+        return self.export is not None
+
+    def check_mode(self, mode: SamplingMode) -> None:
+        """Refuse ``snapflow-N`` on a policy never distilled: without a trained target-time embedding the jump is the
+        naive step, which would be reported under SnapFlow's name. Refuse any mode but ``snapflow-1`` on an export:
+        its graph holds that one jump."""
+        if self.export is not None and mode != SNAPFLOW_1:
+            raise CheckpointError(
+                f"{self.path} is a {self.export['format']} export of a one-step student: it runs snapflow-1 only; "
+                f"for {mode.name}, use the policy it was exported from ({self.export['source']})"
+            )
+        if mode.jump and not self.distilled:
+            raise CheckpointError(
+                f"{self.path} is not SnapFlow-distilled (a flow-matching teacher): {mode.name} would be the naive "
+                f"step under SnapFlow's name; use teacher-N or naive, or distill it first ({self.distill_command})"
+            )
+
+
+__all__ = ["OpenedPolicy", "CheckpointError"]
