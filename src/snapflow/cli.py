@@ -524,16 +524,9 @@ def _bench(args: argparse.Namespace) -> int:
     distill_step = None
     if args.distill_batch_sizes:  # first, in place: before anything is compiled
         from snapflow.benchmark.training_cost import distillation_step_cost
-        from snapflow.flow.time_sampling import BetaTimeSampler
-        from snapflow.training.recipes import TIME_SAMPLER
 
-        lerobot = hasattr(subject.policy, "policy_type")  # LeRobot's policies train on Beta(1.5, 1) times
         distill_step = distillation_step_cost(
-            subject.policy,
-            subject.observation,
-            subject.noise,
-            args.distill_batch_sizes,
-            BetaTimeSampler() if lerobot else TIME_SAMPLER,
+            subject.policy, subject.observation, subject.noise, args.distill_batch_sizes, subject.time_sampler
         )
     report = run_bench(
         subject,

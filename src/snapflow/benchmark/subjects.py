@@ -17,8 +17,9 @@ from torch import Tensor, nn
 from snapflow.adapters.hub import check_source
 from snapflow.benchmark.architectures import architectures
 from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, SamplingMode
+from snapflow.flow.time_sampling import TimeSampler
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
-from snapflow.policies.checkpoint import LoadedPolicy, policy_metadata
+from snapflow.policies.checkpoint import BUILTIN_TIME_SAMPLER, LoadedPolicy, policy_metadata
 from snapflow.policies.factory import POLICIES, default_config, make_model, make_processor, policy_type
 from snapflow.policies.loaded import OpenedPolicy
 from snapflow.policies.normalization import NormalizationStats
@@ -42,6 +43,8 @@ class BenchSubject:
     one_step: SamplingMode = SNAPFLOW_1
     #: the only modes the policy runs (an ONNX export runs its one jump), or None for any
     only_modes: tuple[SamplingMode, ...] | None = None
+    #: the flow-matching times it trains on (the cost of a distillation step draws them)
+    time_sampler: TimeSampler = BUILTIN_TIME_SAMPLER
 
 
 def _parameter_count(module: nn.Module) -> int:
@@ -73,6 +76,7 @@ def builtin_subject(
         # without phi_s (a teacher checkpoint) the one step is the naive one, timed and named as such
         SNAPFLOW_1 if loaded.exported or loaded.policy.target_time_embedding is not None else NAIVE_1,
         (SNAPFLOW_1,) if loaded.exported else None,
+        loaded.time_sampler,
     )
 
 
@@ -109,12 +113,15 @@ def exported_lerobot_subject(loaded: Any, name: str) -> BenchSubject:
     noise = torch.randn(1, config.chunk_size, config.max_action_dim)
     observation = lerobot_observation(config, torch.device("cpu"))
     details = {"policy_type": config.type, loaded.export["format"]: loaded.export}
-    return BenchSubject(name, loaded.policy, observation, noise, details, SNAPFLOW_1, (SNAPFLOW_1,))
+    return BenchSubject(
+        name, loaded.policy, observation, noise, details, SNAPFLOW_1, (SNAPFLOW_1,), loaded.time_sampler
+    )
 
 
 def lerobot_subject(policy: nn.Module, name: str, device: torch.device, dtype: torch.dtype) -> BenchSubject:
     """Any LeRobot pi0 / pi0.5 / SmolVLA under its SnapFlow adapter (phi_s included, as the student runs)."""
     from snapflow.adapters.lerobot import LeRobotFlowPolicy, wrap_policy
+    from snapflow.adapters.lerobot.base import lerobot_time_sampler
     from snapflow.adapters.lerobot.evaluation import lerobot_observation
 
     adapter = policy if isinstance(policy, LeRobotFlowPolicy) else wrap_policy(policy)
@@ -146,6 +153,7 @@ def lerobot_subject(policy: nn.Module, name: str, device: torch.device, dtype: t
             "tokens": config.tokenizer_max_length,
             "cameras": list(config.image_features),
         },
+        time_sampler=lerobot_time_sampler(config),
     )
 
 

@@ -27,7 +27,6 @@ from snapflow.reporting.machine import machine
 from snapflow.reporting.tables import markdown_table
 from snapflow.training.config import PAPER_STUDENT_TRAINING
 from snapflow.training.distill import TargetOption
-from snapflow.training.recipes import TIME_SAMPLER
 from snapflow.training.trainer import ObjectiveModule, train_step
 
 
@@ -113,7 +112,7 @@ def checkpoint_training_cost(
         torch.randint(len(train_data), (batch_size,), generator=torch.Generator().manual_seed(0))
     )
     return time_training_steps(
-        loaded.policy, observation, actions, options, TIME_SAMPLER, warmup=warmup, repeats=repeats
+        loaded.policy, observation, actions, options, loaded.time_sampler, warmup=warmup, repeats=repeats
     )
 
 

@@ -17,6 +17,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 from torch import nn
 
+from snapflow.flow.time_sampling import UniformTimeSampler
 from snapflow.inference.formats import ExportFormat, export_format, export_record
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
 from snapflow.policies.factory import make_model, make_processor, policy_type, policy_type_of
@@ -26,6 +27,7 @@ from snapflow.policies.processor import Processor
 from snapflow.reporting.files import write_json
 
 POLICY_WEIGHTS, POLICY_CONFIG = "policy.safetensors", "policy.json"
+BUILTIN_TIME_SAMPLER = UniformTimeSampler()  # the built-in policies train on uniform times
 LATEST = "latest.json"
 FORMAT = "snapflow-policy"
 VERSION = 1
@@ -53,6 +55,10 @@ class LoadedPolicy(OpenedPolicy):
     @property
     def distill_command(self) -> str:
         return f"snapflow distill --teacher {self.path} ..."
+
+    @property
+    def time_sampler(self) -> UniformTimeSampler:
+        return BUILTIN_TIME_SAMPLER
 
     @property
     def training_data(self) -> dict[str, Any]:
@@ -222,6 +228,7 @@ def load_export(entry: ExportFormat, path: Path) -> Any:
 
 
 __all__ = [
+    "BUILTIN_TIME_SAMPLER",
     "load_export",
     "is_builtin_checkpoint",
     "CheckpointError",

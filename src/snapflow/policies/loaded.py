@@ -46,6 +46,12 @@ class OpenedPolicy(ABC):
         ``output``, which then opens as this policy's export; returns the format's record."""
 
     @property
+    @abstractmethod
+    def time_sampler(self) -> Any:
+        """The flow-matching times it trains on (a :class:`~snapflow.flow.time_sampling.TimeSampler`): what its
+        distillation and the cost of its training step use."""
+
+    @property
     def training_data(self) -> dict[str, Any]:
         """What its training recorded of its demonstrations (``env``, ``path``, ``val_fraction``), where it did."""
         return {}

@@ -14,19 +14,20 @@ import torch
 from accelerate import PartialState
 
 from snapflow.adapters.hub import check_source, fetch_hub_file
-from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
-from snapflow.adapters.lerobot.checkpoint import read_marker, save_distilled, save_teacher
+from snapflow.adapters.lerobot.base import LeRobotFlowPolicy, lerobot_time_sampler
+from snapflow.adapters.lerobot.checkpoint import save_distilled, save_teacher
 from snapflow.adapters.lerobot.data import LeRobotChunkData
 from snapflow.adapters.lerobot.dataset import policy_features
-from snapflow.adapters.lerobot.registry import load_pretrained_policy, wrap_policy
+from snapflow.adapters.lerobot.registry import wrap_policy
 from snapflow.adapters.lerobot.smolvlm import smolvla_config, token_budget, words_of, write_smolvlm
 from snapflow.adapters.lerobot_config import SmolVLMSize
 from snapflow.data.demonstrations import split_episodes
-from snapflow.flow.time_sampling import BetaTimeSampler
 from snapflow.objective.base import TwoBranchObjective
 from snapflow.objective.snapflow import SnapFlowObjective
+from snapflow.policies.loaded import CheckpointError
 from snapflow.reporting.locks import hold_run_lock
 from snapflow.reporting.records import as_record
+from snapflow.sources import open_policy
 from snapflow.training.config import VAL_FRACTION, TrainConfig
 from snapflow.training.distill import DistillSettings
 from snapflow.training.trainer import train
@@ -226,7 +227,7 @@ def train_smolvla_teacher(
         }
         return _train_and_export(
             adapter,
-            SnapFlowObjective(alpha=1.0, time_sampler=BetaTimeSampler()),
+            SnapFlowObjective(alpha=1.0, time_sampler=lerobot_time_sampler(policy.config)),
             dataset,
             (preprocessor, postprocessor),
             [parameter for parameter in adapter.parameters() if parameter not in phi_s],
@@ -288,17 +289,19 @@ def _distill_lerobot(
     """:func:`distill_lerobot` with the output held."""
     from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 
-    policy = load_pretrained_policy(policy_path)
+    opened = open_policy(policy_path)
+    if opened.exported:
+        raise CheckpointError(f"{policy_path} is an {opened.export['format']} export: it runs, it does not train")
+    adapter, policy = opened.policy, opened.policy.policy
     metadata = LeRobotDatasetMetadata(repo_id, root=dataset_root)
     check_dataset_features(policy.config, metadata.features, repo_id)
     if val_fraction is None:  # the teacher's held-out episodes stay held out
-        val_fraction = (read_marker(policy_path) or {}).get("val_fraction", 0.0) if Path(policy_path).is_dir() else 0.0
+        val_fraction = opened.val_fraction
     dataset = training_dataset(metadata, dataset_root, policy.config.chunk_size, val_fraction)
     features = {**policy.config.input_features, **policy.config.output_features}
     check_finite(dataset, [key for key, feature in features.items() if feature.type.name != "VISUAL"])
     preprocessor, postprocessor = policy_processors(policy, policy_path, metadata.stats, preprocessor_overrides)
-    adapter = wrap_policy(policy)
-    objective = settings.objective(BetaTimeSampler())  # LeRobot's policies train on Beta(1.5, 1) times
+    objective = settings.objective(opened.time_sampler)
     run_metadata = {
         "format": "snapflow-lerobot-run",
         "policy": adapter.policy_type,

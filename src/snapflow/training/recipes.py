@@ -13,10 +13,9 @@ import torch
 
 from snapflow.data.chunks import split_chunk_data
 from snapflow.data.demonstrations import Demonstrations
-from snapflow.flow.time_sampling import UniformTimeSampler
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
 from snapflow.objective.snapflow import SnapFlowObjective
-from snapflow.policies.checkpoint import load_policy, policy_metadata
+from snapflow.policies.checkpoint import BUILTIN_TIME_SAMPLER, load_policy, policy_metadata
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import fit_processor, make_model
 from snapflow.reporting.records import as_record
@@ -25,7 +24,6 @@ from snapflow.training.distill import DEFAULT_RECIPE, RECIPES, DistillSettings
 from snapflow.training.trainer import train
 
 # the built-in policies train on U(0, 1) flow-matching times
-TIME_SAMPLER = UniformTimeSampler()
 
 
 def train_teacher(
@@ -53,7 +51,7 @@ def train_teacher(
         stage="teacher",
         data={"path": str(data), "val_fraction": val_fraction, "env": demonstrations.env},
     )
-    objective = SnapFlowObjective(alpha=1.0, time_sampler=TIME_SAMPLER)
+    objective = SnapFlowObjective(alpha=1.0, time_sampler=BUILTIN_TIME_SAMPLER)
     return train(policy, objective, train_data, val_data, config, output, metadata, resume=resume, progress=progress)
 
 
@@ -89,7 +87,7 @@ def distill(
     trainable = policy.expert_parameters() if settings.freeze_prefix else None
     return train(
         policy,
-        settings.objective(TIME_SAMPLER),
+        settings.objective(loaded.time_sampler),
         train_data,
         val_data,
         config,
@@ -101,4 +99,4 @@ def distill(
     )
 
 
-__all__ = ["TIME_SAMPLER", "train_teacher", "distill"]
+__all__ = ["train_teacher", "distill"]

@@ -22,6 +22,7 @@ from torch import Tensor, nn
 
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.solver import euler_sample
+from snapflow.flow.time_sampling import BetaTimeSampler
 from snapflow.nn.time_embedding import TargetTimeEmbedding
 
 OBS_LANGUAGE_TOKENS = "observation.language.tokens"
@@ -76,6 +77,19 @@ def modeling_module(model: nn.Module) -> types.ModuleType:
     """The LeRobot module that defines ``model``: its own helpers (sinusoid, masks) are used, whatever the
     LeRobot version moved them to."""
     return importlib.import_module(type(model).__module__)
+
+
+def lerobot_time_sampler(config: Any) -> BetaTimeSampler:
+    """The flow-matching times a LeRobot policy of ``config`` trains on, read from its config where LeRobot keeps
+    them (pi0 / pi0.5: ``time_sampling_beta_alpha`` / ``_beta``); SmolVLA's code fixes Beta(1.5, 1). Every one
+    shifts them into [0.001, 1]."""
+    alpha = getattr(config, "time_sampling_beta_alpha", 1.5)
+    beta = getattr(config, "time_sampling_beta_beta", 1.0)
+    if beta != 1.0:
+        raise ValueError(
+            f"this {config.type} samples times from Beta({alpha}, {beta}); snapflow samples Beta(a, 1) only"
+        )
+    return BetaTimeSampler(concentration=alpha, min_time=0.001)
 
 
 class LeRobotFlowPolicy(nn.Module, ABC):

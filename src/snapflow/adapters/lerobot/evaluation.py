@@ -16,7 +16,12 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from snapflow.adapters.lerobot.base import OBS_LANGUAGE_ATTENTION_MASK, OBS_LANGUAGE_TOKENS, LeRobotFlowPolicy
+from snapflow.adapters.lerobot.base import (
+    OBS_LANGUAGE_ATTENTION_MASK,
+    OBS_LANGUAGE_TOKENS,
+    LeRobotFlowPolicy,
+    lerobot_time_sampler,
+)
 from snapflow.adapters.lerobot.checkpoint import (
     SAFETENSORS_FILE,
     SNAPFLOW_MARKER,
@@ -27,6 +32,7 @@ from snapflow.adapters.lerobot.checkpoint import (
 )
 from snapflow.adapters.lerobot.dataset import IMAGE_PREFIX, STATE
 from snapflow.adapters.lerobot.registry import load_pretrained_policy, wrap_policy
+from snapflow.flow.time_sampling import BetaTimeSampler
 from snapflow.inference.formats import export_format, export_record
 from snapflow.policies.checkpoint import load_export
 from snapflow.policies.loaded import CheckpointError, OpenedPolicy
@@ -151,6 +157,10 @@ class LoadedLeRobotPolicy(OpenedPolicy):
     @property
     def distill_command(self) -> str:
         return f"snapflow distill --policy {self.path} ..."
+
+    @property
+    def time_sampler(self) -> BetaTimeSampler:
+        return lerobot_time_sampler(self.config)
 
     @property
     def val_fraction(self) -> float:  # type: ignore[override]
