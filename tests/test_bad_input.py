@@ -235,7 +235,7 @@ def test_corrupt_demonstrations_are_rejected_before_training(tmp_path_factory, k
 @pytest.fixture(scope="module")
 def checkpoint(tmp_path_factory):
     from snapflow.training.config import TrainConfig
-    from snapflow.training.recipes import train_teacher
+    from snapflow.training.stages import train_teacher
     from tests.training.fixtures import TINY
 
     data = _demonstrations(steps=16)

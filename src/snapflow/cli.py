@@ -36,7 +36,7 @@ from snapflow.policies.factory import POLICIES
 from snapflow.reporting.files import write_json, write_text
 from snapflow.reporting.tables import markdown_table
 from snapflow.training.config import TEACHER_TRAINING, VAL_FRACTION, TrainConfig
-from snapflow.training.distill import DEFAULT_RECIPE, METHODS, RECIPES, TARGETS, TargetOption, parse_target_steps
+from snapflow.training.recipes import DEFAULT_RECIPE, METHODS, RECIPES, TARGETS, TargetOption, parse_target_steps
 
 # TrainConfig fields every training command takes, with their help
 TRAINING_OPTIONS = {
@@ -282,7 +282,7 @@ def _train(args: argparse.Namespace) -> int:
         return _train_lerobot(args, config)
     from snapflow.data.demonstrations import Demonstrations
     from snapflow.policies.factory import default_config
-    from snapflow.training.recipes import train_teacher
+    from snapflow.training.stages import train_teacher
 
     demonstrations = Demonstrations.load(args.data)
     overrides = {
@@ -374,7 +374,7 @@ def _distill(args: argparse.Namespace) -> int:
             f"SnapFlow student trained to step {state['step']}; LeRobot policy in {Path(args.output) / EXPORT_DIRECTORY}"
         )
         return 0
-    from snapflow.training.recipes import distill
+    from snapflow.training.stages import distill
 
     state = distill(
         args.teacher,
@@ -536,7 +536,7 @@ def _bench(args: argparse.Namespace) -> int:
     if args.distill_batch_sizes:  # first, in place: before anything is compiled
         from snapflow.benchmark.training_cost import distillation_step_cost
         from snapflow.flow.time_sampling import BetaTimeSampler
-        from snapflow.training.recipes import TIME_SAMPLER
+        from snapflow.training.stages import TIME_SAMPLER
 
         lerobot = hasattr(subject.policy, "policy_type")  # LeRobot's policies train on Beta(1.5, 1) times
         distill_step = distillation_step_cost(

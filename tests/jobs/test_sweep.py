@@ -21,7 +21,7 @@ from snapflow.policies.minivla import MiniVLAConfig
 from snapflow.policies.mlp import MLPPolicyConfig
 from snapflow.reporting.records import as_record
 from snapflow.training.config import TEACHER_TRAINING
-from snapflow.training.distill import DEFAULT_RECIPE, RECIPES
+from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY_POLICY = "{ prefix_width = 32, expert_width = 32, num_layers = 1, num_heads = 2, head_dim = 16 }"

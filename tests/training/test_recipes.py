@@ -12,8 +12,8 @@ from snapflow.cli import main
 from snapflow.jobs.demo import PRESETS, with_recipe
 from snapflow.jobs.sweep import load_sweep
 from snapflow.training.config import PAPER_STUDENT_TRAINING
-from snapflow.training.distill import DEFAULT_RECIPE, RECIPES, DistillSettings
-from snapflow.training.recipes import train_teacher
+from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES, DistillSettings
+from snapflow.training.stages import train_teacher
 from tests.training.fixtures import TINY, synthetic_demonstrations, train_config
 
 

@@ -26,8 +26,8 @@ from snapflow.protocol import map_tensors
 from snapflow.reporting.machine import machine
 from snapflow.reporting.tables import markdown_table
 from snapflow.training.config import PAPER_STUDENT_TRAINING
-from snapflow.training.distill import TargetOption
-from snapflow.training.recipes import TIME_SAMPLER
+from snapflow.training.recipes import TargetOption
+from snapflow.training.stages import TIME_SAMPLER
 from snapflow.training.trainer import ObjectiveModule, train_step
 
 

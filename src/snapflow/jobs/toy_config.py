@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from snapflow.training.distill import DEFAULT_RECIPE, RECIPES, Method, Target
+from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES, Method, Target
 
 
 @dataclass(frozen=True)
