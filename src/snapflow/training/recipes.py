@@ -7,22 +7,17 @@ that distils a built-in teacher with them is :func:`snapflow.training.stages.dis
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
-from typing import TYPE_CHECKING, Any, Literal, get_args
+from dataclasses import MISSING, dataclass, fields, replace
+from typing import TYPE_CHECKING, Any
 
 from snapflow.objective.options import TeacherVelocity, target_stages
+from snapflow.objective.registry import OBJECTIVES, ObjectiveType, make_objective, methods, targets
+from snapflow.reporting.records import added_option
 from snapflow.training.config import PAPER_STUDENT_TRAINING, TrainConfig
 
 if TYPE_CHECKING:
     from snapflow.flow.time_sampling import TimeSampler
     from snapflow.objective.base import TwoBranchObjective
-
-Method = Literal["snapflow", "consistency-distillation", "meanflow"]
-Target = Literal["euler", "bootstrap"]
-METHODS: tuple[str, ...] = get_args(Method)
-TARGETS: tuple[str, ...] = get_args(Target)
-# the settings that reach the objective as keyword options (alpha and lambda reach every objective)
-OBJECTIVE_OPTIONS = ("teacher_velocity_clamp", "teacher_velocity", "target_steps", "intermediate_jumps")
 
 
 @dataclass(frozen=True)
@@ -30,65 +25,85 @@ class DistillSettings:
     """The paper's defaults: SnapFlow, alpha 0.5, lambda 0.1, no clamp, prefix (VLM) frozen, phi_s attached,
     two-step Euler target.
 
-    ``method`` picks the one-step objective (the baselines share alpha and lambda); ``teacher_velocity``
-    and ``target_time`` exist for the paper's ablations (conditional velocity; no target-time embedding).
-    SnapFlow's target is ``target="euler"`` (the average of ``target_steps`` Euler velocities; a list of
-    them is a schedule over equal stages of training) or ``target="bootstrap"`` (built from the model's own
+    ``method`` picks the one-step objective (:mod:`snapflow.objective.registry`; the baselines share alpha and
+    lambda); ``teacher_velocity`` and ``target_time`` exist for the paper's ablations (conditional velocity; no
+    target-time embedding). SnapFlow's target is ``target="euler"`` (the average of ``target_steps`` Euler velocities;
+    a list of them is a schedule over equal stages of training) or ``target="bootstrap"`` (built from the model's own
     half-jumps, reaching ``target_steps`` Euler steps at three passes per row; see
     :mod:`snapflow.objective.bootstrap`). ``intermediate_jumps`` is the share of SnapFlow's one-step rows that jump
-    between inner times (t, s) instead of 1 -> 0. An option the chosen objective does not take must keep its default.
+    between inner times (t, s) instead of 1 -> 0. ``objective_options`` holds the chosen objective's options that no
+    field here holds (e.g. meanflow's ``adaptive_power``; absent: the objective's default). The objective is passed
+    the options it declares, from their fields or ``objective_options``; an option of another objective must keep its
+    default.
     """
 
     alpha: float = 0.5
     consistency_weight: float = 0.1
     teacher_velocity_clamp: float | None = None
     freeze_prefix: bool = True
-    method: Method = "snapflow"
+    method: str = "snapflow"
     teacher_velocity: TeacherVelocity = "marginal"
     target_time: bool = True
-    target: Target = "euler"
+    target: str = "euler"
     target_steps: int | tuple[int, ...] = 2
     intermediate_jumps: float = 0.0
+    # left out of the hash, which a dict cannot join (jobs holding these settings are hashed); equality still sees it
+    objective_options: dict[str, Any] = added_option(default_factory=dict, hash=False)
 
     def __post_init__(self) -> None:
         if isinstance(self.target_steps, list):  # as read from TOML or JSON
             object.__setattr__(self, "target_steps", tuple(self.target_steps))
-        if self.target not in TARGETS:
-            raise ValueError(f"unknown SnapFlow target {self.target!r}; choose one of {list(TARGETS)}")
-        if self.method not in METHODS:
-            raise ValueError(f"unknown distillation method {self.method!r}; choose one of {list(METHODS)}")
-        if self.method != "snapflow" and self.target != "euler":
-            raise ValueError("target is an option of the snapflow method only")
+        self._passed_options()  # names, before torch loads, what the chosen objective does not take
         from snapflow.flow.time_sampling import BetaTimeSampler
 
-        self.objective(BetaTimeSampler())  # the objective names what it does not take, and checks its own values
+        self.objective(BetaTimeSampler())  # the objective checks its own values
 
     @property
-    def objective_name(self) -> str:
-        """The registered objective these settings pick (:data:`snapflow.objective.registry.OBJECTIVES`)."""
-        return "snapflow-bootstrap" if self.method == "snapflow" and self.target == "bootstrap" else self.method
+    def objective_type(self) -> ObjectiveType:
+        """The registered objective that ``method`` and ``target`` pick."""
+        if self.target not in targets():
+            raise ValueError(f"unknown SnapFlow target {self.target!r}; choose one of {list(targets())}")
+        if self.method not in methods():
+            raise ValueError(f"unknown distillation method {self.method!r}; choose one of {list(methods())}")
+        default_target = _DEFAULTS["target"]  # what a method without targets is picked at
+        for entry in OBJECTIVES.values():
+            if entry.method == self.method and (entry.target or default_target) == self.target:
+                return entry
+        offering = [entry.method for entry in OBJECTIVES.values() if entry.target == self.target]
+        raise ValueError(f"the {self.target} target is an option of the {' and '.join(offering)} method only")
+
+    def _passed_options(self) -> dict[str, Any]:
+        """The options the chosen objective is passed beyond alpha and lambda: each it declares that these settings
+        hold, as a field or in ``objective_options``. A field that only other objectives take must be at its default."""
+        chosen = self.objective_type
+        for name in self.objective_options:
+            if name in _DEFAULTS:
+                raise ValueError(f"{name} is a setting of its own: set it, not objective_options[{name!r}]")
+            if name not in chosen.options:
+                raise ValueError(f"{name} is not an option of the {chosen.name} objective")
+        declared = {option for entry in OBJECTIVES.values() for option in entry.options}
+        for name, default in _DEFAULTS.items():
+            if name in declared and name not in chosen.options and getattr(self, name) != default:
+                raise ValueError(f"{name} is not an option of the {chosen.name} objective")
+        held = {name: getattr(self, name) for name in chosen.options if name in _DEFAULTS}
+        return {**held, **self.objective_options}
 
     def objective(self, time_sampler: TimeSampler) -> TwoBranchObjective:
-        """The chosen loss with these settings and the policy's own FM time distribution: every option the objective
-        takes is passed; one it does not take must be at its default."""
-        from snapflow.objective.registry import make_objective, objective_options
-
-        accepted = objective_options(self.objective_name)
-        defaults = {field.name: field.default for field in fields(self)}
-        options = {}
-        for name in OBJECTIVE_OPTIONS:
-            value = getattr(self, name)
-            if name in accepted:
-                options[name] = value
-            elif value != defaults[name]:
-                raise ValueError(f"{name} is not an option of the {self.objective_name} objective")
+        """The chosen loss with these settings and the policy's own FM time distribution."""
         return make_objective(
-            self.objective_name,
+            self.objective_type.name,
             alpha=self.alpha,
             consistency_weight=self.consistency_weight,
             time_sampler=time_sampler,
-            **options,
+            **self._passed_options(),
         )
+
+
+# each setting's default: what an option the chosen objective does not take must hold
+_DEFAULTS = {
+    field.name: field.default if field.default_factory is MISSING else field.default_factory()
+    for field in fields(DistillSettings)
+}
 
 
 def parse_target_steps(text: str) -> int | tuple[int, ...]:
@@ -111,9 +126,9 @@ class TargetOption:
     def parse(cls, text: str) -> TargetOption:
         """``euler:8``, ``euler:2,4,8`` (a schedule) or ``bootstrap:8``."""
         target, _, steps = text.partition(":")
-        if target not in TARGETS or not steps:
+        if target not in targets() or not steps:
             raise ValueError(
-                f"a target option reads TARGET:STEPS with TARGET in {list(TARGETS)}, e.g. euler:8, euler:2,4,8 or bootstrap:8; got {text!r}"
+                f"a target option reads TARGET:STEPS with TARGET in {list(targets())}, e.g. euler:8, euler:2,4,8 or bootstrap:8; got {text!r}"
             )
         return cls(target, parse_target_steps(steps))
 
@@ -189,10 +204,8 @@ def __getattr__(name: str) -> Any:
 __all__ = [
     "DEFAULT_RECIPE",
     "DistillSettings",
-    "METHODS",
     "RECIPES",
     "Recipe",
-    "TARGETS",
     "TargetOption",
     "parse_target_steps",
 ]
