@@ -395,6 +395,11 @@ ARGUMENT_MISTAKES = {
     "mistyped mode": (["eval", "--policy", "run", "--modes", "snapflow-x"], "unknown sampling mode 'snapflow-x'"),
     "mistyped task": (["collect", "--tasks", "reach-v9"], "unknown metaworld task(s) ['reach-v9']"),
     "mistyped target": (["toy-compare", "--targets", "euler"], "TARGET:STEPS"),
+    "objective option without a value": (
+        ["distill", "--teacher", "t", "--data", "d", "--objective-option", "adaptive_power"],
+        "--objective-option",
+        "NAME=VALUE",
+    ),
 }
 
 
