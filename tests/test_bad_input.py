@@ -235,7 +235,7 @@ def test_corrupt_demonstrations_are_rejected_before_training(tmp_path_factory, k
 @pytest.fixture(scope="module")
 def checkpoint(tmp_path_factory):
     from snapflow.training.config import TrainConfig
-    from snapflow.training.recipes import train_teacher
+    from snapflow.training.stages import train_teacher
     from tests.training.fixtures import TINY
 
     data = _demonstrations(steps=16)
@@ -395,6 +395,11 @@ ARGUMENT_MISTAKES = {
     "mistyped mode": (["eval", "--policy", "run", "--modes", "snapflow-x"], "unknown sampling mode 'snapflow-x'"),
     "mistyped task": (["collect", "--tasks", "reach-v9"], "unknown metaworld task(s) ['reach-v9']"),
     "mistyped target": (["toy-compare", "--targets", "euler"], "TARGET:STEPS"),
+    "objective option without a value": (
+        ["distill", "--teacher", "t", "--data", "d", "--objective-option", "adaptive_power"],
+        "--objective-option",
+        "NAME=VALUE",
+    ),
 }
 
 

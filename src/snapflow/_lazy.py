@@ -1,4 +1,5 @@
-"""Package exports imported on first use (PEP 562): ``snapflow --help`` and argument errors then load no torch."""
+"""Names imported on first use: package exports (PEP 562), and the classes a registry names as ``"module:Class"``;
+``snapflow --help`` and argument errors then load no torch."""
 
 from __future__ import annotations
 
@@ -27,3 +28,11 @@ def lazy_exports(
         return sorted({*namespace, *owner})
 
     return __getattr__, __dir__, list(owner)
+
+
+def resolve(target: type | str) -> type:
+    """A class, or ``"module:Class"`` imported now: a registry names its classes without importing their modules."""
+    if isinstance(target, type):
+        return target
+    module, _, name = target.partition(":")
+    return getattr(importlib.import_module(module), name)

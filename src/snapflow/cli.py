@@ -16,6 +16,7 @@ import signal
 import sys
 import tempfile
 import time
+import tomllib
 from collections.abc import Callable
 from dataclasses import MISSING, fields, replace
 from importlib.metadata import version
@@ -33,11 +34,12 @@ from snapflow.inference.compile import COMPILE_MODES
 from snapflow.inference.formats import EXPORT_FORMATS
 from snapflow.jobs.toy_config import ToyConfig
 from snapflow.objective.options import TEACHER_VELOCITIES
+from snapflow.objective.registry import OBJECTIVES, methods, targets
 from snapflow.policies.factory import POLICIES
 from snapflow.reporting.files import write_json, write_text
 from snapflow.reporting.tables import markdown_table
 from snapflow.training.config import TEACHER_TRAINING, VAL_FRACTION, TrainConfig
-from snapflow.training.distill import DEFAULT_RECIPE, METHODS, RECIPES, TARGETS, TargetOption, parse_target_steps
+from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES, DistillSettings, TargetOption, parse_target_steps
 
 # TrainConfig fields every training command takes, with their help
 TRAINING_OPTIONS = {
@@ -140,6 +142,17 @@ def _argument_type(parse: Callable[[str], Any]) -> Callable[[str], Any]:
 _modes = _argument_type(lambda text: [SamplingMode.parse(name) for name in text.split(",")])
 _target_steps = _argument_type(parse_target_steps)
 _target_option = _argument_type(TargetOption.parse)
+
+
+def _objective_option(text: str) -> tuple[str, Any]:
+    """``NAME=VALUE``, the value read as in TOML (0.9, 10, true, [2, 4]), or else as text."""
+    name, equals, value = text.partition("=")
+    if not equals or not name.isidentifier():
+        raise argparse.ArgumentTypeError(f"an objective option reads NAME=VALUE, e.g. adaptive_power=0.5; got {text!r}")
+    try:
+        return name, tomllib.loads(f"value = {value}")["value"]
+    except tomllib.TOMLDecodeError:
+        return name, value
 
 
 def _default(cls: type, name: str) -> Any:
@@ -283,7 +296,7 @@ def _train(args: argparse.Namespace) -> int:
         return _train_lerobot(args, config)
     from snapflow.data.demonstrations import Demonstrations
     from snapflow.policies.factory import default_config
-    from snapflow.training.recipes import train_teacher
+    from snapflow.training.stages import train_teacher
 
     demonstrations = Demonstrations.load(args.data)
     overrides = {
@@ -355,6 +368,7 @@ def _distill(args: argparse.Namespace) -> int:
         "target": args.target,
         "target_steps": args.target_steps,
         "intermediate_jumps": args.intermediate_jumps,
+        "objective_options": {**recipe.distill.objective_options, **dict(args.objective_option or ())} or None,
     }
     settings = replace(recipe.distill, **{name: value for name, value in chosen.items() if value is not None})
     if lerobot:
@@ -375,7 +389,7 @@ def _distill(args: argparse.Namespace) -> int:
             f"SnapFlow student trained to step {state['step']}; LeRobot policy in {Path(args.output) / EXPORT_DIRECTORY}"
         )
         return 0
-    from snapflow.training.recipes import distill
+    from snapflow.training.stages import distill
 
     state = distill(
         args.teacher,
@@ -680,7 +694,7 @@ def _add_objective_options(parser: argparse.ArgumentParser, cls: type | None) ->
     recipe = "" if cls else " (default: the recipe's)"
     parser.add_argument(
         "--method",
-        choices=METHODS,
+        choices=methods(),
         default=_default(cls, "method") if cls else None,
         help="distillation objective (the others are baselines)" + recipe,
     )
@@ -694,7 +708,7 @@ def _add_objective_options(parser: argparse.ArgumentParser, cls: type | None) ->
     )
     parser.add_argument(
         "--target",
-        choices=TARGETS,
+        choices=targets(),
         default=_default(cls, "target") if cls else None,
         help="SnapFlow's one-step target: the average of Euler velocities, or bootstrapped from the model's own half-jumps"
         + recipe,
@@ -890,6 +904,20 @@ def build_parser() -> argparse.ArgumentParser:
         help="share of the one-step rows that jump between inner times t -> s instead of 1 -> 0 (default: the recipe's)",
     )
     _add_objective_options(distill, None)
+    settings_fields = {field.name for field in fields(DistillSettings)}
+    own_options = {
+        entry.name: [option for option in entry.options if option not in settings_fields]
+        for entry in OBJECTIVES.values()
+    }
+    distill.add_argument(
+        "--objective-option",
+        type=_objective_option,
+        action="append",
+        metavar="NAME=VALUE",
+        help="an option of the chosen objective that no flag here sets, the value read as in TOML; repeatable ("
+        + "; ".join(f"{name}: {', '.join(options)}" for name, options in own_options.items() if options)
+        + ")",
+    )
 
     evaluate = _command(
         commands,

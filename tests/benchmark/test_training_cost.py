@@ -12,8 +12,8 @@ from snapflow.cli import main
 from snapflow.flow.time_sampling import UniformTimeSampler
 from snapflow.nn import SnapFlowPolicy
 from snapflow.policies.mlp import MLPFlowModel, MLPPolicyConfig
-from snapflow.training.distill import TargetOption
-from snapflow.training.recipes import train_teacher
+from snapflow.training.recipes import TargetOption
+from snapflow.training.stages import train_teacher
 from tests.training.fixtures import TINY, synthetic_demonstrations, train_config
 
 

@@ -14,8 +14,8 @@ from snapflow.envs.factory import make_benchmark
 from snapflow.evaluation.diagnosis import PHASE_STEPS, diagnose_task
 from snapflow.flow.modes import SamplingMode
 from snapflow.policies.checkpoint import load_policy
-from snapflow.training.distill import DistillSettings
-from snapflow.training.recipes import distill, train_teacher
+from snapflow.training.recipes import DistillSettings
+from snapflow.training.stages import distill, train_teacher
 from tests.training.fixtures import TASK, TINY, collected, train_config
 
 EPISODES = 2

@@ -30,8 +30,8 @@ from snapflow.flow.solver import sample_actions
 from snapflow.policies.checkpoint import load_policy
 from snapflow.policies.factory import default_config
 from snapflow.reporting.statistics import wilson_interval
-from snapflow.training.distill import DistillSettings
-from snapflow.training.recipes import distill, train_teacher
+from snapflow.training.recipes import DistillSettings
+from snapflow.training.stages import distill, train_teacher
 from tests.evaluation.figures import CYCLE, assert_figure
 from tests.training.fixtures import ACTION_DIM, STATE_DIM, SYNTHETIC_TASKS, synthetic_demonstrations, train_config
 

@@ -12,8 +12,8 @@ from snapflow.data.chunks import ChunkData
 from snapflow.data.demonstrations import Demonstrations
 from snapflow.evaluation.results import EvaluationReport
 from snapflow.policies.checkpoint import load_policy
-from snapflow.training.distill import DistillSettings
-from snapflow.training.recipes import distill, train_teacher
+from snapflow.training.recipes import DistillSettings
+from snapflow.training.stages import distill, train_teacher
 from tests.evaluation.figures import CYCLE, assert_figure
 from tests.training.fixtures import TASK, TINY, collected, train_config
 

@@ -31,7 +31,7 @@ from snapflow.policies.minivla import MiniVLAConfig
 from snapflow.policies.mlp import MLPPolicyConfig
 from snapflow.reporting.records import as_record
 from snapflow.training.config import TEACHER_TRAINING
-from snapflow.training.distill import DEFAULT_RECIPE, RECIPES
+from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY_POLICY = "{ prefix_width = 32, expert_width = 32, num_layers = 1, num_heads = 2, head_dim = 16 }"
@@ -208,7 +208,7 @@ def test_job_settings_are_complete_and_keys_follow_the_dependencies(tmp_path):
     # every field, defaults included, but an option added later while it is off (see reporting.records)
     assert set(teacher.settings()["train"]) == set(asdict(TEACHER_TRAINING)) - {"ema_decay"}
     assert teacher.settings()["train"] == {**as_record(TEACHER_TRAINING), **teacher.settings()["train"]}
-    assert teacher.settings()["policy"] == {"type": "minivla", **asdict(config.runs["teacher"].policy)}
+    assert teacher.settings()["policy"] == {"type": "minivla", **config.runs["teacher"].policy.to_dict()}
     assert student.settings()["train"]["learning_rate"] == RECIPES[DEFAULT_RECIPE].train.learning_rate
     assert student.settings()["distill"]["target_steps"] == (2, 4) and student.settings()["train"]["seed"] == 1
     assert student.teacher == by_name[("train", "teacher", 1)] and student.teacher.data == by_name[("data",)]

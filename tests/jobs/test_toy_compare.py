@@ -14,7 +14,7 @@ from snapflow.cli import main
 from snapflow.jobs.runner import is_done
 from snapflow.jobs.toy_compare import ToyJob, compare_targets
 from snapflow.jobs.toy_config import ToyConfig
-from snapflow.training.distill import TargetOption
+from snapflow.training.recipes import TargetOption
 
 RESULTS = Path(__file__).resolve().parents[2] / "docs" / "results"
 COMMITTED = sorted(path.name for path in RESULTS.glob("toy-targets*"))

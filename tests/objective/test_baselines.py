@@ -11,7 +11,7 @@ from snapflow.flow import UniformTimeSampler
 from snapflow.jobs.toy import run_toy_experiment
 from snapflow.jobs.toy_config import ToyConfig
 from snapflow.objective import ConsistencyDistillationObjective, MeanFlowObjective, SnapFlowObjective
-from snapflow.training.distill import DistillSettings
+from snapflow.training.recipes import DistillSettings
 
 
 def test_conditional_velocity_ablation_regresses_the_jump_on_eps_minus_a(student, batch):

@@ -200,8 +200,8 @@ class ObjectiveContract:
         """make_objective(name, **options) is the registered class built with those options; an option the objective
         does not take is a ValueError naming it."""
         objective = self.build()
-        assert type(objective) is OBJECTIVES[self.name]
-        assert objective == OBJECTIVES[self.name](**self.options)
+        assert type(objective) is OBJECTIVES[self.name].objective_class
+        assert objective == OBJECTIVES[self.name].objective_class(**self.options)
         with pytest.raises(ValueError, match=rf"the {self.name} objective takes no option bogus"):
             make_objective(self.name, **self.options, bogus=1)
 
@@ -262,4 +262,4 @@ class TestMeanFlow(ObjectiveContract):
 def test_every_registered_objective_keeps_the_contract():
     """A new entry in OBJECTIVES needs a contract subclass here, and every contract names a registered objective."""
     assert {contract.name for contract in ObjectiveContract.__subclasses__()} == set(OBJECTIVES)
-    assert all(issubclass(objective, TwoBranchObjective) for objective in OBJECTIVES.values())
+    assert all(issubclass(entry.objective_class, TwoBranchObjective) for entry in OBJECTIVES.values())

@@ -1,9 +1,11 @@
-"""The objective registry: names, options, and the errors that name what is wrong."""
+"""The objective registry: names, the methods and targets that pick them, the options the settings pass them, and
+the errors that name what is wrong."""
 
 from __future__ import annotations
 
 import pytest
 
+from snapflow.flow import UniformTimeSampler
 from snapflow.objective import (
     OBJECTIVES,
     BootstrappedSnapFlowObjective,
@@ -11,17 +13,38 @@ from snapflow.objective import (
     MeanFlowObjective,
     SnapFlowObjective,
     make_objective,
+    register_objective,
 )
-from snapflow.objective.registry import objective_options
+from snapflow.objective.registry import methods, objective_options, targets
+from snapflow.reporting.records import as_record
+from snapflow.training.recipes import DistillSettings
 
 
-def test_registry_maps_names_to_the_objective_classes():
-    """The four registered names and their classes."""
-    assert OBJECTIVES == {
+def test_registry_maps_names_to_the_objective_classes_and_the_settings_that_pick_them():
+    """The four registered names, their classes, and the method and target of each; the methods and targets are
+    the registry's."""
+    assert {name: entry.objective_class for name, entry in OBJECTIVES.items()} == {
         "snapflow": SnapFlowObjective,
         "snapflow-bootstrap": BootstrappedSnapFlowObjective,
         "consistency-distillation": ConsistencyDistillationObjective,
         "meanflow": MeanFlowObjective,
+    }
+    assert methods() == ("snapflow", "consistency-distillation", "meanflow")
+    assert targets() == ("euler", "bootstrap")
+    picked = {
+        (settings.method, settings.target): settings.objective_type.name
+        for settings in (
+            DistillSettings(),
+            DistillSettings(target="bootstrap", target_steps=4),
+            DistillSettings(method="consistency-distillation"),
+            DistillSettings(method="meanflow"),
+        )
+    }
+    assert picked == {
+        ("snapflow", "euler"): "snapflow",
+        ("snapflow", "bootstrap"): "snapflow-bootstrap",
+        ("consistency-distillation", "euler"): "consistency-distillation",
+        ("meanflow", "euler"): "meanflow",
     }
 
 
@@ -37,6 +60,46 @@ def test_options_are_the_constructor_fields():
     assert objective_options("snapflow-bootstrap") == shared | {"target_steps"}
     assert objective_options("consistency-distillation") == shared | {"num_intervals", "ema_decay"}
     assert objective_options("meanflow") == shared | {"adaptive_power"}
+
+
+def test_each_objective_declares_its_own_options_for_the_settings_to_pass():
+    """What a registration declares is the objective's own options, each one its constructor takes."""
+    for name, entry in OBJECTIVES.items():
+        assert set(entry.options) == objective_options(name) - {"alpha", "consistency_weight", "time_sampler"}, name
+
+
+def test_an_option_no_setting_holds_reaches_its_objective_through_objective_options():
+    """A baseline's own option (no field of the settings) is passed from ``objective_options`` and recorded there;
+    absent, the objective keeps its default and the record is the one from before the option existed."""
+    settings = DistillSettings(method="consistency-distillation", objective_options={"num_intervals": 4})
+    objective = settings.objective(UniformTimeSampler())
+    assert isinstance(objective, ConsistencyDistillationObjective)
+    assert objective.num_intervals == 4 and objective.ema_decay == ConsistencyDistillationObjective.ema_decay
+    assert as_record(settings)["objective_options"] == {"num_intervals": 4}
+    assert "objective_options" not in as_record(DistillSettings(method="consistency-distillation"))
+    assert DistillSettings(method="meanflow").objective(UniformTimeSampler()).adaptive_power == 1.0
+
+
+@pytest.mark.parametrize(
+    "settings, message",
+    [
+        ({"method": "dance"}, r"unknown distillation method 'dance'; choose one of \['snapflow', 'consistency-"),
+        (
+            {"method": "meanflow", "objective_options": {"num_intervals": 4}},
+            "num_intervals is not an option of the meanflow",
+        ),
+        ({"objective_options": {"target_steps": 4}}, "target_steps is a setting of its own"),
+        ({"method": "meanflow", "objective_options": {"adaptive_power": -1.0}}, "adaptive_power must be non-negative"),
+    ],
+)
+def test_settings_name_an_option_their_objective_does_not_take(settings, message):
+    with pytest.raises(ValueError, match=message):
+        DistillSettings(**settings)
+
+
+def test_a_name_is_registered_once():
+    with pytest.raises(ValueError, match="an objective named 'meanflow' is registered already"):
+        register_objective("meanflow", MeanFlowObjective)
 
 
 def test_unknown_objective_and_option_are_named():

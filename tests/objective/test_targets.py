@@ -11,7 +11,7 @@ from snapflow.jobs.toy import run_toy_experiment
 from snapflow.jobs.toy_config import ToyConfig
 from snapflow.objective import BootstrappedSnapFlowObjective, SnapFlowObjective, euler_shortcut_target
 from snapflow.objective.snapflow import stage_at
-from snapflow.training.distill import DistillSettings
+from snapflow.training.recipes import DistillSettings
 from tests.helpers import RecordingPolicy
 
 

@@ -27,6 +27,7 @@ class After:  # Before, once two options were added
     inner: Inner = field(default_factory=Inner)
     average: float | None = added_option(None)
     jumps: float = added_option(0.0)
+    extra: dict[str, float] = added_option(default_factory=dict)  # a mutable default, made for each instance
 
 
 def test_an_added_option_at_its_default_is_left_out_and_the_rest_is_asdict():
@@ -37,6 +38,7 @@ def test_an_added_option_at_its_default_is_left_out_and_the_rest_is_asdict():
 def test_an_added_option_that_is_set_is_recorded():
     assert as_record(After(average=0.99)) == {**asdict(Before()), "average": 0.99}
     assert as_record(After(jumps=0.5, average=0.9)) == {**asdict(Before()), "average": 0.9, "jumps": 0.5}
+    assert as_record(After(extra={"scale": 2.0})) == {**asdict(Before()), "extra": {"scale": 2.0}}
 
 
 def test_the_record_is_a_copy():

@@ -15,9 +15,9 @@ from snapflow.cli import main
 from snapflow.policies.checkpoint import load_policy
 from snapflow.training.checkpoint import TRAINING_WEIGHTS
 from snapflow.training.config import TrainConfig
-from snapflow.training.distill import DistillSettings
 from snapflow.training.ema import WeightAverage
-from snapflow.training.recipes import distill, train_teacher
+from snapflow.training.recipes import DistillSettings
+from snapflow.training.stages import distill, train_teacher
 from tests.training.fixtures import TINY, synthetic_demonstrations, train_config
 
 DECAY = 0.6  # small, so the warm-up (1 + k) / (10 + k) and the decay both act within six steps

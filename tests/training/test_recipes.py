@@ -11,9 +11,10 @@ import pytest
 from snapflow.cli import main
 from snapflow.jobs.demo import PRESETS, with_recipe
 from snapflow.jobs.sweep import load_sweep
+from snapflow.reporting.records import as_record
 from snapflow.training.config import PAPER_STUDENT_TRAINING
-from snapflow.training.distill import DEFAULT_RECIPE, RECIPES, DistillSettings
-from snapflow.training.recipes import train_teacher
+from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES, DistillSettings
+from snapflow.training.stages import train_teacher
 from tests.training.fixtures import TINY, synthetic_demonstrations, train_config
 
 
@@ -43,14 +44,14 @@ def _distilled(data, teacher, output, *options: str) -> tuple[dict, dict]:
 def test_distill_takes_the_default_recipe_the_paper_one_flag_away_and_options_override(teacher, tmp_path):
     data, run = teacher
     default, default_train = _distilled(data, run, tmp_path / "default")
-    assert default == asdict(RECIPES[DEFAULT_RECIPE].distill)
+    assert default == as_record(RECIPES[DEFAULT_RECIPE].distill)
     assert default_train["learning_rate"] == RECIPES[DEFAULT_RECIPE].train.learning_rate
     paper, _ = _distilled(data, run, tmp_path / "paper", "--recipe", "paper")
-    assert paper == asdict(RECIPES["paper"].distill)
+    assert paper == as_record(RECIPES["paper"].distill)
     overridden, train = _distilled(
         data, run, tmp_path / "overridden", "--recipe", "paper", "--lambda", "0.5", "--train-prefix"
     )
-    assert overridden == asdict(replace(RECIPES["paper"].distill, consistency_weight=0.5, freeze_prefix=False))
+    assert overridden == as_record(replace(RECIPES["paper"].distill, consistency_weight=0.5, freeze_prefix=False))
     assert train["learning_rate"] == RECIPES["paper"].train.learning_rate and train["steps"] == 2
 
 

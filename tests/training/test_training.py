@@ -14,8 +14,8 @@ from safetensors.torch import load_file
 from snapflow.cli import main
 from snapflow.policies.checkpoint import CheckpointError, load_policy
 from snapflow.policies.factory import default_config
-from snapflow.training.distill import DistillSettings
-from snapflow.training.recipes import distill, train_teacher
+from snapflow.training.recipes import DistillSettings
+from snapflow.training.stages import distill, train_teacher
 from tests.training.fixtures import SYNTHETIC_TASKS, TASK, TINY, synthetic_demonstrations, train_config
 
 TINY_MLP = default_config(
@@ -64,7 +64,7 @@ from safetensors.torch import save_file
 
 from snapflow.policies import checkpoint as policy_checkpoint
 from snapflow.training import checkpoint as training_checkpoint
-from snapflow.training.recipes import train_teacher
+from snapflow.training.stages import train_teacher
 from tests.training.fixtures import TINY, train_config
 
 writes = []

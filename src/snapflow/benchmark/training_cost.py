@@ -26,7 +26,7 @@ from snapflow.protocol import map_tensors
 from snapflow.reporting.machine import machine
 from snapflow.reporting.tables import markdown_table
 from snapflow.training.config import PAPER_STUDENT_TRAINING
-from snapflow.training.distill import TargetOption
+from snapflow.training.recipes import TargetOption
 from snapflow.training.trainer import ObjectiveModule, train_step
 
 

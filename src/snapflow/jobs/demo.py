@@ -20,8 +20,8 @@ from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import policy_type
 from snapflow.reporting.locks import hold_run_lock
 from snapflow.training.config import TEACHER_TRAINING, VAL_FRACTION, TrainConfig
-from snapflow.training.distill import DEFAULT_RECIPE, RECIPES, DistillSettings
-from snapflow.training.recipes import distill, train_teacher
+from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES, DistillSettings
+from snapflow.training.stages import distill, train_teacher
 
 EVAL_EPISODES = 20  # evaluation episodes per task
 
@@ -54,7 +54,7 @@ PRESETS: dict[str, DemoPreset] = {
 
 
 def with_recipe(preset: DemoPreset, recipe: str) -> DemoPreset:
-    """``preset`` with the student of another recipe (:data:`~snapflow.training.distill.RECIPES`), at the preset's
+    """``preset`` with the student of another recipe (:data:`~snapflow.training.recipes.RECIPES`), at the preset's
     share of that recipe's steps (the full preset trains twice as long)."""
     scale = preset.student.steps / RECIPES[DEFAULT_RECIPE].train.steps
     train = RECIPES[recipe].train

@@ -27,7 +27,7 @@ from snapflow.objective.snapflow import SnapFlowObjective
 from snapflow.policies.mlp import MLPFlowModel, MLPPolicyConfig
 from snapflow.reporting.figures import pyplot, save_figure
 from snapflow.training.config import TrainConfig
-from snapflow.training.distill import DistillSettings
+from snapflow.training.recipes import DistillSettings
 from snapflow.training.trainer import ObjectiveModule, train_step
 
 

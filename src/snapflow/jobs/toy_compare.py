@@ -23,7 +23,7 @@ from snapflow.reporting.files import write_json, write_text
 from snapflow.reporting.records import as_record
 from snapflow.reporting.statistics import mean_std
 from snapflow.reporting.tables import markdown_table
-from snapflow.training.distill import TargetOption
+from snapflow.training.recipes import TargetOption
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from snapflow.training.distill import DEFAULT_RECIPE, RECIPES, Method, Target
+from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES
 
 
 @dataclass(frozen=True)
@@ -21,8 +21,8 @@ class ToyConfig:
     distill_lr: float = 1e-3
     alpha: float = 0.5
     consistency_weight: float = RECIPES[DEFAULT_RECIPE].distill_options["consistency_weight"]  # the recipe's lambda
-    method: Method = "snapflow"  # or a one-step baseline
-    target: Target = "euler"  # SnapFlow's target and its steps (a list: a schedule), see DistillSettings
+    method: str = "snapflow"  # or a one-step baseline (snapflow.objective.registry.methods())
+    target: str = "euler"  # SnapFlow's target and its steps (a list: a schedule), see DistillSettings
     target_steps: int | tuple[int, ...] = 2
     hidden_dim: int = 256
     eval_contexts: int = 12

@@ -9,7 +9,7 @@ __getattr__, __dir__, __all__ = lazy_exports(
         "snapflow.objective.consistency_distillation": ["ConsistencyDistillationObjective"],
         "snapflow.objective.base": ["LossOutput", "OneStepRows", "TwoBranchObjective"],
         "snapflow.objective.meanflow": ["MeanFlowObjective"],
-        "snapflow.objective.registry": ["OBJECTIVES", "make_objective"],
+        "snapflow.objective.registry": ["OBJECTIVES", "ObjectiveType", "make_objective", "register_objective"],
         "snapflow.objective.snapflow": ["SnapFlowObjective", "euler_shortcut_target"],
     },
 )

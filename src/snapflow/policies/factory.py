@@ -7,11 +7,11 @@ new built-in policy is a folder ``policies/<name>/`` (configuration, modeling, p
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING, Any
 
+from snapflow._lazy import resolve
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.minivla.configuration import MiniVLAConfig
 from snapflow.policies.mlp.configuration import MLPPolicyConfig
@@ -21,14 +21,6 @@ if TYPE_CHECKING:
 
     from snapflow.policies.normalization import NormalizationStats
     from snapflow.policies.processor import Processor
-
-
-def _resolve(target: type | str) -> type:
-    """A class, or ``"module:Class"`` imported now: the registry names its models without loading torch."""
-    if isinstance(target, type):
-        return target
-    module, _, name = target.partition(":")
-    return getattr(importlib.import_module(module), name)
 
 
 @dataclass(frozen=True)
@@ -45,11 +37,11 @@ class PolicyType:
 
     @property
     def model_class(self) -> type[nn.Module]:
-        return _resolve(self.model)
+        return resolve(self.model)
 
     @property
     def processor_class(self) -> type[Processor]:
-        return _resolve(self.processor)
+        return resolve(self.processor)
 
 
 POLICIES: dict[str, PolicyType] = {}

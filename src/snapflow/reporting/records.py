@@ -9,19 +9,21 @@ an option is added, and a run that sets the option is recorded with it.
 from __future__ import annotations
 
 import copy
-from dataclasses import Field, field, fields, is_dataclass
+from dataclasses import MISSING, Field, field, fields, is_dataclass
 from typing import Any
 
 _ADDED = "snapflow_added_option"
 
 
-def added_option(default: Any, metadata: dict[str, Any] | None = None, **kwargs: Any) -> Any:
-    """A dataclass field added after records existed: ``default`` must reproduce the behaviour from before it."""
+def added_option(default: Any = MISSING, metadata: dict[str, Any] | None = None, **kwargs: Any) -> Any:
+    """A dataclass field added after records existed: ``default`` (or what ``default_factory`` makes, for a mutable
+    default) must reproduce the behaviour from before it."""
     return field(default=default, metadata={**(metadata or {}), _ADDED: True}, **kwargs)
 
 
 def _left_out(definition: Field, value: Any) -> bool:
-    return bool(definition.metadata.get(_ADDED)) and value == definition.default
+    default = definition.default if definition.default_factory is MISSING else definition.default_factory()
+    return bool(definition.metadata.get(_ADDED)) and value == default
 
 
 def as_record(instance: Any) -> dict[str, Any]:

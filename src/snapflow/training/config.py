@@ -55,7 +55,7 @@ class TrainConfig:
 VAL_FRACTION = 0.1  # share of each task's demonstration episodes held out for validation and offline metrics
 # A converged teacher matters (the paper: distilling an under-trained one distills noise); the paper's student
 # starts at the teacher's final learning rate (3e-5, near the paper's 2.5e-5) so it stays in its basin. The
-# student's recipes (the paper's and snapflow's own) are in snapflow.training.distill.RECIPES.
+# student's recipes (the paper's and snapflow's own) are in snapflow.training.recipes.RECIPES.
 TEACHER_TRAINING = TrainConfig(steps=5000, learning_rate=3e-4)
 PAPER_STUDENT_TRAINING = TrainConfig(steps=2000, learning_rate=3e-5, warmup_steps=50)
 

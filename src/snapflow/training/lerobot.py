@@ -29,7 +29,7 @@ from snapflow.reporting.locks import hold_run_lock
 from snapflow.reporting.records import as_record
 from snapflow.sources import open_policy
 from snapflow.training.config import VAL_FRACTION, TrainConfig
-from snapflow.training.distill import DistillSettings
+from snapflow.training.recipes import DistillSettings
 from snapflow.training.trainer import train
 
 

@@ -1,102 +1,201 @@
-"""Training a built-in policy on demonstrations: the flow-matching teacher, then its SnapFlow student.
+"""What a student is distilled with: the settings of a distillation run (shared by every policy family) and the named
+recipes, each a student's training and distillation settings.
 
-Each function is one pipeline stage that the CLI, the demo and the sweeps call; their default training settings
-are :mod:`snapflow.training.config`'s.
+Plain Python at import (the CLI reads these settings before torch loads); the objective is built on demand. The stage
+that distils a built-in teacher with them is :func:`snapflow.training.stages.distill`.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
-from typing import Any
+from dataclasses import MISSING, dataclass, fields, replace
+from typing import TYPE_CHECKING, Any
 
-import torch
+from snapflow.objective.options import TeacherVelocity, target_stages
+from snapflow.objective.registry import OBJECTIVES, ObjectiveType, make_objective, methods, targets
+from snapflow.reporting.records import added_option
+from snapflow.training.config import PAPER_STUDENT_TRAINING, TrainConfig
 
-from snapflow.data.chunks import split_chunk_data
-from snapflow.data.demonstrations import Demonstrations
-from snapflow.nn.snapflow_policy import SnapFlowPolicy
-from snapflow.objective.snapflow import SnapFlowObjective
-from snapflow.policies.checkpoint import BUILTIN_TIME_SAMPLER, load_policy, policy_metadata
-from snapflow.policies.configuration import PolicyConfig
-from snapflow.policies.factory import fit_processor, make_model
-from snapflow.reporting.records import as_record
-from snapflow.training.config import TEACHER_TRAINING, VAL_FRACTION, TrainConfig
-from snapflow.training.distill import DEFAULT_RECIPE, RECIPES, DistillSettings
-from snapflow.training.trainer import train
-
-# the built-in policies train on U(0, 1) flow-matching times
+if TYPE_CHECKING:
+    from snapflow.flow.time_sampling import TimeSampler
+    from snapflow.objective.base import TwoBranchObjective
 
 
-def train_teacher(
-    data: str | Path,
-    output: str | Path,
-    policy_config: PolicyConfig,
-    config: TrainConfig = TEACHER_TRAINING,
-    val_fraction: float = VAL_FRACTION,
-    resume: bool = False,
-    progress: bool = True,
-) -> dict[str, Any]:
-    """Plain flow matching (alpha = 1) of the registered policy ``policy_config`` configures, on the demonstrations;
-    normalisation from the training episodes."""
-    if not 0 <= val_fraction < 1:
-        raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction}")
-    demonstrations = Demonstrations.load(data)
-    train_episodes, _ = demonstrations.split(val_fraction)
-    processor = fit_processor(policy_config, demonstrations, train_episodes)
-    torch.manual_seed(config.seed)
-    policy = SnapFlowPolicy(make_model(policy_config), target_time=False)
-    train_data, val_data = split_chunk_data(demonstrations, processor, val_fraction)
-    metadata = policy_metadata(
-        policy,
-        processor,
-        stage="teacher",
-        data={"path": str(data), "val_fraction": val_fraction, "env": demonstrations.env},
-    )
-    objective = SnapFlowObjective(alpha=1.0, time_sampler=BUILTIN_TIME_SAMPLER)
-    return train(policy, objective, train_data, val_data, config, output, metadata, resume=resume, progress=progress)
+@dataclass(frozen=True)
+class DistillSettings:
+    """The paper's defaults: SnapFlow, alpha 0.5, lambda 0.1, no clamp, prefix (VLM) frozen, phi_s attached,
+    two-step Euler target.
+
+    ``method`` picks the one-step objective (:mod:`snapflow.objective.registry`; the baselines share alpha and
+    lambda); ``teacher_velocity`` and ``target_time`` exist for the paper's ablations (conditional velocity; no
+    target-time embedding). SnapFlow's target is ``target="euler"`` (the average of ``target_steps`` Euler velocities;
+    a list of them is a schedule over equal stages of training) or ``target="bootstrap"`` (built from the model's own
+    half-jumps, reaching ``target_steps`` Euler steps at three passes per row; see
+    :mod:`snapflow.objective.bootstrap`). ``intermediate_jumps`` is the share of SnapFlow's one-step rows that jump
+    between inner times (t, s) instead of 1 -> 0. ``objective_options`` holds the chosen objective's options that no
+    field here holds (e.g. meanflow's ``adaptive_power``; absent: the objective's default). The objective is passed
+    the options it declares, from their fields or ``objective_options``; an option of another objective must keep its
+    default.
+    """
+
+    alpha: float = 0.5
+    consistency_weight: float = 0.1
+    teacher_velocity_clamp: float | None = None
+    freeze_prefix: bool = True
+    method: str = "snapflow"
+    teacher_velocity: TeacherVelocity = "marginal"
+    target_time: bool = True
+    target: str = "euler"
+    target_steps: int | tuple[int, ...] = 2
+    intermediate_jumps: float = 0.0
+    # left out of the hash, which a dict cannot join (jobs holding these settings are hashed); equality still sees it
+    objective_options: dict[str, Any] = added_option(default_factory=dict, hash=False)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.target_steps, list):  # as read from TOML or JSON
+            object.__setattr__(self, "target_steps", tuple(self.target_steps))
+        self._passed_options()  # names, before torch loads, what the chosen objective does not take
+        from snapflow.flow.time_sampling import BetaTimeSampler
+
+        self.objective(BetaTimeSampler())  # the objective checks its own values
+
+    @property
+    def objective_type(self) -> ObjectiveType:
+        """The registered objective that ``method`` and ``target`` pick."""
+        if self.target not in targets():
+            raise ValueError(f"unknown SnapFlow target {self.target!r}; choose one of {list(targets())}")
+        if self.method not in methods():
+            raise ValueError(f"unknown distillation method {self.method!r}; choose one of {list(methods())}")
+        default_target = _DEFAULTS["target"]  # what a method without targets is picked at
+        for entry in OBJECTIVES.values():
+            if entry.method == self.method and (entry.target or default_target) == self.target:
+                return entry
+        offering = [entry.method for entry in OBJECTIVES.values() if entry.target == self.target]
+        raise ValueError(f"the {self.target} target is an option of the {' and '.join(offering)} method only")
+
+    def _passed_options(self) -> dict[str, Any]:
+        """The options the chosen objective is passed beyond alpha and lambda: each it declares that these settings
+        hold, as a field or in ``objective_options``. A field that only other objectives take must be at its default."""
+        chosen = self.objective_type
+        for name in self.objective_options:
+            if name in _DEFAULTS:
+                raise ValueError(f"{name} is a setting of its own: set it, not objective_options[{name!r}]")
+            if name not in chosen.options:
+                raise ValueError(f"{name} is not an option of the {chosen.name} objective")
+        declared = {option for entry in OBJECTIVES.values() for option in entry.options}
+        for name, default in _DEFAULTS.items():
+            if name in declared and name not in chosen.options and getattr(self, name) != default:
+                raise ValueError(f"{name} is not an option of the {chosen.name} objective")
+        held = {name: getattr(self, name) for name in chosen.options if name in _DEFAULTS}
+        return {**held, **self.objective_options}
+
+    def objective(self, time_sampler: TimeSampler) -> TwoBranchObjective:
+        """The chosen loss with these settings and the policy's own FM time distribution."""
+        return make_objective(
+            self.objective_type.name,
+            alpha=self.alpha,
+            consistency_weight=self.consistency_weight,
+            time_sampler=time_sampler,
+            **self._passed_options(),
+        )
 
 
-def distill(
-    teacher: str | Path,
-    data: str | Path,
-    output: str | Path,
-    config: TrainConfig | None = None,
-    settings: DistillSettings | None = None,
-    val_fraction: float | None = None,
-    resume: bool = False,
-    progress: bool = True,
-) -> dict[str, Any]:
-    """SnapFlow (or a baseline, see ``DistillSettings``): the student starts as the teacher plus a zero-initialised
-    phi_s; prefix frozen by default. ``config`` and ``settings`` default to the default recipe's
-    (:data:`~snapflow.training.distill.RECIPES`)."""
-    recipe = RECIPES[DEFAULT_RECIPE]
-    config, settings = config or recipe.train, settings or recipe.distill
-    loaded = load_policy(teacher, target_time=settings.target_time)
-    demonstrations = Demonstrations.load(data)
-    if val_fraction is None:
-        val_fraction = loaded.val_fraction
-    train_data, val_data = split_chunk_data(demonstrations, loaded.processor, val_fraction)
-    policy = loaded.policy
-    metadata = policy_metadata(
-        policy,
-        loaded.processor,
-        stage="snapflow",
-        teacher=str(loaded.path),
-        distill=as_record(settings),
-        data={"path": str(data), "val_fraction": val_fraction, "env": demonstrations.env},
-    )
-    trainable = policy.expert_parameters() if settings.freeze_prefix else None
-    return train(
-        policy,
-        settings.objective(loaded.time_sampler),
-        train_data,
-        val_data,
-        config,
-        output,
-        metadata,
-        resume=resume,
-        trainable=trainable,
-        progress=progress,
-    )
+# each setting's default: what an option the chosen objective does not take must hold
+_DEFAULTS = {
+    field.name: field.default if field.default_factory is MISSING else field.default_factory()
+    for field in fields(DistillSettings)
+}
 
 
-__all__ = ["train_teacher", "distill"]
+def parse_target_steps(text: str) -> int | tuple[int, ...]:
+    """``8``, or a schedule ``2,4,8``."""
+    try:
+        steps = tuple(int(k) for k in text.split(","))
+    except ValueError:
+        raise ValueError(f"target steps must be integers (8, or a schedule such as 2,4,8), got {text!r}") from None
+    return steps[0] if len(steps) == 1 else steps
+
+
+@dataclass(frozen=True)
+class TargetOption:
+    """A SnapFlow target and its Euler steps (a tuple: a schedule over equal stages of training)."""
+
+    target: str
+    steps: int | tuple[int, ...]
+
+    @classmethod
+    def parse(cls, text: str) -> TargetOption:
+        """``euler:8``, ``euler:2,4,8`` (a schedule) or ``bootstrap:8``."""
+        target, _, steps = text.partition(":")
+        if target not in targets() or not steps:
+            raise ValueError(
+                f"a target option reads TARGET:STEPS with TARGET in {list(targets())}, e.g. euler:8, euler:2,4,8 or bootstrap:8; got {text!r}"
+            )
+        return cls(target, parse_target_steps(steps))
+
+    @property
+    def name(self) -> str:
+        steps = self.steps if isinstance(self.steps, int) else "-".join(map(str, self.steps))
+        return f"{self.target}-{steps}"
+
+    def __str__(self) -> str:
+        """The option as typed: ``euler:2,4,8``."""
+        steps = self.steps if isinstance(self.steps, int) else ",".join(map(str, self.steps))
+        return f"{self.target}:{steps}"
+
+    @property
+    def label(self) -> str:
+        if self.target == "bootstrap":
+            return f"bootstrapped (K -> {self.steps})"
+        return f"K = {self.steps}" if isinstance(self.steps, int) else "K = " + " -> ".join(map(str, self.steps))
+
+    def settings(self, base: DistillSettings | None = None) -> DistillSettings:
+        """``base`` (default: the paper's settings) with this target."""
+        return replace(base or DistillSettings(), target=self.target, target_steps=self.steps)
+
+    @property
+    def teacher_passes(self) -> float:
+        """No-grad passes per one-step row (averaged over a schedule's stages); each row adds one gradient pass."""
+        if self.target == "bootstrap":
+            return 2.0
+        stages = target_stages(self.steps)
+        return sum(stages) / len(stages)
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """A named way to distil a built-in teacher: the student's optimisation and the distillation settings. Every
+    option given beside a recipe (a CLI flag, a sweep run's ``train`` / ``distill`` keys) overrides its value."""
+
+    summary: str
+    train: TrainConfig
+    distill_options: dict[str, Any]  # DistillSettings fields; built on use, as the settings check with torch
+
+    @property
+    def distill(self) -> DistillSettings:
+        return DistillSettings(**self.distill_options)
+
+
+RECIPES: dict[str, Recipe] = {
+    "snapflow": Recipe(
+        "snapflow's recipe (docs/RESULTS.md, 'One step as good as ten'): the paper's objective and budget with "
+        "lambda 3 (2000 steps at lr 3e-5)",
+        PAPER_STUDENT_TRAINING,
+        {"consistency_weight": 3.0},
+    ),
+    "paper": Recipe(
+        "the paper's settings: alpha 0.5, lambda 0.1, two-step Euler target, prefix frozen; 2000 steps at lr 3e-5",
+        PAPER_STUDENT_TRAINING,
+        {},
+    ),
+}
+DEFAULT_RECIPE = "snapflow"
+
+
+__all__ = [
+    "DEFAULT_RECIPE",
+    "DistillSettings",
+    "RECIPES",
+    "Recipe",
+    "TargetOption",
+    "parse_target_steps",
+]

@@ -17,7 +17,7 @@ Config layout (see ``configs/sweeps/*.toml``)::
                                         # image_size
     [runs.teacher]                      # a teacher: policy = {type = "minivla" | "mlp", fields of its config},
                                         # train = {TrainConfig fields}
-    recipe = "paper"                    # the students' default recipe (snapflow.training.distill.RECIPES)
+    recipe = "paper"                    # the students' default recipe (snapflow.training.recipes.RECIPES)
     [runs.snapflow]                     # a student: teacher = "teacher", recipe, distill = {DistillSettings
                                         # fields}, train (both override the recipe's)
     [[tables]]                          # name, title, episodes_per_task, n_act, seeds, per_task, x_label,
@@ -25,7 +25,7 @@ Config layout (see ``configs/sweeps/*.toml``)::
     rows = [{label = "...", run = "snapflow", mode = "snapflow-1", n_act = 4, series = "...", x = 1}]
 
 Unless a run says otherwise, teachers train with ``TEACHER_TRAINING`` and students with the sweep's recipe (default:
-``DEFAULT_RECIPE``), see :mod:`snapflow.training.distill`.
+``DEFAULT_RECIPE``), see :mod:`snapflow.training.recipes`.
 """
 
 from snapflow._lazy import lazy_exports

@@ -25,8 +25,8 @@ from snapflow.policies.factory import policy_type_of
 from snapflow.reporting.locks import hold_run_lock
 from snapflow.reporting.records import as_record
 from snapflow.training.config import VAL_FRACTION, TrainConfig
-from snapflow.training.distill import DistillSettings
-from snapflow.training.recipes import distill, train_teacher
+from snapflow.training.recipes import DistillSettings
+from snapflow.training.stages import distill, train_teacher
 
 RECORD = "job.json"  # a collect or train job's record, inside the folder it fills
 

@@ -17,7 +17,7 @@ from snapflow.jobs.demo import EVAL_EPISODES
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import default_config, policy_type
 from snapflow.training.config import TEACHER_TRAINING, TrainConfig
-from snapflow.training.distill import DEFAULT_RECIPE, RECIPES, DistillSettings, Recipe
+from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES, DistillSettings, Recipe
 
 DEFAULT_POLICY = "minivla"
 

@@ -1,0 +1,102 @@
+"""Training a built-in policy on demonstrations: the flow-matching teacher, then its SnapFlow student.
+
+Each function is one pipeline stage that the CLI, the demo and the sweeps call; the teacher's default training
+settings are :mod:`snapflow.training.config`'s, the student's the default recipe's (:mod:`snapflow.training.recipes`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from snapflow.data.chunks import split_chunk_data
+from snapflow.data.demonstrations import Demonstrations
+from snapflow.nn.snapflow_policy import SnapFlowPolicy
+from snapflow.objective.snapflow import SnapFlowObjective
+from snapflow.policies.checkpoint import BUILTIN_TIME_SAMPLER, load_policy, policy_metadata
+from snapflow.policies.configuration import PolicyConfig
+from snapflow.policies.factory import fit_processor, make_model
+from snapflow.reporting.records import as_record
+from snapflow.training.config import TEACHER_TRAINING, VAL_FRACTION, TrainConfig
+from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES, DistillSettings
+from snapflow.training.trainer import train
+
+# the built-in policies train on U(0, 1) flow-matching times
+
+
+def train_teacher(
+    data: str | Path,
+    output: str | Path,
+    policy_config: PolicyConfig,
+    config: TrainConfig = TEACHER_TRAINING,
+    val_fraction: float = VAL_FRACTION,
+    resume: bool = False,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Plain flow matching (alpha = 1) of the registered policy ``policy_config`` configures, on the demonstrations;
+    normalisation from the training episodes."""
+    if not 0 <= val_fraction < 1:
+        raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction}")
+    demonstrations = Demonstrations.load(data)
+    train_episodes, _ = demonstrations.split(val_fraction)
+    processor = fit_processor(policy_config, demonstrations, train_episodes)
+    torch.manual_seed(config.seed)
+    policy = SnapFlowPolicy(make_model(policy_config), target_time=False)
+    train_data, val_data = split_chunk_data(demonstrations, processor, val_fraction)
+    metadata = policy_metadata(
+        policy,
+        processor,
+        stage="teacher",
+        data={"path": str(data), "val_fraction": val_fraction, "env": demonstrations.env},
+    )
+    objective = SnapFlowObjective(alpha=1.0, time_sampler=BUILTIN_TIME_SAMPLER)
+    return train(policy, objective, train_data, val_data, config, output, metadata, resume=resume, progress=progress)
+
+
+def distill(
+    teacher: str | Path,
+    data: str | Path,
+    output: str | Path,
+    config: TrainConfig | None = None,
+    settings: DistillSettings | None = None,
+    val_fraction: float | None = None,
+    resume: bool = False,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """SnapFlow (or a baseline, see ``DistillSettings``): the student starts as the teacher plus a zero-initialised
+    phi_s; prefix frozen by default. ``config`` and ``settings`` default to the default recipe's
+    (:data:`~snapflow.training.recipes.RECIPES`)."""
+    recipe = RECIPES[DEFAULT_RECIPE]
+    config, settings = config or recipe.train, settings or recipe.distill
+    loaded = load_policy(teacher, target_time=settings.target_time)
+    demonstrations = Demonstrations.load(data)
+    if val_fraction is None:
+        val_fraction = loaded.val_fraction
+    train_data, val_data = split_chunk_data(demonstrations, loaded.processor, val_fraction)
+    policy = loaded.policy
+    metadata = policy_metadata(
+        policy,
+        loaded.processor,
+        stage="snapflow",
+        teacher=str(loaded.path),
+        distill=as_record(settings),
+        data={"path": str(data), "val_fraction": val_fraction, "env": demonstrations.env},
+    )
+    trainable = policy.expert_parameters() if settings.freeze_prefix else None
+    return train(
+        policy,
+        settings.objective(loaded.time_sampler),
+        train_data,
+        val_data,
+        config,
+        output,
+        metadata,
+        resume=resume,
+        trainable=trainable,
+        progress=progress,
+    )
+
+
+__all__ = ["train_teacher", "distill"]
