@@ -15,7 +15,7 @@ from accelerate import PartialState
 
 from snapflow.adapters.hub import check_source, fetch_hub_file
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy, lerobot_time_sampler
-from snapflow.adapters.lerobot.checkpoint import save_distilled, save_teacher
+from snapflow.adapters.lerobot.checkpoint import PREPROCESSOR_FILE, save_distilled, save_teacher
 from snapflow.adapters.lerobot.data import LeRobotChunkData
 from snapflow.adapters.lerobot.dataset import policy_features
 from snapflow.adapters.lerobot.registry import wrap_policy
@@ -49,7 +49,6 @@ def paper_training() -> TrainConfig:
 
 EXPORT_DIRECTORY = "lerobot_policy"
 SMOLVLM_DIRECTORY = "smolvlm"  # the teacher's SmolVLM config and tokenizer, which its exported config points at
-PREPROCESSOR_FILE = "policy_preprocessor.json"
 DATASET_INFO = "meta/info.json"  # LeRobot's INFO_PATH: the first file of a LeRobotDataset it reads
 
 

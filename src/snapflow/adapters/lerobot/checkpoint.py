@@ -16,6 +16,7 @@ from snapflow.reporting.files import write_json
 
 SNAPFLOW_MARKER = "snapflow.json"
 SAFETENSORS_FILE = "model.safetensors"  # LeRobot's name for a policy's weights
+PREPROCESSOR_FILE = "policy_preprocessor.json"  # LeRobot's name for a saved pre-processor
 
 
 def _write_marker(directory: Path, policy_type: str, distilled: bool, val_fraction: float) -> None:
@@ -111,6 +112,7 @@ def load_distilled(directory: str | Path, mode: SamplingMode = SNAPFLOW_1) -> Le
 
 
 __all__ = [
+    "PREPROCESSOR_FILE",
     "SAFETENSORS_FILE",
     "SNAPFLOW_MARKER",
     "write_marker",

@@ -23,6 +23,7 @@ from snapflow.adapters.lerobot.base import (
     lerobot_time_sampler,
 )
 from snapflow.adapters.lerobot.checkpoint import (
+    PREPROCESSOR_FILE,
     SAFETENSORS_FILE,
     SNAPFLOW_MARKER,
     load_distilled,
@@ -37,8 +38,6 @@ from snapflow.inference.formats import export_format, export_record
 from snapflow.policies.checkpoint import load_export
 from snapflow.policies.loaded import CheckpointError, OpenedPolicy
 from snapflow.reporting.files import atomic_write, write_json
-
-PREPROCESSOR_FILE = "policy_preprocessor.json"  # LeRobot's name for a saved pre-processor
 
 
 class LeRobotProcessor:
