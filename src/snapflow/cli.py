@@ -528,7 +528,8 @@ def _bench(args: argparse.Namespace) -> int:
     _check_writable(args.output)
     import torch
 
-    from snapflow.benchmark.bench import markdown_bench, run_bench, vision_in_bfloat16, write_bench
+    from snapflow.benchmark.bench import run_bench, vision_in_bfloat16
+    from snapflow.benchmark.report import markdown_bench, write_bench
     from snapflow.benchmark.subjects import make_subject
 
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
@@ -551,10 +552,7 @@ def _bench(args: argparse.Namespace) -> int:
         batch_sizes=args.batch_sizes,
         tf32=args.tf32,
     )
-    if distill_step is not None:
-        report["distill_step"] = distill_step
-    if vision_difference is not None:
-        report["vision_bfloat16"] = {"max_abs_action_difference": vision_difference}
+    report.distill_step, report.vision_bfloat16_difference = distill_step, vision_difference
     write_bench(report, args.output)
     print(markdown_bench(report))
     print(f"wrote bench.json, bench.md, latency.png{'' if args.no_profile else ' and profile.txt'} to {args.output}")

@@ -206,7 +206,7 @@ def test_a_teacher_checkpoint_is_timed_at_its_naive_one_step_not_under_snapflows
     subject = builtin_subject(teacher, "teacher")
     assert subject.one_step == NAIVE_1
     report = run_bench(subject, warmup=0, repeats=1, profile=False)
-    assert list(report["latency"]["modes"]) == ["teacher-10", "teacher-5", "teacher-2", "naive-1"]
+    assert list(report.latency.modes) == ["teacher-10", "teacher-5", "teacher-2", "naive-1"]
 
 
 def test_parameter_dtypes_lists_the_groups_that_run_in_each_precision():

@@ -85,7 +85,7 @@ def test_the_onnx_student_gives_the_pytorch_students_actions_in_one_graph(name, 
         torch.testing.assert_close(actions, expected, atol=1e-5, rtol=1e-5)
     # the benchmark times it at its one mode
     report = run_bench(builtin_subject(exported, "onnx"), warmup=0, repeats=2, profile=False)
-    assert list(report["latency"]["modes"]) == ["snapflow-1"] and report["details"]["onnx"]["opset"] == 18
+    assert list(report.latency.modes) == ["snapflow-1"] and report.details["onnx"]["opset"] == 18
 
 
 def test_an_onnx_student_answers_only_its_jump_and_a_teacher_or_a_bad_file_is_refused(tmp_path, capsys):

@@ -25,8 +25,10 @@ from snapflow.jobs.sweep import (
     replace_block,
     run_sweeps,
 )
+from snapflow.jobs.sweep.aggregate import TableResult
+from snapflow.jobs.sweep.markdown import markdown_blocks, tables_markdown
 from snapflow.jobs.sweep.planning import train_job
-from snapflow.jobs.sweep.results import TableResult, markdown_blocks, tables_markdown, write_results
+from snapflow.jobs.sweep.results import write_results
 from snapflow.policies.minivla import MiniVLAConfig
 from snapflow.policies.mlp import MLPPolicyConfig
 from snapflow.reporting.records import as_record

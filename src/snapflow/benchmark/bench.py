@@ -1,4 +1,5 @@
-"""``snapflow bench``: batch-1 latency of one policy at NFE 10, 5, 2 and 1, with the fast path and a profile.
+"""``snapflow bench``: batch-1 latency of one policy at NFE 10, 5, 2 and 1, with the fast path and a profile
+(the report it makes: :mod:`snapflow.benchmark.report`).
 
 The fast path is what deployment runs: the prefix encoded once per chunk, then one pass of the action expert.
 Optionally that pass is compiled (:func:`snapflow.inference.compile_policy`; ``reduce-overhead`` captures a CUDA graph on a GPU)
@@ -11,22 +12,17 @@ import contextlib
 import functools
 import time
 from collections.abc import Iterator
-from dataclasses import asdict
-from pathlib import Path
-from typing import Any
 
 import torch
 
-from snapflow.benchmark.latency import measure_latency, time_round_robin
+from snapflow.benchmark.latency import Timing, measure_latency, time_round_robin
+from snapflow.benchmark.report import BenchReport, OneStepProfile, Throughput
 from snapflow.benchmark.subjects import BenchSubject, parameter_dtypes
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.solver import sample_actions
 from snapflow.inference.compile import compile_policy
 from snapflow.protocol import map_tensors
-from snapflow.reporting.figures import pyplot, save_figure
-from snapflow.reporting.files import write_json, write_text
 from snapflow.reporting.machine import machine
-from snapflow.reporting.tables import markdown_table
 
 # the teacher's step counts timed before the subject's one-step mode
 TEACHER_MODES = (SamplingMode(10, jump=False), SamplingMode(5, jump=False), SamplingMode(2, jump=False))
@@ -38,9 +34,8 @@ PAPER_A800 = {
 
 
 @torch.inference_mode()
-def profile_one_step(subject: BenchSubject, calls: int = 20) -> tuple[str, dict[str, float]]:
-    """torch.profiler table of ``calls`` one-step generations, and how the wall time splits: the operators'
-    own time against everything else (Python, dispatch, framework)."""
+def profile_one_step(subject: BenchSubject, calls: int = 20) -> OneStepProfile:
+    """torch.profiler's view of ``calls`` one-step generations."""
     from torch.profiler import ProfilerActivity, profile
 
     device = subject.noise.device
@@ -58,12 +53,7 @@ def profile_one_step(subject: BenchSubject, calls: int = 20) -> tuple[str, dict[
     )
     # leaf operators (aten::*) do the arithmetic; their self time against the wall time bounds the overhead
     operator_ms = sum(event.self_cpu_time_total for event in averages if event.key.startswith("aten::")) / 1e3 / calls
-    return table, {
-        "calls": calls,
-        "wall_ms_per_call": wall_ms,
-        "aten_self_cpu_ms_per_call": operator_ms,
-        "outside_aten_share": max(0.0, 1 - operator_ms / wall_ms),
-    }
+    return OneStepProfile(table, calls, wall_ms, operator_ms, max(0.0, 1 - operator_ms / wall_ms))
 
 
 def _repeat_first_row(tensor: torch.Tensor, size: int) -> torch.Tensor:
@@ -73,22 +63,18 @@ def _repeat_first_row(tensor: torch.Tensor, size: int) -> torch.Tensor:
 @torch.inference_mode()
 def measure_throughput(
     subject: BenchSubject, modes: tuple[SamplingMode, ...], batch_sizes: tuple[int, ...], warmup: int, repeats: int
-) -> dict[str, dict[str, Any]]:
-    """End-to-end ms per batch and chunks per second of each mode at each batch size (the batch-1 observation
-    repeated), timed round-robin within a batch size."""
-    results: dict[str, dict[str, Any]] = {}
+) -> Throughput:
+    """End-to-end time of each mode at each batch size (the batch-1 observation repeated), timed round-robin
+    within a batch size."""
+    timings: dict[int, dict[str, Timing]] = {}
     for size in batch_sizes:
         observation = map_tensors(subject.observation, functools.partial(_repeat_first_row, size=size))
         noise = _repeat_first_row(subject.noise, size)
         functions = {
             mode.name: functools.partial(sample_actions, subject.policy, observation, noise, mode) for mode in modes
         }
-        timed = time_round_robin(functions, noise.device, warmup, repeats)
-        results[str(size)] = {
-            name: {"end_to_end": asdict(timing), "chunks_per_s": size * 1e3 / timing.median_ms}
-            for name, timing in timed.items()
-        }
-    return results
+        timings[size] = time_round_robin(functions, noise.device, warmup, repeats)
+    return Throughput(timings)
 
 
 @contextlib.contextmanager
@@ -136,7 +122,7 @@ def run_bench(
     modes: tuple[SamplingMode, ...] | None = None,
     batch_sizes: tuple[int, ...] = (),
     tf32: bool = False,
-) -> dict[str, Any]:
+) -> BenchReport:
     """Time ``subject`` at batch 1 at every mode (default: the teacher's 10, 5, 2 steps and the subject's one-step
     mode; the first is the reference of the speedups), the throughput of the first and last mode at
     ``batch_sizes``, and, optionally, profile its one-step mode. ``compile_mode`` runs the fast path
@@ -157,212 +143,23 @@ def run_bench(
             else None
         )
         profiled = profile_one_step(subject) if profile else None
-    report: dict[str, Any] = {
-        "subject": subject.name,
-        "details": subject.details,
-        "machine": machine(),
-        "dtype": str(subject.noise.dtype).removeprefix("torch."),
-        "compile": compile_mode,
-        "latency": latency.to_dict(),
-    }
-    if tf32_difference is not None:
-        report["tf32"] = {"max_abs_action_difference": tf32_difference}
     teacher, one_step = latency.modes[modes[0].name], latency.modes[modes[-1].name]
-    if modes[-1].jump and not modes[0].jump:
-        # what one jump costs against one teacher step: phi_s's s path should add nothing measurable
-        report["jump_to_teacher_pass_ratio"] = one_step.per_pass_ms / teacher.per_pass_ms
-    if throughput is not None:
-        report["throughput"] = throughput
+    # what one jump costs against one teacher step: phi_s's s path should add nothing measurable
+    jump_ratio = one_step.per_pass_ms / teacher.per_pass_ms if modes[-1].jump and not modes[0].jump else None
     paper = PAPER_A800.get(subject.details.get("policy_type", ""))
-    if paper:
-        report["paper_a800"] = {**paper, "end_to_end_speedup": paper["teacher_10_ms"] / paper["snapflow_1_ms"]}
-    if profiled is not None:
-        report["profile_table"], report["profile_one_step"] = profiled
-    return report
-
-
-def _precision(report: dict[str, Any]) -> str:
-    """The precision the weights actually run in: parameter counts per dtype over every module group (a single
-    requested dtype hides the layers a policy keeps in float32)."""
-    groups = report["details"].get("dtypes")
-    if not groups:
-        return f"inputs {report['dtype']}"
-    totals: dict[str, int] = {}
-    for counts in groups.values():
-        for name, count in counts.items():
-            totals[name] = totals.get(name, 0) + count
-    return "weights " + " + ".join(f"{count / 1e6:.1f}M {name}" for name, count in sorted(totals.items()))
-
-
-def markdown_bench(report: dict[str, Any]) -> str:
-    latency, host = report["latency"], report["machine"]
-    device = host["gpu"] or f"{host['cpu']} ({host['threads']} threads)"
-    lines = [
-        f"# Latency: {report['subject']}",
-        "",
-        f"Batch 1 on {device}, {_precision(report)}, torch {host['torch']}, compile: {report['compile'] or 'off'}; medians (P90) of "
-        f"{latency['repeats']} round-robin repeats after {latency['warmup']} warm-up calls of each.",
-        "",
-        f"Prefix (VLM) encoding: {latency['prefix']['median_ms']:.2f} ms (P90 {latency['prefix']['p90_ms']:.2f}).",
-        "",
-        markdown_table(
-            [
-                "mode",
-                "NFE",
-                "denoising ms",
-                "per pass ms",
-                "end-to-end ms",
-                "denoising share",
-                "denoising speedup",
-                "end-to-end speedup",
-            ],
-            [
-                [
-                    name,
-                    entry["nfe"],
-                    f"{entry['denoising']['median_ms']:.2f} ({entry['denoising']['p90_ms']:.2f})",
-                    f"{entry['per_pass_ms']:.2f}",
-                    f"{entry['end_to_end']['median_ms']:.2f} ({entry['end_to_end']['p90_ms']:.2f})",
-                    f"{entry['denoising_share']:.0%}",
-                    f"{entry['denoising_speedup']:.2f}x",
-                    f"{entry['end_to_end_speedup']:.2f}x",
-                ]
-                for name, entry in latency["modes"].items()
-            ],
-        ),
-    ]
-    if len(report["details"].get("dtypes", {})) > 1:
-        lines += [
-            "",
-            "Parameters by module group and dtype:",
-            "",
-            markdown_table(
-                ["module group", "parameters by dtype"],
-                [
-                    [group, ", ".join(f"{count:,} {name}" for name, count in counts.items())]
-                    for group, counts in report["details"]["dtypes"].items()
-                ],
-            ),
-        ]
-    if "distill_step" in report:
-        step = report["distill_step"]
-        lines += [
-            "",
-            f"One distillation step (the paper's objective and target, backward, AdamW on the expert; medians of "
-            f"{step['repeats']} after {step['warmup']} warm-up steps; peak memory: {step['peak_memory']}):",
-            "",
-            markdown_table(
-                ["batch", "ms per step", "P90", "peak memory GiB"],
-                [
-                    [
-                        row["batch_size"],
-                        f"{row['step_ms_median']:.1f}",
-                        f"{row['step_ms_p90']:.1f}",
-                        f"{row['peak_memory_gib']:.2f}",
-                    ]
-                    for row in step["rows"]
-                ],
-            ),
-        ]
-    if "vision_bfloat16" in report:
-        lines += [
-            "",
-            f"Vision tower in bfloat16: the one-step actions move by at most "
-            f"{report['vision_bfloat16']['max_abs_action_difference']:.2e} (normalised units) on these inputs.",
-        ]
-    if "tf32" in report:
-        lines += [
-            "",
-            f"TF32 on: the one-step actions move by at most {report['tf32']['max_abs_action_difference']:.2e} "
-            "(normalised units) on these inputs.",
-        ]
-    if "jump_to_teacher_pass_ratio" in report:
-        lines += [
-            "",
-            f"One jump costs {report['jump_to_teacher_pass_ratio']:.2f}x one teacher step (per-pass medians above).",
-        ]
-    if "throughput" in report:
-        sizes = list(report["throughput"])
-        names = list(report["throughput"][sizes[0]])
-        lines += [
-            "",
-            f"Throughput (end-to-end; medians of {report['throughput'][sizes[0]][names[0]]['end_to_end']['repeats']} "
-            "round-robin repeats per batch size):",
-            "",
-            markdown_table(
-                ["batch", *(f"{name} ms" for name in names), *(f"{name} chunks/s" for name in names)],
-                [
-                    [
-                        size,
-                        *(f"{report['throughput'][size][name]['end_to_end']['median_ms']:.2f}" for name in names),
-                        *(f"{report['throughput'][size][name]['chunks_per_s']:.1f}" for name in names),
-                    ]
-                    for size in sizes
-                ],
-            ),
-        ]
-    if "paper_a800" in report:
-        paper = report["paper_a800"]
-        lines += [
-            "",
-            f"The paper on an A800: {paper['teacher_10_ms']:.0f} ms (10-step teacher) -> {paper['snapflow_1_ms']:.0f} ms "
-            f"(SnapFlow 1-step) end-to-end, {paper['end_to_end_speedup']:.1f}x.",
-        ]
-    if "profile_one_step" in report:
-        summary = report["profile_one_step"]
-        lines += [
-            "",
-            f"Profile of the 1-NFE path ({summary['calls']} calls, `profile.txt`): {summary['wall_ms_per_call']:.2f} ms a call "
-            f"under the profiler, of which operators' own time {summary['aten_self_cpu_ms_per_call']:.2f} ms; "
-            f"{summary['outside_aten_share']:.0%} outside them (Python, dispatch, profiler).",
-        ]
-    return "\n".join(lines)
-
-
-def plot_bench(report: dict[str, Any], path: Path) -> None:
-    plt = pyplot()
-    latency = report["latency"]
-    labels = list(latency["modes"])
-    prefix = [latency["prefix"]["median_ms"]] * len(labels)
-    denoise = [latency["modes"][label]["denoising"]["median_ms"] for label in labels]
-    other = [
-        max(0.0, latency["modes"][label]["end_to_end"]["median_ms"] - p - d)
-        for label, p, d in zip(labels, prefix, denoise, strict=True)
-    ]
-    figure, axis = plt.subplots(figsize=(6.5, 3.8))
-    axis.bar(labels, prefix, label="prefix (VLM)")
-    axis.bar(labels, denoise, bottom=prefix, label="denoising")
-    axis.bar(
-        labels, other, bottom=[p + d for p, d in zip(prefix, denoise, strict=True)], label="other", color="lightgray"
+    return BenchReport(
+        subject.name,
+        subject.details,
+        machine(),
+        str(subject.noise.dtype).removeprefix("torch."),
+        compile_mode,
+        latency,
+        tf32_difference=tf32_difference,
+        jump_to_teacher_pass_ratio=jump_ratio,
+        throughput=throughput,
+        paper_a800={**paper, "end_to_end_speedup": paper["teacher_10_ms"] / paper["snapflow_1_ms"]} if paper else None,
+        profile=profiled,
     )
-    for index, label in enumerate(labels):
-        axis.annotate(
-            f"{latency['modes'][label]['end_to_end_speedup']:.1f}x",
-            (index, prefix[index] + denoise[index] + other[index]),
-            ha="center",
-            va="bottom",
-            fontsize=8,
-        )
-    axis.set_ylim(
-        top=1.12 * max(p + d + o for p, d, o in zip(prefix, denoise, other, strict=True))
-    )  # room for the labels
-    axis.set_ylabel("ms per chunk (median, batch 1)")
-    axis.legend(fontsize=8)
-    host = report["machine"]
-    axis.set_title(f"{report['subject']} on {host['gpu'] or host['cpu']}", fontsize=8)
-    figure.tight_layout()
-    save_figure(figure, path)
-
-
-def write_bench(report: dict[str, Any], directory: str | Path) -> Path:
-    """``bench.json``, ``bench.md``, ``latency.png`` and (when profiled) ``profile.txt``."""
-    directory = Path(directory)
-    write_json(directory / "bench.json", {key: value for key, value in report.items() if key != "profile_table"})
-    write_text(directory / "bench.md", markdown_bench(report) + "\n")
-    plot_bench(report, directory / "latency.png")
-    if "profile_table" in report:
-        write_text(directory / "profile.txt", report["profile_table"] + "\n")
-    return directory
 
 
 __all__ = [
@@ -373,7 +170,4 @@ __all__ = [
     "one_step_actions",
     "vision_in_bfloat16",
     "run_bench",
-    "markdown_bench",
-    "plot_bench",
-    "write_bench",
 ]

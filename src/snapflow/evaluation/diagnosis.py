@@ -20,10 +20,9 @@ import torch
 
 from snapflow.data.chunks import chunk_rows
 from snapflow.data.demonstrations import Demonstrations
-from snapflow.envs.base import Benchmark, Observation
+from snapflow.envs.base import Benchmark, Expert, Observation
 from snapflow.evaluation.closed_loop import ClosedLoopEvaluator
 from snapflow.evaluation.pipeline import Run
-from snapflow.evaluation.results import EpisodeResult
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.solver import sample_actions
 from snapflow.policies.checkpoint import LoadedPolicy
@@ -100,16 +99,32 @@ def _nearest_chunk(demonstrations: Demonstrations, task: str, state: np.ndarray,
     return demonstrations.actions[chunk_rows(demonstrations, np.array([best]), length)[0]], float(distances.min())
 
 
-def _rollout(
+@dataclass
+class _EpisodeTraces:
+    """One run's closed-loop episodes of the task, scored against the expert: per episode (the evaluator's slot), the
+    visited observations, the expert's action at each, the distance of the executed action to it, and success."""
+
+    visited: list[list[Observation]]
+    expert_actions: list[np.ndarray]
+    deviations: list[np.ndarray]
+    success: list[bool]
+
+    @property
+    def failed(self) -> list[int]:
+        return [slot for slot, ok in enumerate(self.success) if not ok]
+
+
+def _trace(
     evaluator: ClosedLoopEvaluator,
+    expert: Expert,
     loaded: LoadedPolicy,
     mode: SamplingMode,
     n_act: int,
     seed: int,
     progress: bool,
     episodes: int,
-) -> tuple[list[list[Observation]], list[list[np.ndarray]], list[EpisodeResult]]:
-    """The evaluator's episodes with every (observation, executed action) of each."""
+) -> _EpisodeTraces:
+    """The evaluator's episodes with every (observation, executed action) of each, scored against ``expert``."""
     visited: list[list[Observation]] = [[] for _ in range(episodes)]
     executed: list[list[np.ndarray]] = [[] for _ in range(episodes)]
 
@@ -118,7 +133,92 @@ def _rollout(
         executed[slot].append(np.asarray(action, dtype=np.float64))
 
     results = evaluator.run(loaded.policy, loaded.processor, mode, n_act, seed, progress, record=record)
-    return visited, executed, results
+    wanted, deviations = [], []
+    for observations, actions in zip(visited, executed, strict=True):
+        expert.reset(observations[0])  # then fed the visited states in order, as it would be driving
+        wanted.append(np.stack([expert.act(observation) for observation in observations]))
+        deviations.append(np.linalg.norm(np.stack(actions) - wanted[-1], axis=1))
+    return _EpisodeTraces(visited, wanted, deviations, [result.success for result in results])
+
+
+def _summarise(label: str, mode: SamplingMode, traces: _EpisodeTraces) -> RowTrace:
+    """A run's success and its distance to the expert by phase (failed, successful and all episodes)."""
+    deviations, success = traces.deviations, traces.success
+    phases = -(-max(len(d) for d in deviations) // PHASE_STEPS)
+    return RowTrace(
+        label,
+        mode.name,
+        sum(success),
+        len(success),
+        _phase_means([d for d, ok in zip(deviations, success, strict=True) if not ok], phases),
+        _phase_means([d for d, ok in zip(deviations, success, strict=True) if ok], phases),
+        _phase_means(deviations, phases),
+        float(np.concatenate(deviations).mean()),
+    )
+
+
+def _failing_phase(reference: RowTrace, student: RowTrace) -> int:
+    """The phase where the student's failed episodes stray from the expert most beyond what the reference (the
+    teacher) does there."""
+    baseline = reference.deviation_all
+    excess = [
+        (value - (baseline[phase] if phase < len(baseline) and baseline[phase] is not None else 0.0), phase)
+        for phase, value in enumerate(student.deviation_failed)
+        if value is not None
+    ]
+    return max(excess)[1]
+
+
+def _failed_moments(traces: _EpisodeTraces, phase: int, states: int) -> list[tuple[int, int]]:
+    """(slot, step) of up to ``states`` failed episodes at the moment each strays furthest within ``phase``,
+    furthest first."""
+    moments = []
+    for slot in traces.failed:
+        window = traces.deviations[slot][phase * PHASE_STEPS : (phase + 1) * PHASE_STEPS]
+        if len(window):
+            moments.append((float(window.max()), slot, phase * PHASE_STEPS + int(window.argmax())))
+    return [(slot, step) for _, slot, step in sorted(moments, reverse=True)[:states]]
+
+
+def _compare_chunks(
+    runs: list[Run],
+    observation: Observation,
+    expert_action: np.ndarray,
+    slot: int,
+    step: int,
+    demonstrations: Demonstrations,
+    task: str,
+    draws: int,
+    generator: torch.Generator,
+) -> ChunkComparison:
+    """Every run's ``draws`` chunks at ``observation`` for the same noise, beside the nearest demonstration's."""
+    processor = runs[0][1].processor
+    reference, distance = _nearest_chunk(demonstrations, task, observation.state, processor.chunk_length)
+    noise = torch.randn(draws, processor.chunk_length, processor.action_dim, generator=generator)
+    comparison = ChunkComparison(
+        slot,  # the evaluator's slots of one task are its evaluation variations in order
+        step,
+        observation.state.tolist(),
+        distance,
+        expert_action.tolist(),
+        reference.tolist(),
+    )
+    for label, loaded, mode in runs:
+        batch = loaded.processor.observation(
+            np.repeat(observation.state[None], draws, 0),
+            [observation.instruction] * draws,
+            np.repeat(observation.image[None], draws, 0) if loaded.processor.image_size else None,
+            {
+                name: np.repeat(observation.extra_images[name][None], draws, 0)
+                for name in loaded.processor.extra_cameras
+            },
+        )
+        chunks = loaded.processor.unnormalize_actions(sample_actions(loaded.policy, batch, noise, mode)).numpy()
+        comparison.chunks[label] = chunks.tolist()
+        comparison.error_to_demonstration[label] = float(((chunks - reference[None]) ** 2).mean())
+        comparison.spread[label] = float(chunks.std(0).mean())
+        comparison.first_action_to_expert[label] = float(np.linalg.norm(chunks[:, 0] - expert_action, axis=1).mean())
+    return comparison
 
 
 @torch.no_grad()
@@ -140,83 +240,22 @@ def diagnose_task(
         loaded.check_mode(mode)
     evaluator = ClosedLoopEvaluator(benchmark, [task], episodes, runs[0][1].processor.image_size)
     expert = benchmark.make_expert(task)
-    traces = []  # per run: its row, and per episode the visited observations, expert actions, distances, success
     try:
-        for label, loaded, mode in runs:
-            visited, executed, results = _rollout(evaluator, loaded, mode, n_act, seed, progress, episodes)
-            deviations, wanted = [], []
-            for slot in range(episodes):
-                expert.reset(visited[slot][0])  # then fed the visited states in order, as it would be driving
-                wanted.append(np.stack([expert.act(observation) for observation in visited[slot]]))
-                deviations.append(np.linalg.norm(np.stack(executed[slot]) - wanted[-1], axis=1))
-            success = [result.success for result in results]
-            phases = -(-max(len(d) for d in deviations) // PHASE_STEPS)
-            row = RowTrace(
-                label,
-                mode.name,
-                sum(success),
-                episodes,
-                _phase_means([d for d, ok in zip(deviations, success, strict=True) if not ok], phases),
-                _phase_means([d for d, ok in zip(deviations, success, strict=True) if ok], phases),
-                _phase_means(deviations, phases),
-                float(np.concatenate(deviations).mean()),
-            )
-            traces.append((row, visited, wanted, deviations, success))
+        traces = [_trace(evaluator, expert, loaded, mode, n_act, seed, progress, episodes) for _, loaded, mode in runs]
     finally:
         evaluator.close()
-
-    diagnosis = Diagnosis(benchmark.name, task, episodes, n_act, PHASE_STEPS, [t[0] for t in traces], None)
-    student, visited, wanted, deviations, success = traces[-1]
-    failed = [slot for slot in range(episodes) if not success[slot]]
-    if not failed:
+    rows = [_summarise(label, mode, trace) for (label, _, mode), trace in zip(runs, traces, strict=True)]
+    diagnosis = Diagnosis(benchmark.name, task, episodes, n_act, PHASE_STEPS, rows, None)
+    student = traces[-1]
+    if not student.failed:
         return diagnosis
-    # where the student's failed episodes stray from the expert most beyond what the first row (the teacher) does there
-    reference = traces[0][0].deviation_all
-    excess = [
-        (value - (reference[phase] if phase < len(reference) and reference[phase] is not None else 0.0), phase)
-        for phase, value in enumerate(student.deviation_failed)
-        if value is not None
-    ]
-    diagnosis.failing_phase = max(excess)[1]
-    # the moment each failed episode strays furthest, within the failing phase where it reaches it
-    moments = []
-    for slot in failed:
-        window = deviations[slot][diagnosis.failing_phase * PHASE_STEPS : (diagnosis.failing_phase + 1) * PHASE_STEPS]
-        if len(window):
-            moments.append((float(window.max()), slot, diagnosis.failing_phase * PHASE_STEPS + int(window.argmax())))
+    diagnosis.failing_phase = _failing_phase(rows[0], rows[-1])
     generator = torch.Generator().manual_seed(seed)
-    processor = runs[0][1].processor
-    for _, slot, step in sorted(moments, reverse=True)[:states]:
-        observation = visited[slot][step]
-        expert_action = wanted[slot][step]
-        reference, distance = _nearest_chunk(demonstrations, task, observation.state, processor.chunk_length)
-        noise = torch.randn(draws, processor.chunk_length, processor.action_dim, generator=generator)
-        comparison = ChunkComparison(
-            slot,  # the evaluator's slots of one task are its evaluation variations in order
-            step,
-            observation.state.tolist(),
-            distance,
-            expert_action.tolist(),
-            reference.tolist(),
+    for slot, step in _failed_moments(student, diagnosis.failing_phase, states):
+        observation, expert_action = student.visited[slot][step], student.expert_actions[slot][step]
+        diagnosis.comparisons.append(
+            _compare_chunks(runs, observation, expert_action, slot, step, demonstrations, task, draws, generator)
         )
-        for label, loaded, mode in runs:
-            batch = loaded.processor.observation(
-                np.repeat(observation.state[None], draws, 0),
-                [observation.instruction] * draws,
-                np.repeat(observation.image[None], draws, 0) if loaded.processor.image_size else None,
-                {
-                    name: np.repeat(observation.extra_images[name][None], draws, 0)
-                    for name in loaded.processor.extra_cameras
-                },
-            )
-            chunks = loaded.processor.unnormalize_actions(sample_actions(loaded.policy, batch, noise, mode)).numpy()
-            comparison.chunks[label] = chunks.tolist()
-            comparison.error_to_demonstration[label] = float(((chunks - reference[None]) ** 2).mean())
-            comparison.spread[label] = float(chunks.std(0).mean())
-            comparison.first_action_to_expert[label] = float(
-                np.linalg.norm(chunks[:, 0] - expert_action, axis=1).mean()
-            )
-        diagnosis.comparisons.append(comparison)
     return diagnosis
 
 
@@ -335,4 +374,11 @@ def write_diagnosis(diagnosis: Diagnosis, output: str | Path) -> list[Path]:
     return paths
 
 
-__all__ = ["ChunkComparison", "Diagnosis", "RowTrace", "diagnose_task", "markdown_diagnosis", "write_diagnosis"]
+__all__ = [
+    "ChunkComparison",
+    "Diagnosis",
+    "RowTrace",
+    "diagnose_task",
+    "markdown_diagnosis",
+    "write_diagnosis",
+]

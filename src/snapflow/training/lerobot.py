@@ -50,6 +50,9 @@ def paper_training() -> TrainConfig:
 EXPORT_DIRECTORY = "lerobot_policy"
 SMOLVLM_DIRECTORY = "smolvlm"  # the teacher's SmolVLM config and tokenizer, which its exported config points at
 DATASET_INFO = "meta/info.json"  # LeRobot's INFO_PATH: the first file of a LeRobotDataset it reads
+# the commands named as the holder of a run folder, in another process's refusal
+TEACHER_HOLDER = "snapflow train"
+DISTILL_HOLDER = "snapflow distill"
 
 
 def policy_processors(
@@ -143,7 +146,7 @@ def distill_lerobot(
     check_dataset(dataset_root, repo_id)
     # held here, not only by `train`, so that the export is inside the hold and a refusal comes before the loading;
     # only the main process of a launch writes, so only it holds the folder (`train` nests inside this hold)
-    with hold_run_lock(output, "snapflow distill") if PartialState().is_main_process else nullcontext():
+    with hold_run_lock(output, DISTILL_HOLDER) if PartialState().is_main_process else nullcontext():
         return _distill_lerobot(
             policy_path,
             dataset_root,
@@ -190,7 +193,7 @@ def train_smolvla_teacher(
     processors in ``output/lerobot_policy``, ready for ``snapflow distill --policy``."""
     size = size or SmolVLMSize()
     check_dataset(dataset_root, repo_id)
-    with hold_run_lock(output, "snapflow train") if PartialState().is_main_process else nullcontext():
+    with hold_run_lock(output, TEACHER_HOLDER) if PartialState().is_main_process else nullcontext():
         from lerobot.configs.types import FeatureType
         from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
         from lerobot.policies.factory import make_pre_post_processors
@@ -232,6 +235,7 @@ def train_smolvla_teacher(
             [parameter for parameter in adapter.parameters() if parameter not in phi_s],
             config,
             output,
+            TEACHER_HOLDER,
             run_metadata,
             resume,
             progress,
@@ -247,13 +251,14 @@ def _train_and_export(
     trainable: list[torch.nn.Parameter],
     config: TrainConfig,
     output: str | Path,
+    holder: str,
     run_metadata: dict[str, Any],
     resume: bool,
     progress: bool,
     save: Callable[[Path], Path],
 ) -> dict[str, Any]:
-    """The one trainer on LeRobot's pre-processed batches of ``dataset``, then ``save`` of the result into
-    ``output/lerobot_policy`` with the processors beside it."""
+    """The one trainer on LeRobot's pre-processed batches of ``dataset`` (``holder``: the command holding
+    ``output``), then ``save`` of the result into ``output/lerobot_policy`` with the processors beside it."""
     preprocessor, postprocessor = processors
     state = train(
         adapter,
@@ -266,6 +271,7 @@ def _train_and_export(
         resume=resume,
         trainable=trainable,
         progress=progress,
+        holder=holder,
     )
     export = save(Path(output) / EXPORT_DIRECTORY)
     preprocessor.save_pretrained(export)
@@ -318,6 +324,7 @@ def _distill_lerobot(
         adapter.expert_parameters(),
         config,
         output,
+        DISTILL_HOLDER,
         run_metadata,
         resume,
         progress,

@@ -52,7 +52,18 @@ def train_teacher(
         data={"path": str(data), "val_fraction": val_fraction, "env": demonstrations.env},
     )
     objective = SnapFlowObjective(alpha=1.0, time_sampler=BUILTIN_TIME_SAMPLER)
-    return train(policy, objective, train_data, val_data, config, output, metadata, resume=resume, progress=progress)
+    return train(
+        policy,
+        objective,
+        train_data,
+        val_data,
+        config,
+        output,
+        metadata,
+        resume=resume,
+        progress=progress,
+        holder="snapflow train",
+    )
 
 
 def distill(
@@ -96,6 +107,7 @@ def distill(
         resume=resume,
         trainable=trainable,
         progress=progress,
+        holder="snapflow distill",
     )
 
 

@@ -14,6 +14,7 @@ from typing import Any, Protocol
 
 import torch
 from accelerate import Accelerator
+from accelerate.optimizer import AcceleratedOptimizer
 from torch import Tensor, nn
 from tqdm.auto import tqdm
 
@@ -151,6 +152,8 @@ def train(
     resume: bool = False,
     trainable: list[nn.Parameter] | None = None,
     progress: bool = True,
+    *,
+    holder: str,
 ) -> dict[str, Any]:
     """Optimise ``objective`` on ``policy`` (any module implementing FlowPolicy); checkpoints under
     ``run_directory/checkpoints``. The data needs ``len()`` and ``batch(indices) -> (observation, actions)``.
@@ -159,15 +162,14 @@ def train(
     phi_s); default: all.
     ``metadata`` is the policy description saved beside the weights (see ``policy_metadata``).
     Returns the trainer state (history of losses and validation). Holds the run folder for the whole run: another
-    process training into it is refused with :class:`~snapflow.reporting.locks.RunLockedError`.
+    process training into it is refused with :class:`~snapflow.reporting.locks.RunLockedError`, which names
+    ``holder`` (the command that trains, e.g. ``snapflow train``).
     """
     run_directory = Path(run_directory)
     accelerator = Accelerator(mixed_precision=config.mixed_precision)
-    # the teacher stage is what `snapflow train` runs; every other stage distils
-    command = "snapflow train" if metadata.get("stage") == "teacher" else "snapflow distill"
     # only the main process writes the run, so only it holds the folder (the processes of one launch would otherwise
     # refuse each other)
-    with hold_run_lock(run_directory, command) if accelerator.is_main_process else nullcontext():
+    with hold_run_lock(run_directory, holder) if accelerator.is_main_process else nullcontext():
         return _train(
             accelerator,
             policy,
@@ -181,6 +183,111 @@ def train(
             trainable,
             progress,
         )
+
+
+def _optimiser(
+    policy: nn.Module, trainable: list[nn.Parameter] | None, config: TrainConfig
+) -> tuple[torch.optim.AdamW, WeightAverage | None]:
+    """AdamW over ``trainable`` (default: every parameter of ``policy``), every other parameter frozen, and the
+    weight average of the trained parameters where ``config`` keeps one."""
+    parameters = trainable if trainable is not None else list(policy.parameters())
+    trainable_ids = {id(p) for p in parameters}
+    for parameter in policy.parameters():
+        parameter.requires_grad_(id(parameter) in trainable_ids)
+    optimizer = torch.optim.AdamW(parameters, lr=config.learning_rate, weight_decay=config.weight_decay)
+    if config.ema_decay is None:
+        return optimizer, None
+    trained = {name: p for name, p in policy.named_parameters() if id(p) in trainable_ids}
+    return optimizer, WeightAverage(trained, config.ema_decay)
+
+
+def _starting_state(
+    accelerator: Accelerator,
+    run_directory: Path,
+    policy: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    average: WeightAverage | None,
+    config: TrainConfig,
+    resume: bool,
+) -> dict[str, Any]:
+    """A fresh trainer state, or with ``resume`` the latest checkpoint's, loaded into ``policy``, ``optimizer`` and
+    ``average``. Refuses to resume under other training settings, and to start over a run without ``resume``."""
+    recorded = as_record(config)
+    fresh = {"step": 0, "history": [], "validation": [], "train_config": recorded, "wall_time_s": 0.0}
+    if not (run_directory / LATEST).is_file():
+        if resume:
+            accelerator.print(f"nothing to resume in {run_directory}; starting at step 0")
+        return fresh
+    if not resume:
+        raise FileExistsError(
+            f"{run_directory} already holds a run; pass --resume to continue it or choose another --output"
+        )
+    state, saved_average = restore_training(run_directory, policy, optimizer)
+    saved = state["train_config"]
+    if saved != recorded:
+        changed = sorted(key for key in recorded.keys() | saved.keys() if saved.get(key) != recorded.get(key))
+        raise CheckpointError(
+            f"cannot resume {run_directory}: training settings differ from the checkpoint's in {changed}"
+        )
+    if average is not None and saved_average is not None:
+        average.average = saved_average
+    accelerator.print(f"resuming {run_directory} at step {state['step']}")
+    return state
+
+
+def _history_row(running: list[Tensor], step: int, learning_rate: float, schedule: dict[str, Any]) -> dict[str, Any]:
+    """The mean [loss, FM loss, one-step loss] of the steps since the last row, logged at ``step``."""
+    loss, flow_matching, consistency = torch.stack(running).float().mean(0).tolist()
+    return {
+        "step": step,
+        "loss": loss,
+        "flow_matching": flow_matching,
+        "consistency": consistency,
+        "lr": learning_rate,
+        **schedule,
+    }
+
+
+def _validation_row(
+    accelerator: Accelerator, module: nn.Module, val_data: ChunkSource, batch_size: int, step: int, progress: float
+) -> dict[str, Any]:
+    """:func:`validation_loss` of the (possibly wrapped) ``module`` at ``step``."""
+    module.eval()
+    loss = validation_loss(
+        accelerator.unwrap_model(module), val_data, batch_size, accelerator.device, progress=progress
+    )
+    return {"step": step, **loss}
+
+
+def _save(
+    accelerator: Accelerator,
+    module: nn.Module,
+    optimizer: AcceleratedOptimizer,
+    average: WeightAverage | None,
+    state: dict[str, Any],
+    step: int,
+    started: float,
+    run_directory: Path,
+    metadata: dict[str, Any],
+    config: TrainConfig,
+) -> None:
+    """Checkpoint the run at ``step`` from the main process (its ``state`` brought to that step, its wall time counted
+    from ``started``) and mark it latest, keeping ``config.keep_checkpoints``; every process waits for it. With a
+    weight average, the average is saved as the policy (what evaluation reads) and the raw weights beside it (what
+    training resumes from)."""
+    if accelerator.is_main_process:
+        state.update(step=step, wall_time_s=time.perf_counter() - started)
+        with average.applied() if average is not None else nullcontext() as raw:
+            path = save_checkpoint(
+                run_directory / "checkpoints" / f"step_{step:07d}",
+                accelerator.unwrap_model(module).policy,
+                metadata,
+                optimizer.optimizer,
+                state,
+                training_weights=raw,
+            )
+        mark_latest(run_directory, path, config.keep_checkpoints)
+    accelerator.wait_for_everyone()
 
 
 def _train(
@@ -197,60 +304,11 @@ def _train(
     progress: bool,
 ) -> dict[str, Any]:
     """:func:`train` with the run folder held."""
-    parameters = trainable if trainable is not None else list(policy.parameters())
-    trainable_ids = {id(p) for p in parameters}
-    for parameter in policy.parameters():
-        parameter.requires_grad_(id(parameter) in trainable_ids)
-    optimizer = torch.optim.AdamW(parameters, lr=config.learning_rate, weight_decay=config.weight_decay)
-    average = None
-    if config.ema_decay is not None:
-        average = WeightAverage(
-            {name: p for name, p in policy.named_parameters() if id(p) in trainable_ids}, config.ema_decay
-        )
-
-    recorded = as_record(config)
-    state: dict[str, Any] = {"step": 0, "history": [], "validation": [], "train_config": recorded, "wall_time_s": 0.0}
-    if resume and (run_directory / LATEST).is_file():
-        state, saved_average = restore_training(run_directory, policy, optimizer)
-        if state["train_config"] != recorded:
-            changed = sorted(
-                k
-                for k in recorded.keys() | state["train_config"].keys()
-                if state["train_config"].get(k) != recorded.get(k)
-            )
-            raise CheckpointError(
-                f"cannot resume {run_directory}: training settings differ from the checkpoint's in {changed}"
-            )
-        if average is not None and saved_average is not None:
-            average.average = saved_average
-        accelerator.print(f"resuming {run_directory} at step {state['step']}")
-    elif resume:
-        accelerator.print(f"nothing to resume in {run_directory}; starting at step 0")
-    elif (run_directory / LATEST).is_file():
-        raise FileExistsError(
-            f"{run_directory} already holds a run; pass --resume to continue it or choose another --output"
-        )
-
-    module = ObjectiveModule(policy, objective)
-    module, optimizer = accelerator.prepare(module, optimizer)
+    optimizer, average = _optimiser(policy, trainable, config)
+    state = _starting_state(accelerator, run_directory, policy, optimizer, average, config, resume)
+    module, optimizer = accelerator.prepare(ObjectiveModule(policy, objective), optimizer)
     device = accelerator.device
     started = time.perf_counter() - state["wall_time_s"]
-
-    def checkpoint_now(step: int) -> None:
-        if accelerator.is_main_process:
-            state.update(step=step, wall_time_s=time.perf_counter() - started)
-            with average.applied() if average is not None else nullcontext() as raw:  # evaluation reads the average
-                path = save_checkpoint(
-                    run_directory / "checkpoints" / f"step_{step:07d}",
-                    accelerator.unwrap_model(module).policy,
-                    metadata,
-                    optimizer.optimizer,
-                    state,
-                    training_weights=raw,
-                )
-            mark_latest(run_directory, path, config.keep_checkpoints)
-        accelerator.wait_for_everyone()
-
     bar = tqdm(
         range(state["step"], config.steps),
         initial=state["step"],
@@ -282,37 +340,23 @@ def _train(
         if average is not None:
             average.update(step)
         done = step + 1
-        if done % config.log_every == 0 or done == config.steps:
-            mean = torch.stack(running).float().mean(0).tolist()
-            state["history"].append(
-                {
-                    "step": done,
-                    "loss": mean[0],
-                    "flow_matching": mean[1],
-                    "consistency": mean[2],
-                    "lr": config.learning_rate_at(step),
-                    **objective.schedule(fraction_done),
-                }
-            )
-            bar.set_postfix(loss=f"{mean[0]:.4f}", refresh=False)
+        last = done == config.steps
+        if done % config.log_every == 0 or last:
+            schedule = objective.schedule(fraction_done)
+            state["history"].append(_history_row(running, done, config.learning_rate_at(step), schedule))
+            bar.set_postfix(loss=f"{state['history'][-1]['loss']:.4f}", refresh=False)
             running = []
-        if val_data is not None and (done % config.validate_every == 0 or done == config.steps):
-            module.eval()
+        if val_data is not None and (done % config.validate_every == 0 or last):
             state["validation"].append(
-                {
-                    "step": done,
-                    **validation_loss(
-                        accelerator.unwrap_model(module), val_data, config.batch_size, device, progress=fraction_done
-                    ),
-                }
+                _validation_row(accelerator, module, val_data, config.batch_size, done, fraction_done)
             )
             bar.set_postfix(
                 loss=f"{state['history'][-1]['loss']:.4f}" if state["history"] else "",
                 val=f"{state['validation'][-1]['loss']:.4f}",
                 refresh=False,
             )
-        if done % config.checkpoint_every == 0 or done == config.steps:
-            checkpoint_now(done)
+        if done % config.checkpoint_every == 0 or last:
+            _save(accelerator, module, optimizer, average, state, done, started, run_directory, metadata, config)
     bar.close()
     if accelerator.is_main_process:
         write_json(run_directory / HISTORY, state)

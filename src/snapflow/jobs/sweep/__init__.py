@@ -35,6 +35,8 @@ __getattr__, __dir__, __all__ = lazy_exports(
     {
         "snapflow.jobs.sweep.schema": ["SweepConfig", "load_sweep"],
         "snapflow.jobs.sweep.planning": ["CollectJob", "DataJob", "TrainJob", "EvalJob", "jobs", "plan", "run_sweeps"],
-        "snapflow.jobs.sweep.results": ["SweepRow", "TableResult", "table_results", "write_results", "replace_block"],
+        "snapflow.jobs.sweep.aggregate": ["SweepRow", "TableResult", "table_results"],
+        "snapflow.jobs.sweep.markdown": ["replace_block"],
+        "snapflow.jobs.sweep.results": ["write_results"],
     },
 )

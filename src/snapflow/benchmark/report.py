@@ -1,0 +1,307 @@
+"""The report of ``snapflow bench``: what was measured of one subject (``bench.json``), its Markdown (``bench.md``,
+one function a section), its plot (``latency.png``) and the profiler's table (``profile.txt``)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from snapflow.benchmark.latency import LatencyReport, Timing
+from snapflow.reporting.figures import pyplot, save_figure
+from snapflow.reporting.files import write_json, write_text
+from snapflow.reporting.tables import markdown_table
+
+
+@dataclass(frozen=True)
+class OneStepProfile:
+    """Where the one-step path's time goes: torch.profiler's table of ``calls`` generations, and how the wall time
+    splits between the operators' own time and everything else (Python, dispatch, framework)."""
+
+    table: str
+    calls: int
+    wall_ms_per_call: float
+    aten_self_cpu_ms_per_call: float
+    outside_aten_share: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """The summary ``bench.json`` keeps (the table goes to ``profile.txt``)."""
+        return {key: value for key, value in asdict(self).items() if key != "table"}
+
+
+@dataclass(frozen=True)
+class Throughput:
+    """End-to-end timings of some modes at several batch sizes: batch size -> mode name -> timing."""
+
+    timings: dict[int, dict[str, Timing]]
+
+    def chunks_per_s(self, size: int, mode: str) -> float:
+        """Chunks generated per second by ``mode`` at batch ``size`` (medians)."""
+        return size * 1e3 / self.timings[size][mode].median_ms
+
+    def to_dict(self) -> dict[str, dict[str, Any]]:
+        """Per batch size (as a string) and mode, the timing and chunks per second."""
+        return {
+            str(size): {
+                name: {"end_to_end": asdict(timing), "chunks_per_s": self.chunks_per_s(size, name)}
+                for name, timing in timed.items()
+            }
+            for size, timed in self.timings.items()
+        }
+
+
+@dataclass
+class BenchReport:
+    """What ``snapflow bench`` measured of one subject; ``to_dict()`` is ``bench.json``. The sections after
+    ``latency`` are None where they were not measured."""
+
+    subject: str
+    details: dict[str, Any]  # the subject's (policy type, sizes, parameters by module group and dtype, ...)
+    machine: dict[str, Any]
+    dtype: str  # of the inputs
+    compile: str | None
+    latency: LatencyReport
+    tf32_difference: float | None = None  # max |one-step actions with TF32 - without|, on the subject's inputs
+    jump_to_teacher_pass_ratio: float | None = None  # one jump's time over one teacher step's
+    throughput: Throughput | None = None
+    paper_a800: dict[str, float] | None = None  # the paper's figures for this policy type
+    profile: OneStepProfile | None = None
+    distill_step: dict[str, Any] | None = None  # from snapflow.benchmark.training_cost.distillation_step_cost
+    vision_bfloat16_difference: float | None = None  # as tf32_difference, for a vision tower run in bfloat16
+
+    def to_dict(self) -> dict[str, Any]:
+        """``bench.json``: every section measured (the profiler's table goes to ``profile.txt`` instead)."""
+        report: dict[str, Any] = {
+            "subject": self.subject,
+            "details": self.details,
+            "machine": self.machine,
+            "dtype": self.dtype,
+            "compile": self.compile,
+            "latency": self.latency.to_dict(),
+        }
+        if self.tf32_difference is not None:
+            report["tf32"] = {"max_abs_action_difference": self.tf32_difference}
+        if self.jump_to_teacher_pass_ratio is not None:
+            report["jump_to_teacher_pass_ratio"] = self.jump_to_teacher_pass_ratio
+        if self.throughput is not None:
+            report["throughput"] = self.throughput.to_dict()
+        if self.paper_a800 is not None:
+            report["paper_a800"] = self.paper_a800
+        if self.profile is not None:
+            report["profile_one_step"] = self.profile.to_dict()
+        if self.distill_step is not None:
+            report["distill_step"] = self.distill_step
+        if self.vision_bfloat16_difference is not None:
+            report["vision_bfloat16"] = {"max_abs_action_difference": self.vision_bfloat16_difference}
+        return report
+
+
+def _precision(report: BenchReport) -> str:
+    """The precision the weights actually run in: parameter counts per dtype over every module group (a single
+    requested dtype hides the layers a policy keeps in float32)."""
+    groups = report.details.get("dtypes")
+    if not groups:
+        return f"inputs {report.dtype}"
+    totals: dict[str, int] = {}
+    for counts in groups.values():
+        for name, count in counts.items():
+            totals[name] = totals.get(name, 0) + count
+    return "weights " + " + ".join(f"{count / 1e6:.1f}M {name}" for name, count in sorted(totals.items()))
+
+
+# bench.md: one function a section, each None where its section was not measured, in the order they are written
+
+
+def _latency_markdown(report: BenchReport) -> str:
+    """The title, how it was timed, the prefix, and the table of modes."""
+    latency, host = report.latency, report.machine
+    device = host["gpu"] or f"{host['cpu']} ({host['threads']} threads)"
+    header = ["mode", "NFE", "denoising ms", "per pass ms", "end-to-end ms", "denoising share"]
+    header += ["denoising speedup", "end-to-end speedup"]
+    rows = [
+        [
+            name,
+            row.nfe,
+            f"{row.denoising.median_ms:.2f} ({row.denoising.p90_ms:.2f})",
+            f"{row.per_pass_ms:.2f}",
+            f"{row.end_to_end.median_ms:.2f} ({row.end_to_end.p90_ms:.2f})",
+            f"{row.denoising_share:.0%}",
+            f"{row.denoising_speedup:.2f}x",
+            f"{row.end_to_end_speedup:.2f}x",
+        ]
+        for name, row in latency.modes.items()
+    ]
+    return "\n".join(
+        [
+            f"# Latency: {report.subject}",
+            "",
+            f"Batch 1 on {device}, {_precision(report)}, torch {host['torch']}, compile: {report.compile or 'off'}; "
+            f"medians (P90) of {latency.repeats} round-robin repeats after {latency.warmup} warm-up calls of each.",
+            "",
+            f"Prefix (VLM) encoding: {latency.prefix.median_ms:.2f} ms (P90 {latency.prefix.p90_ms:.2f}).",
+            "",
+            markdown_table(header, rows),
+        ]
+    )
+
+
+def _dtypes_markdown(report: BenchReport) -> str | None:
+    groups = report.details.get("dtypes", {})
+    if len(groups) <= 1:
+        return None
+    rows = [
+        [group, ", ".join(f"{count:,} {name}" for name, count in counts.items())] for group, counts in groups.items()
+    ]
+    return "Parameters by module group and dtype:\n\n" + markdown_table(["module group", "parameters by dtype"], rows)
+
+
+def _distill_step_markdown(report: BenchReport) -> str | None:
+    step = report.distill_step
+    if step is None:
+        return None
+    rows = [
+        [
+            row["batch_size"],
+            f"{row['step_ms_median']:.1f}",
+            f"{row['step_ms_p90']:.1f}",
+            f"{row['peak_memory_gib']:.2f}",
+        ]
+        for row in step["rows"]
+    ]
+    return (
+        f"One distillation step (the paper's objective and target, backward, AdamW on the expert; medians of "
+        f"{step['repeats']} after {step['warmup']} warm-up steps; peak memory: {step['peak_memory']}):\n\n"
+        + markdown_table(["batch", "ms per step", "P90", "peak memory GiB"], rows)
+    )
+
+
+def _vision_bfloat16_markdown(report: BenchReport) -> str | None:
+    if report.vision_bfloat16_difference is None:
+        return None
+    return (
+        f"Vision tower in bfloat16: the one-step actions move by at most {report.vision_bfloat16_difference:.2e} "
+        "(normalised units) on these inputs."
+    )
+
+
+def _tf32_markdown(report: BenchReport) -> str | None:
+    if report.tf32_difference is None:
+        return None
+    return f"TF32 on: the one-step actions move by at most {report.tf32_difference:.2e} (normalised units) on these inputs."
+
+
+def _jump_markdown(report: BenchReport) -> str | None:
+    if report.jump_to_teacher_pass_ratio is None:
+        return None
+    return f"One jump costs {report.jump_to_teacher_pass_ratio:.2f}x one teacher step (per-pass medians above)."
+
+
+def _throughput_markdown(report: BenchReport) -> str | None:
+    if report.throughput is None:
+        return None
+    timings = report.throughput.timings
+    sizes = list(timings)
+    names = list(timings[sizes[0]])
+    header = ["batch", *(f"{name} ms" for name in names), *(f"{name} chunks/s" for name in names)]
+    rows = [
+        [
+            size,
+            *(f"{timings[size][name].median_ms:.2f}" for name in names),
+            *(f"{report.throughput.chunks_per_s(size, name):.1f}" for name in names),
+        ]
+        for size in sizes
+    ]
+    return (
+        f"Throughput (end-to-end; medians of {timings[sizes[0]][names[0]].repeats} round-robin repeats per batch "
+        "size):\n\n" + markdown_table(header, rows)
+    )
+
+
+def _paper_markdown(report: BenchReport) -> str | None:
+    paper = report.paper_a800
+    if paper is None:
+        return None
+    return (
+        f"The paper on an A800: {paper['teacher_10_ms']:.0f} ms (10-step teacher) -> {paper['snapflow_1_ms']:.0f} ms "
+        f"(SnapFlow 1-step) end-to-end, {paper['end_to_end_speedup']:.1f}x."
+    )
+
+
+def _profile_markdown(report: BenchReport) -> str | None:
+    profile = report.profile
+    if profile is None:
+        return None
+    return (
+        f"Profile of the 1-NFE path ({profile.calls} calls, `profile.txt`): {profile.wall_ms_per_call:.2f} ms a call "
+        f"under the profiler, of which operators' own time {profile.aten_self_cpu_ms_per_call:.2f} ms; "
+        f"{profile.outside_aten_share:.0%} outside them (Python, dispatch, profiler)."
+    )
+
+
+_SECTIONS = (
+    _latency_markdown,
+    _dtypes_markdown,
+    _distill_step_markdown,
+    _vision_bfloat16_markdown,
+    _tf32_markdown,
+    _jump_markdown,
+    _throughput_markdown,
+    _paper_markdown,
+    _profile_markdown,
+)
+
+
+def markdown_bench(report: BenchReport) -> str:
+    """``bench.md``: the latency table, then each other section that was measured."""
+    sections = (markdown(report) for markdown in _SECTIONS)
+    return "\n\n".join(section for section in sections if section is not None)
+
+
+def plot_bench(report: BenchReport, path: Path) -> None:
+    """Per mode, the end-to-end time stacked as prefix, denoising and the rest, labelled with its speedup."""
+    plt = pyplot()
+    latency = report.latency
+    labels = list(latency.modes)
+    prefix = [latency.prefix.median_ms] * len(labels)
+    denoise = [latency.modes[label].denoising.median_ms for label in labels]
+    other = [
+        max(0.0, latency.modes[label].end_to_end.median_ms - p - d)
+        for label, p, d in zip(labels, prefix, denoise, strict=True)
+    ]
+    figure, axis = plt.subplots(figsize=(6.5, 3.8))
+    axis.bar(labels, prefix, label="prefix (VLM)")
+    axis.bar(labels, denoise, bottom=prefix, label="denoising")
+    axis.bar(
+        labels, other, bottom=[p + d for p, d in zip(prefix, denoise, strict=True)], label="other", color="lightgray"
+    )
+    for index, label in enumerate(labels):
+        axis.annotate(
+            f"{latency.modes[label].end_to_end_speedup:.1f}x",
+            (index, prefix[index] + denoise[index] + other[index]),
+            ha="center",
+            va="bottom",
+            fontsize=8,
+        )
+    axis.set_ylim(
+        top=1.12 * max(p + d + o for p, d, o in zip(prefix, denoise, other, strict=True))
+    )  # room for the labels
+    axis.set_ylabel("ms per chunk (median, batch 1)")
+    axis.legend(fontsize=8)
+    host = report.machine
+    axis.set_title(f"{report.subject} on {host['gpu'] or host['cpu']}", fontsize=8)
+    figure.tight_layout()
+    save_figure(figure, path)
+
+
+def write_bench(report: BenchReport, directory: str | Path) -> Path:
+    """``bench.json``, ``bench.md``, ``latency.png`` and (when profiled) ``profile.txt``."""
+    directory = Path(directory)
+    write_json(directory / "bench.json", report.to_dict())
+    write_text(directory / "bench.md", markdown_bench(report) + "\n")
+    plot_bench(report, directory / "latency.png")
+    if report.profile is not None:
+        write_text(directory / "profile.txt", report.profile.table + "\n")
+    return directory
+
+
+__all__ = ["OneStepProfile", "Throughput", "BenchReport", "markdown_bench", "plot_bench", "write_bench"]

@@ -1,0 +1,131 @@
+"""A sweep's tables in Markdown: each table with its caption and footnotes, per task, the blocks a results document
+holds between markers, and ``tables.md``."""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+
+from snapflow.jobs.sweep.aggregate import SweepRow, TableResult
+from snapflow.jobs.sweep.schema import SweepConfig
+from snapflow.reporting.tables import markdown_table
+
+
+def _interval_cells(row: SweepRow) -> list[str]:
+    interval = "{:.1f}-{:.1f}".format(*row.success_interval) if row.success_interval else "-"
+    if row.difference is None:
+        return [interval, "reference"]
+    difference = row.difference
+    return [interval, f"{difference.mean:+.1f} ({difference.low:+.1f}, {difference.high:+.1f})"]
+
+
+def markdown_rows(config: SweepConfig, result: TableResult, command: str) -> str:
+    """The table with its caption (how it was made, wall times) and footnotes."""
+    rows = result.rows
+    episodes = rows[0].episodes // len(result.seeds)
+    train_minutes = [np.mean(row.training_s) / 60 for row in rows]
+    caption = (
+        f"**{result.title}** ({config.title}). `{command}`; seeds {', '.join(map(str, result.seeds))}; "
+        f"{result.episodes_per_task} episodes per task ({episodes} per seed and row); "
+        f"wall time: evaluation {sum(row.evaluation_s for row in rows) / 60:.1f} min for the table, training "
+        f"{min(train_minutes):.1f}-{max(train_minutes):.1f} min per policy (teacher included)."
+    )
+    header = [
+        "row",
+        "NFE",
+        "n_act",
+        "success % (mean ± std)",
+        "per seed",
+        "successes / episodes",
+        "offline MSE",
+        "P95",
+        "cosine",
+        "s / training step",
+    ]
+    intervals = any(row.success_interval for row in rows)  # results made before intervals render as they were
+    if intervals:
+        header[6:6] = ["95% interval", "paired Δ (95% interval)"]
+    cells = []
+    for row in rows:
+        offline = row.offline
+        metrics = (
+            [f"{offline.mse:.4f}", f"{offline.mse_p95:.4f}", f"{offline.cosine:.3f}"] if offline else ["-", "-", "-"]
+        )
+        cells.append(
+            [
+                row.label,
+                row.nfe,
+                row.n_act,
+                f"{row.success_mean:.1f} ± {row.success_std:.1f}",
+                " / ".join(f"{rate:.1f}" for rate in row.success_per_seed),
+                f"{row.successes} / {row.episodes}",
+                *(_interval_cells(row) if intervals else []),
+                *metrics,
+                f"{np.median(row.step_s):.3f}",
+            ]
+        )
+    lines = [caption, "", markdown_table(header, cells)]
+    if any(row.offline for row in rows):
+        lines += [
+            "",
+            f"Offline metrics: mean over seeds of {rows[0].offline.samples} held-out demonstration chunks per seed "
+            "(normalised actions), the same chunks and noise for every row.",
+        ]
+    if any(row.difference for row in rows):
+        difference = next(row.difference for row in rows if row.difference)
+        lines += [
+            "",
+            "95% interval: Wilson score interval of the pooled episodes. Paired Δ: success minus the reference row's "
+            f"({difference.reference}) in points, averaged over the {difference.cells} (seed, task) cells both rows ran "
+            "on the same variations, with a 95% bootstrap interval over those cells.",
+        ]
+    lines += [
+        "",
+        "s / training step: median over seeds of the run's own training wall time per step (the teacher's for "
+        "teacher rows), each job on cores / workers threads.",
+    ]
+    return "\n".join(lines)
+
+
+def markdown_per_task(config: SweepConfig, result: TableResult) -> str:
+    """Success % per task (mean over seeds), one column per row."""
+    cells = [[task, *(f"{row.per_task[task]:.1f}" for row in result.rows)] for task in config.data.tasks]
+    return markdown_table(["task", *(row.label for row in result.rows)], cells)
+
+
+def replace_block(document: str, key: str, body: str) -> str:
+    """Put ``body`` between the ``<!-- sweep:KEY -->`` and ``<!-- /sweep:KEY -->`` markers (appended if absent)."""
+    start, end = f"<!-- sweep:{key} -->", f"<!-- /sweep:{key} -->"
+    block = f"{start}\n{body}\n{end}"
+    pattern = re.compile(re.escape(start) + r".*?" + re.escape(end), re.DOTALL)
+    if pattern.search(document):
+        return pattern.sub(lambda _: block, document)
+    return document.rstrip("\n") + f"\n\n{block}\n"
+
+
+def markdown_blocks(config: SweepConfig, results: dict[str, TableResult], directory: Path) -> dict[str, str]:
+    """Each table's block (``sweep-name/table-name`` -> Markdown) for a file in ``directory``, which links its plot."""
+    command = f"snapflow sweep {config.source.as_posix()}"
+    link = Path(os.path.relpath(config.results_dir, directory)).as_posix()
+    blocks = {}
+    for table in config.tables:
+        key = f"{config.name}/{table.name}"
+        body = markdown_rows(config, results[table.name], command)
+        if table.per_task:
+            body += "\n\nPer task, success % (mean over seeds):\n\n" + markdown_per_task(config, results[table.name])
+        blocks[key] = f"{body}\n\n![{key}]({link}/{table.name}.png)"
+    return blocks
+
+
+def tables_markdown(config: SweepConfig, results: dict[str, TableResult]) -> str:
+    """The sweep's ``tables.md``."""
+    tables = "\n\n".join(
+        f"### {key}\n\n{body}" for key, body in markdown_blocks(config, results, config.results_dir).items()
+    )
+    return f"# {config.title}\n\n{tables}\n"
+
+
+__all__ = ["markdown_rows", "markdown_per_task", "replace_block", "markdown_blocks", "tables_markdown"]
