@@ -39,7 +39,15 @@ from snapflow.policies.factory import POLICIES
 from snapflow.reporting.files import write_json, write_text
 from snapflow.reporting.tables import markdown_table
 from snapflow.training.config import TEACHER_TRAINING, VAL_FRACTION, TrainConfig
-from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES, DistillSettings, TargetOption, parse_target_steps
+from snapflow.training.recipes import (
+    DEFAULT_RECIPE,
+    LEROBOT_RECIPE,
+    RECIPES,
+    DistillSettings,
+    TargetOption,
+    parse_target_steps,
+    student_settings,
+)
 
 # TrainConfig fields every training command takes, with their help
 TRAINING_OPTIONS = {
@@ -181,9 +189,18 @@ def _check_writable(output: str | Path) -> None:
         ) from None
 
 
+def _given(values: dict[str, Any]) -> dict[str, Any]:
+    """The values of the flags given (None: not given, the library's default stands)."""
+    return {name: value for name, value in values.items() if value is not None}
+
+
+def _training_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """The TrainConfig fields the training flags set."""
+    return {name: getattr(args, name) for name in (*TRAINING_OPTIONS, "ema_decay")}
+
+
 def _train_config(args: argparse.Namespace, base: TrainConfig) -> TrainConfig:
-    chosen = {name: getattr(args, name) for name in (*TRAINING_OPTIONS, "ema_decay") if getattr(args, name) is not None}
-    return replace(base, **chosen)
+    return replace(base, **_given(_training_overrides(args)))
 
 
 def _toy(args: argparse.Namespace) -> int:
@@ -355,9 +372,7 @@ def _distill(args: argparse.Namespace) -> int:
     if not (built_in or lerobot):
         raise ValueError("give either --teacher and --data (a built-in policy) or --policy and --dataset (LeRobot)")
     _check_writable(args.output)
-    # snapflow's recipe is measured on built-in policies; a LeRobot policy starts from the paper's unless told
-    recipe = RECIPES[args.recipe or (DEFAULT_RECIPE if built_in else "paper")]
-    chosen = {
+    overrides = {
         "alpha": args.alpha,
         "consistency_weight": args.consistency_weight,
         "teacher_velocity_clamp": args.clamp,
@@ -368,22 +383,16 @@ def _distill(args: argparse.Namespace) -> int:
         "target": args.target,
         "target_steps": args.target_steps,
         "intermediate_jumps": args.intermediate_jumps,
-        "objective_options": {**recipe.distill.objective_options, **dict(args.objective_option or ())} or None,
+        "objective_options": dict(args.objective_option) if args.objective_option else None,
     }
-    settings = replace(recipe.distill, **{name: value for name, value in chosen.items() if value is not None})
-    if lerobot:
+    if lerobot:  # before the settings, whose LeRobot training imports LeRobot's side
         dataset_root, repo_id = _dataset_source(args)
-        from snapflow.training.lerobot import EXPORT_DIRECTORY, distill_lerobot, paper_training
+    train, settings = student_settings(args.recipe, lerobot, _given(_training_overrides(args)), _given(overrides))
+    if lerobot:
+        from snapflow.training.lerobot import EXPORT_DIRECTORY, distill_lerobot
 
         state = distill_lerobot(
-            args.policy,
-            dataset_root,
-            repo_id,
-            args.output,
-            _train_config(args, paper_training()),
-            settings,
-            args.resume,
-            not args.no_progress,
+            args.policy, dataset_root, repo_id, args.output, train, settings, args.resume, not args.no_progress
         )
         print(
             f"SnapFlow student trained to step {state['step']}; LeRobot policy in {Path(args.output) / EXPORT_DIRECTORY}"
@@ -395,7 +404,7 @@ def _distill(args: argparse.Namespace) -> int:
         args.teacher,
         args.data,
         args.output,
-        _train_config(args, recipe.train),
+        train,
         settings,
         resume=args.resume,
         progress=not args.no_progress,
@@ -873,7 +882,7 @@ def build_parser() -> argparse.ArgumentParser:
         choices=list(RECIPES),
         help="the student's settings, each overridden by the options below: "
         + "; ".join(f"{name}: {recipe.summary}" for name, recipe in RECIPES.items())
-        + f" (default: {DEFAULT_RECIPE} for a built-in teacher, paper for a LeRobot policy)",
+        + f" (default: {DEFAULT_RECIPE} for a built-in teacher, {LEROBOT_RECIPE} for a LeRobot policy)",
     )
     distill.add_argument("--teacher", help="teacher run or checkpoint directory (built-in policy)")
     distill.add_argument("--policy", help="LeRobot pi0, pi0.5 or SmolVLA: hub id or local pretrained directory")
