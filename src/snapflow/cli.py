@@ -37,7 +37,6 @@ from snapflow.objective.options import TEACHER_VELOCITIES
 from snapflow.objective.registry import OBJECTIVES, methods, targets
 from snapflow.policies.factory import POLICIES
 from snapflow.reporting.files import write_json, write_text
-from snapflow.reporting.tables import markdown_table
 from snapflow.training.config import TEACHER_TRAINING, VAL_FRACTION, TrainConfig
 from snapflow.training.recipes import (
     DEFAULT_RECIPE,
@@ -205,7 +204,7 @@ def _train_config(args: argparse.Namespace, base: TrainConfig) -> TrainConfig:
 
 def _toy(args: argparse.Namespace) -> int:
     _check_writable(args.output)
-    from snapflow.jobs.toy import plot_toy_result, run_toy_experiment
+    from snapflow.jobs.toy import markdown_toy, plot_toy_result, run_toy_experiment
 
     config = ToyConfig(
         seed=args.seed,
@@ -220,22 +219,7 @@ def _toy(args: argparse.Namespace) -> int:
     result = run_toy_experiment(config, progress=not args.no_progress)
     elapsed = time.perf_counter() - started
 
-    naive = result.distances["naive-1"]
-    student = "SnapFlow 1-NFE" if config.method == "snapflow" else f"{config.method} 1-NFE"
-    rows = [("teacher 10-NFE", "teacher-10", 10), ("naive 1-NFE", "naive-1", 1), (student, "snapflow-1", 1)]
-    print(
-        f"\nConditional Gaussian mixture, seed {config.seed}: {config.eval_contexts} contexts x "
-        f"{config.samples_per_context} samples, energy distance to exact samples (lower is better)\n"
-    )
-    print(
-        markdown_table(
-            ["sampler", "NFE", "energy distance", "/ naive 1-NFE"],
-            [
-                [label, nfe, f"{result.distances[key]:.4f}", f"{result.distances[key] / naive:.3f}"]
-                for label, key, nfe in rows
-            ],
-        )
-    )
+    print(f"\n{markdown_toy(result)}")
     print(f"\ntrained and evaluated in {elapsed:.1f} s ({1000 * result.distill_step_s:.1f} ms per distillation step)")
 
     output = Path(args.output)
@@ -312,34 +296,15 @@ def _train(args: argparse.Namespace) -> int:
     if args.dataset:
         return _train_lerobot(args, config)
     from snapflow.data.demonstrations import Demonstrations
-    from snapflow.policies.factory import default_config
-    from snapflow.training.stages import train_teacher
+    from snapflow.training.stages import policy_config_for, train_teacher
 
-    demonstrations = Demonstrations.load(args.data)
-    overrides = {
-        name: getattr(args, name) for name in ("chunk_length", "image_size") if getattr(args, name) is not None
-    }
-    if args.use_image:
-        overrides["use_image"] = True
-    policy = default_config(
-        args.policy,
-        args.state_dim or demonstrations.states.shape[1],
-        demonstrations.actions.shape[1],
-        list(demonstrations.instructions.values()),
-        **overrides,
+    overrides = _given(
+        {"chunk_length": args.chunk_length, "image_size": args.image_size, "use_image": args.use_image or None}
     )
+    policy = policy_config_for(args.policy, Demonstrations.load(args.data), args.state_dim, **overrides)
     state = train_teacher(args.data, args.output, policy, config, args.val_fraction, args.resume, not args.no_progress)
     print(f"teacher trained to step {state['step']} in {state['wall_time_s']:.0f} s; checkpoints in {args.output}")
     return 0
-
-
-def _dataset_source(args: argparse.Namespace) -> tuple[Path | None, str]:
-    """``--dataset`` as (root on disk, repo id), or (None, repo id) for a dataset LeRobot fetches and caches; a
-    mistyped root is named before LeRobot loads."""
-    from snapflow.adapters.hub import local_folder
-
-    root = local_folder(args.dataset)
-    return root, (args.repo_id or f"local/{root.name}") if root else args.dataset
 
 
 def _train_lerobot(args: argparse.Namespace, config: TrainConfig) -> int:
@@ -348,8 +313,10 @@ def _train_lerobot(args: argparse.Namespace, config: TrainConfig) -> int:
     size = SMOLVLM_SIZES[args.smolvlm]
     if args.image_size:
         size = replace(size, image_size=args.image_size)
+    from snapflow.adapters.hub import dataset_source
+
     state = train_smolvla_teacher(
-        *_dataset_source(args),
+        *dataset_source(args.dataset, args.repo_id),
         args.output,
         config,
         size,
@@ -386,7 +353,9 @@ def _distill(args: argparse.Namespace) -> int:
         "objective_options": dict(args.objective_option) if args.objective_option else None,
     }
     if lerobot:  # before the settings, whose LeRobot training imports LeRobot's side
-        dataset_root, repo_id = _dataset_source(args)
+        from snapflow.adapters.hub import dataset_source
+
+        dataset_root, repo_id = dataset_source(args.dataset, args.repo_id)
     train, settings = student_settings(args.recipe, lerobot, _given(_training_overrides(args)), _given(overrides))
     if lerobot:
         from snapflow.training.lerobot import EXPORT_DIRECTORY, distill_lerobot
@@ -421,34 +390,25 @@ def _eval(args: argparse.Namespace) -> int:
     # every registered benchmark is checked again below once the policies name theirs; a typo is caught here first
     _tasks(args.env or DEFAULT_BENCHMARK, args.tasks)
     _check_writable(args.output)
-    from snapflow.evaluation.pipeline import evaluate
+    from snapflow.evaluation.pipeline import evaluate, labelled_runs, trained_benchmark
     from snapflow.evaluation.report import markdown_report, write_report
     from snapflow.inference.compile import compile_policy
     from snapflow.sources import open_policy
 
     modes = dict(_policy_modes(entry, args.modes) for entry in args.policy)
-    loaded = {path: open_policy(path) for path in modes}
+    policies = {path: (open_policy(path), policy_modes) for path, policy_modes in modes.items()}
     if args.compile:
-        for policy in loaded.values():
+        for policy, _ in policies.values():
             compile_policy(policy.policy, args.compile)
-    # the benchmark the first policy's demonstrations came from, unless named
-    first = next(iter(loaded.values()))
-    env = args.env or first.training_data.get("env", DEFAULT_BENCHMARK)
-    names = _distinct_names(list(loaded))
-    runs = [
-        (f"{mode.name}" if len(loaded) == 1 else f"{names[path]} {mode.name}", policy, mode)
-        for path, policy in loaded.items()
-        for mode in modes[path]
-    ]
+    env = args.env or trained_benchmark(next(iter(policies.values()))[0])
     report = evaluate(
-        runs,
+        labelled_runs(policies),
         make_benchmark(env),
         _tasks(env, args.tasks),
         args.episodes,
-        args.n_act or N_ACT,
-        args.data,
-        seed=args.seed if args.seed is not None else 0,
+        data=args.data,
         progress=not args.no_progress,
+        **_given({"n_act": args.n_act, "seed": args.seed}),
     )
     write_report(report, args.output)
     print(markdown_report(report))
@@ -464,42 +424,20 @@ def _policy_modes(entry: str, default: list[SamplingMode]) -> tuple[str, list[Sa
     return path, [SamplingMode.parse(name) for name in modes.split(",")]
 
 
-def _distinct_names(paths: list[str]) -> dict[str, str]:
-    """Each path's last parts, as few as tell it from the others (runs/teacher/lerobot_policy and
-    runs/student/lerobot_policy: teacher/lerobot_policy, student/lerobot_policy)."""
-    parts = {path: Path(path).resolve().parts for path in paths}
-    for depth in range(1, max(len(each) for each in parts.values()) + 1):
-        names = {path: "/".join(each[-depth:]) for path, each in parts.items()}
-        if len(set(names.values())) == len(names):
-            return names
-    return {path: str(path) for path in paths}  # the same folder twice
-
-
 def _diagnose(args: argparse.Namespace) -> int:
     _check_writable(args.output)
-    from snapflow.data.demonstrations import Demonstrations
-    from snapflow.evaluation.diagnosis import diagnose_task, markdown_diagnosis, write_diagnosis
+    from snapflow.evaluation.diagnosis import diagnose_student, markdown_diagnosis, write_diagnosis
     from snapflow.sources import open_policy
 
-    teacher, student = open_policy(args.teacher), open_policy(args.student)
-    env = args.env or student.training_data.get("env", DEFAULT_BENCHMARK)
-    (task,) = make_benchmark(env).check_tasks([args.task])
-    data = args.data or student.training_data.get("path")
-    if data is None:
-        raise ValueError(f"{student.path} does not name its demonstrations; pass --data")
-    teacher_mode = SamplingMode.parse(f"teacher-{args.teacher_steps}")
-    runs = [
-        (f"teacher {args.teacher_steps}-NFE", teacher, teacher_mode),
-        ("naive 1-NFE", teacher, SamplingMode.parse("naive")),
-        ("SnapFlow 1-NFE", student, SamplingMode.parse("snapflow-1")),
-    ]
-    diagnosis = diagnose_task(
-        runs,
-        make_benchmark(env),
-        task,
+    diagnosis = diagnose_student(
+        open_policy(args.teacher),
+        open_policy(args.student),
+        args.task,
         args.episodes,
-        Demonstrations.load(data),
         args.n_act,
+        args.teacher_steps,
+        args.env,
+        args.data,
         seed=args.seed,
         progress=not args.no_progress,
     )
@@ -523,9 +461,9 @@ def _eval_in_lerobot_env(args: argparse.Namespace) -> int:
         args.env_task,
         args.n_act,
         args.n_envs,
-        args.seed if args.seed is not None else 1000,
-        args.max_episode_steps,
+        max_episode_steps=args.max_episode_steps,
         compile_mode=args.compile,
+        **_given({"seed": args.seed}),
     )
     write_lerobot_eval(report, args.output)
     print(lerobot_eval_table(report))
