@@ -4,6 +4,7 @@ on a LeRobotDataset."""
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -30,16 +31,31 @@ def _validation_share(text: str) -> float:
     return value
 
 
+class _DeprecatedPolicyFlag(argparse.Action):
+    """``--policy``, train's old name of ``--policy-type`` (everywhere else ``--policy`` is a path): still read, with
+    one line on stderr."""
+
+    def __call__(
+        self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any, option_string: Any = None
+    ) -> None:
+        print(f"{parser.prog}: warning: --policy is deprecated for train; use --policy-type", file=sys.stderr)
+        setattr(namespace, self.dest, values)
+
+
 def add_parser(subparsers: Any) -> None:
     parser = add_command(
         subparsers, "train", "train a built-in flow-matching teacher on demonstrations", run, training_interrupted
     )
     add_training_options(parser, TEACHER_TRAINING, data_required=False)
+    policy_types = [*POLICIES, *LEROBOT_TEACHERS]
     parser.add_argument(
-        "--policy",
-        choices=[*POLICIES, *LEROBOT_TEACHERS],
+        "--policy-type",
+        choices=policy_types,
         default=next(iter(POLICIES)),
         help="built-in policy (with --data), or smolvla: LeRobot's SmolVLAPolicy from scratch (with --dataset)",
+    )
+    parser.add_argument(
+        "--policy", dest="policy_type", choices=policy_types, action=_DeprecatedPolicyFlag, help=argparse.SUPPRESS
     )
     parser.add_argument("--dataset", help="smolvla: LeRobotDataset root directory on disk, or repo id")
     parser.add_argument("--repo-id", help="repo id of a dataset given as a directory (default: local/<folder name>)")
@@ -66,9 +82,9 @@ def add_parser(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if (args.policy in LEROBOT_TEACHERS) != bool(args.dataset) or bool(args.data) == bool(args.dataset):
+    if (args.policy_type in LEROBOT_TEACHERS) != bool(args.dataset) or bool(args.data) == bool(args.dataset):
         raise ValueError(
-            f"give --data with a built-in policy ({', '.join(POLICIES)}) or --dataset with --policy "
+            f"give --data with a built-in policy ({', '.join(POLICIES)}) or --dataset with --policy-type "
             f"{' / '.join(LEROBOT_TEACHERS)} (a LeRobotDataset)"
         )
     check_writable(args.output)
@@ -81,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     overrides = given(
         {"chunk_length": args.chunk_length, "image_size": args.image_size, "use_image": args.use_image or None}
     )
-    policy = policy_config_for(args.policy, Demonstrations.load(args.data), args.state_dim, **overrides)
+    policy = policy_config_for(args.policy_type, Demonstrations.load(args.data), args.state_dim, **overrides)
     state = train_teacher(args.data, args.output, policy, config, args.val_fraction, args.resume, not args.no_progress)
     print(f"teacher trained to step {state['step']} in {state['wall_time_s']:.0f} s; checkpoints in {args.output}")
     return 0
