@@ -15,7 +15,6 @@ from snapflow.cli.common import (
     check_writable,
     nothing_written,
 )
-from snapflow.reporting.files import write_json, write_text
 
 
 def add_parser(subparsers: Any) -> None:
@@ -37,14 +36,10 @@ def add_parser(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     check_writable(args.output)
-
-    from snapflow.benchmark.training_cost import checkpoint_training_cost, markdown_training_cost
+    from snapflow.benchmark.training_cost import checkpoint_training_cost, markdown_training_cost, write_training_cost
 
     result = checkpoint_training_cost(args.teacher, args.data, args.targets, args.batch_size, args.warmup, args.repeats)
-    table = markdown_training_cost(result)
-    output = Path(args.output)
-    write_json(output / "training_cost.json", {**result, "teacher": str(args.teacher), "data": str(args.data)})
-    write_text(output / "training_cost.md", table + "\n")
-    print(table)
-    print(f"wrote training_cost.json and training_cost.md to {output}")
+    write_training_cost(result, args.output)
+    print(markdown_training_cost(result))
+    print(f"wrote training_cost.json and training_cost.md to {Path(args.output)}")
     return 0
