@@ -41,7 +41,7 @@ fi
         --lerobot-dataset "$out/lerobot" "${options[@]}"
 }
 [ -f "$out/teacher/lerobot_policy/snapflow.json" ] ||
-    snapflow train --policy smolvla --smolvlm "$size" --image-size "$image" --dataset "$out/lerobot" \
+    snapflow train --policy-type smolvla --smolvlm "$size" --image-size "$image" --dataset "$out/lerobot" \
         --output "$out/teacher" --resume "${teacher[@]}" "${options[@]}"
 [ -f "$out/student/lerobot_policy/snapflow.json" ] ||
     snapflow distill --policy "$out/teacher/lerobot_policy" --dataset "$out/lerobot" --recipe snapflow \

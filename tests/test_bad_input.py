@@ -525,7 +525,17 @@ def test_ctrl_c_says_what_was_kept(tmp_path):
     from tests.training.fixtures import synthetic_demonstrations
 
     data = synthetic_demonstrations().save(tmp_path / "data")
-    train = [sys.executable, "-m", "snapflow.cli", "train", "--policy", "mlp", "--data", str(data), "--no-progress"]
+    train = [
+        sys.executable,
+        "-m",
+        "snapflow.cli",
+        "train",
+        "--policy-type",
+        "mlp",
+        "--data",
+        str(data),
+        "--no-progress",
+    ]
     run = tmp_path / "early"
     process = _start_interruptible([*train, "--output", str(run)])
     line = _interrupt_when(process, lambda: (run / ".snapflow.lock").exists())

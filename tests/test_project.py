@@ -22,7 +22,8 @@ def test_ci_runs_the_readme_test_command_verbatim():
 # file may name a policy by its registered string, "minivla" (a CLI help line, a default), never by its classes.
 OWNERS = ("policies/minivla/", "policies/factory.py")
 NAMES_THE_REGISTERED_STRING = {
-    "cli.py": "the help of train's --use-image / --image-size (options MiniVLA reads) and of bench's --architecture",
+    "cli/bench.py": "the help of --architecture: what minivla times",
+    "cli/train.py": "the help of --use-image / --image-size, options MiniVLA reads",
     "benchmark/subjects.py": "docstrings: what --architecture minivla times",
     "jobs/demo.py": 'the demo trains the policy registered as "minivla"',
     "jobs/sweep/__init__.py": 'the sweep schema in the docstring: policy = {type = "minivla" | "mlp", ...}',

@@ -146,7 +146,9 @@ def test_an_environment_and_a_built_in_policy_added_as_documented_run_every_comm
     common = ["--no-progress", "--threads", "1"]
     assert main(["collect", "--env", "line", "--episodes", "6", "--output", str(data), *common]) == 0
     train = ["--steps", "300", "--batch-size", "32", "--warmup-steps", "10", "--checkpoint-every", "300"]
-    assert main(["train", "--policy", "linear", "--data", str(data), "--output", str(teacher), *train, *common]) == 0
+    assert (
+        main(["train", "--policy-type", "linear", "--data", str(data), "--output", str(teacher), *train, *common]) == 0
+    )
     distill = ["--steps", "20", "--batch-size", "32", "--warmup-steps", "2", "--checkpoint-every", "20"]
     assert (
         main(["distill", "--teacher", str(teacher), "--data", str(data), "--output", str(student), *distill, *common])

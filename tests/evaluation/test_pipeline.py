@@ -10,7 +10,9 @@ import pytest
 from snapflow.cli import main
 from snapflow.data.chunks import ChunkData
 from snapflow.data.demonstrations import Demonstrations
+from snapflow.evaluation.pipeline import labelled_runs
 from snapflow.evaluation.results import EvaluationReport
+from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, TEACHER_10
 from snapflow.policies.checkpoint import load_policy
 from snapflow.training.recipes import DistillSettings
 from snapflow.training.stages import distill, train_teacher
@@ -29,6 +31,20 @@ def test_unknown_task_is_a_clear_cli_error(capsys):
     assert "unknown metaworld task(s) ['teleport-v3']" in capsys.readouterr().err
     assert main(["eval", "--policy", "nowhere", "--env", "metaworld", "--tasks", "reach-v3", "--no-progress"]) == 2
     assert "no folder nowhere; hub ids are owner/name" in capsys.readouterr().err
+
+
+def test_runs_are_labelled_by_their_mode_then_by_as_much_of_their_path_as_tells_them_apart():
+    teacher, student = object(), object()  # the labels need nothing of the policies
+    assert labelled_runs({"runs/student": (student, [SNAPFLOW_1])}) == [("snapflow-1", student, SNAPFLOW_1)]
+    two = {
+        "runs/teacher/lerobot_policy": (teacher, [TEACHER_10, NAIVE_1]),
+        "b/student/lerobot_policy": (student, [SNAPFLOW_1]),
+    }
+    assert [label for label, _, _ in labelled_runs(two)] == [
+        "teacher/lerobot_policy teacher-10",
+        "teacher/lerobot_policy naive-1",
+        "student/lerobot_policy snapflow-1",
+    ]
 
 
 @pytest.mark.slow

@@ -1,4 +1,4 @@
-"""Every built-in policy goes through the same commands: ``snapflow collect`` once, then per policy ``train --policy``,
+"""Every built-in policy goes through the same commands: ``snapflow collect`` once, then per policy ``train --policy-type``,
 ``distill``, ``eval --data`` and ``bench --policy``, each checked by what it wrote (simulator and end to end: slow)."""
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ def test_a_built_in_policy_trains_saves_loads_and_evaluates_through_the_same_com
         main(
             [
                 "train",
-                "--policy",
+                "--policy-type",
                 policy,
                 "--data",
                 str(data),

@@ -13,7 +13,8 @@ from snapflow.jobs.demo import PRESETS, with_recipe
 from snapflow.jobs.sweep import load_sweep
 from snapflow.reporting.records import as_record
 from snapflow.training.config import PAPER_STUDENT_TRAINING
-from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES, DistillSettings
+from snapflow.training.lerobot import paper_training
+from snapflow.training.recipes import DEFAULT_RECIPE, LEROBOT_RECIPE, RECIPES, DistillSettings, student_settings
 from snapflow.training.stages import train_teacher
 from tests.training.fixtures import TINY, synthetic_demonstrations, train_config
 
@@ -23,6 +24,17 @@ def test_the_paper_recipe_is_the_papers_settings():
     assert paper.distill == DistillSettings()  # alpha 0.5, lambda 0.1, two-step Euler target, prefix frozen
     assert asdict(paper.distill)["consistency_weight"] == 0.1 and paper.distill.target_steps == 2
     assert paper.train == PAPER_STUDENT_TRAINING and paper.train.learning_rate == 3e-5
+
+
+def test_a_student_starts_from_its_familys_recipe_and_each_given_setting_overrides_it():
+    assert student_settings() == (RECIPES[DEFAULT_RECIPE].train, RECIPES[DEFAULT_RECIPE].distill)
+    # a LeRobot policy: the paper's settings and the paper's LeRobot optimisation, whatever the recipe
+    assert student_settings(lerobot=True) == (paper_training(), RECIPES[LEROBOT_RECIPE].distill)
+    train, settings = student_settings("snapflow", lerobot=True, train={"steps": 7}, distill={"alpha": 0.3})
+    assert train == replace(paper_training(), steps=7)
+    assert settings == replace(RECIPES["snapflow"].distill, alpha=0.3)
+    options = {"method": "meanflow", "objective_options": {"adaptive_power": 0.5}}
+    assert student_settings("paper", distill=options)[1].objective_options == {"adaptive_power": 0.5}
 
 
 @pytest.fixture(scope="module")

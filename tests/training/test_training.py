@@ -138,7 +138,7 @@ def test_a_command_into_a_run_another_holds_is_refused_and_the_run_resumes_once_
     root = Path(__file__).resolve().parents[2]
     run = tmp_path / "run"
     # 700 steps: the CLI checkpoints every 500, so the holder can be caught with a checkpoint behind it and steps to go
-    train = [sys.executable, "-m", "snapflow.cli", "train", "--policy", "mlp", "--data", str(demonstrations)]
+    train = [sys.executable, "-m", "snapflow.cli", "train", "--policy-type", "mlp", "--data", str(demonstrations)]
     train += ["--output", str(run), "--steps", "700", "--batch-size", "8", "--chunk-length", "4", "--no-progress"]
     distill_into_it = [sys.executable, "-m", "snapflow.cli", "distill", "--teacher", str(run)]
     distill_into_it += ["--data", str(demonstrations), "--output", str(run), "--no-progress"]

@@ -57,6 +57,14 @@ def local_folder(text: str) -> Path | None:
     raise FileNotFoundError(f"no folder {text}{found}; hub ids are owner/name")
 
 
+def dataset_source(text: str, repo_id: str | None = None) -> tuple[Path | None, str]:
+    """A user's ``--dataset`` as (root on disk, repo id: ``repo_id``, default ``local/<folder name>``), or (None, repo
+    id) for a dataset LeRobot fetches and caches; a mistyped root is named here (:func:`local_folder`), before LeRobot
+    loads."""
+    root = local_folder(text)
+    return root, (repo_id or f"local/{root.name}") if root else text
+
+
 def check_source(text: str, filename: str, what: str, repo_type: Literal["model", "dataset"] = "model") -> None:
     """Check that ``text`` is ``what`` before it is loaded: a local folder holding ``filename``, or a hub repo whose
     ``filename`` is fetched now (:func:`fetch_hub_file`)."""
@@ -175,4 +183,4 @@ def _hub_logs_silenced() -> Iterator[None]:
         logger.setLevel(level)
 
 
-__all__ = ["HubError", "PROBE_TIMEOUT_S", "local_folder", "check_source", "fetch_hub_file"]
+__all__ = ["HubError", "PROBE_TIMEOUT_S", "local_folder", "dataset_source", "check_source", "fetch_hub_file"]

@@ -237,7 +237,8 @@ def make_subject(
         )
     from snapflow.sources import open_policy
 
-    return opened_subject(open_policy(policy), policy, device, dtype)
+    loaded = open_policy(policy)
+    return opened_subject(loaded, f"{loaded.policy_type} ({policy})", device, dtype)
 
 
 def opened_subject(

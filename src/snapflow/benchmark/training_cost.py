@@ -23,6 +23,7 @@ from snapflow.nn.snapflow_policy import SnapFlowPolicy
 from snapflow.objective.options import target_stages
 from snapflow.policies.checkpoint import load_policy
 from snapflow.protocol import map_tensors
+from snapflow.reporting.files import write_json, write_text
 from snapflow.reporting.machine import machine
 from snapflow.reporting.tables import markdown_table
 from snapflow.training.config import PAPER_STUDENT_TRAINING
@@ -105,15 +106,16 @@ def checkpoint_training_cost(
     repeats: int = 30,
 ) -> dict[str, Any]:
     """:func:`time_training_steps` for the student of a built-in ``teacher`` checkpoint (phi_s added, prefix frozen, as
-    ``snapflow distill`` trains it) on one batch of its training demonstrations."""
+    ``snapflow distill`` trains it) on one batch of its training demonstrations, with the teacher and the data named."""
     loaded = load_policy(teacher, target_time=True)
     train_data, _ = split_chunk_data(Demonstrations.load(data), loaded.processor, loaded.val_fraction)
     observation, actions = train_data.batch(
         torch.randint(len(train_data), (batch_size,), generator=torch.Generator().manual_seed(0))
     )
-    return time_training_steps(
+    timed = time_training_steps(
         loaded.policy, observation, actions, options, loaded.time_sampler, warmup=warmup, repeats=repeats
     )
+    return {**timed, "teacher": str(teacher), "data": str(data)}
 
 
 def _peak_memory_gib(device: torch.device) -> float:
@@ -189,4 +191,17 @@ def markdown_training_cost(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["checkpoint_training_cost", "distillation_step_cost", "markdown_training_cost", "time_training_steps"]
+def write_training_cost(result: dict[str, Any], output: str | Path) -> None:
+    """``training_cost.json`` and its table, ``training_cost.md``, in ``output``."""
+    output = Path(output)
+    write_json(output / "training_cost.json", result)
+    write_text(output / "training_cost.md", markdown_training_cost(result) + "\n")
+
+
+__all__ = [
+    "checkpoint_training_cost",
+    "distillation_step_cost",
+    "markdown_training_cost",
+    "time_training_steps",
+    "write_training_cost",
+]

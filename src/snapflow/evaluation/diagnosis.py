@@ -21,11 +21,13 @@ import torch
 from snapflow.data.chunks import chunk_rows
 from snapflow.data.demonstrations import Demonstrations
 from snapflow.envs.base import Benchmark, Expert, Observation
+from snapflow.envs.factory import make_benchmark
 from snapflow.evaluation.closed_loop import ClosedLoopEvaluator
-from snapflow.evaluation.pipeline import Run
-from snapflow.flow.modes import SamplingMode
+from snapflow.evaluation.pipeline import Run, trained_benchmark
+from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, SamplingMode
 from snapflow.flow.solver import sample_actions
 from snapflow.policies.checkpoint import LoadedPolicy
+from snapflow.policies.loaded import OpenedPolicy
 from snapflow.reporting.figures import pyplot, save_figure
 from snapflow.reporting.files import write_json, write_text
 from snapflow.reporting.tables import markdown_table
@@ -221,6 +223,36 @@ def _compare_chunks(
     return comparison
 
 
+def diagnose_student(
+    teacher: OpenedPolicy,
+    student: OpenedPolicy,
+    task: str,
+    episodes: int,
+    n_act: int,
+    teacher_steps: int = 10,
+    env: str | None = None,
+    data: str | Path | None = None,
+    seed: int = 0,
+    progress: bool = True,
+) -> Diagnosis:
+    """:func:`diagnose_task` of the student's one jump against its teacher at ``teacher_steps`` Euler steps and at its
+    naive one step, on ``env`` (default: the benchmark the student was distilled on) with the demonstrations ``data``
+    (default: those it was distilled on)."""
+    benchmark = make_benchmark(env or trained_benchmark(student))
+    (task,) = benchmark.check_tasks([task])
+    data = data or student.training_data.get("path")
+    if data is None:
+        raise ValueError(f"{student.path} does not name its demonstrations; pass --data")
+    runs = [
+        (f"teacher {teacher_steps}-NFE", teacher, SamplingMode.parse(f"teacher-{teacher_steps}")),
+        ("naive 1-NFE", teacher, NAIVE_1),
+        ("SnapFlow 1-NFE", student, SNAPFLOW_1),
+    ]
+    return diagnose_task(
+        runs, benchmark, task, episodes, Demonstrations.load(data), n_act, seed=seed, progress=progress
+    )
+
+
 @torch.no_grad()
 def diagnose_task(
     runs: list[Run],
@@ -378,6 +410,7 @@ __all__ = [
     "ChunkComparison",
     "Diagnosis",
     "RowTrace",
+    "diagnose_student",
     "diagnose_task",
     "markdown_diagnosis",
     "write_diagnosis",

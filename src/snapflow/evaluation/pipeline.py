@@ -5,6 +5,7 @@ held-out demonstrations, and batch-1 latency, per (label, policy, sampling mode)
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from snapflow.benchmark.latency import LatencyRow, add_speedups, measure_latency
@@ -12,6 +13,7 @@ from snapflow.benchmark.subjects import opened_subject
 from snapflow.data.chunks import ChunkData
 from snapflow.data.demonstrations import Demonstrations
 from snapflow.envs.base import Benchmark
+from snapflow.envs.factory import DEFAULT_BENCHMARK
 from snapflow.evaluation.closed_loop import ClosedLoopEvaluator
 from snapflow.evaluation.config import N_ACT, OFFLINE_SAMPLES
 from snapflow.evaluation.offline import offline_metrics
@@ -20,6 +22,34 @@ from snapflow.flow.modes import SamplingMode
 from snapflow.policies.loaded import OpenedPolicy
 
 Run = tuple[str, OpenedPolicy, SamplingMode]  # (label, policy, sampling mode)
+
+
+def trained_benchmark(policy: OpenedPolicy) -> str:
+    """The benchmark the policy's demonstrations came from (the default one where its training did not record it):
+    where it is evaluated unless told otherwise."""
+    return policy.training_data.get("env", DEFAULT_BENCHMARK)
+
+
+def labelled_runs(policies: Mapping[str, tuple[OpenedPolicy, Sequence[SamplingMode]]]) -> list[Run]:
+    """One run per (policy, mode) of ``policies`` (path -> its policy and modes), labelled by the mode alone for one
+    policy, else by the last parts of the policy's path that tell it from the others, then the mode."""
+    names = _distinct_names(list(policies))
+    return [
+        (mode.name if len(policies) == 1 else f"{names[path]} {mode.name}", policy, mode)
+        for path, (policy, modes) in policies.items()
+        for mode in modes
+    ]
+
+
+def _distinct_names(paths: list[str]) -> dict[str, str]:
+    """Each path's last parts, as few as tell it from the others (runs/teacher/lerobot_policy and
+    runs/student/lerobot_policy: teacher/lerobot_policy, student/lerobot_policy)."""
+    parts = {path: Path(path).resolve().parts for path in paths}
+    for depth in range(1, max(len(each) for each in parts.values()) + 1):
+        names = {path: "/".join(each[-depth:]) for path, each in parts.items()}
+        if len(set(names.values())) == len(names):
+            return names
+    return {path: str(path) for path in paths}  # the same folder twice
 
 
 def evaluate(
@@ -77,4 +107,4 @@ def checkpoint_latency(runs: list[Run], warmup: int = 10, repeats: int = 50) -> 
     return add_speedups(rows)
 
 
-__all__ = ["Run", "evaluate", "checkpoint_latency"]
+__all__ = ["Run", "evaluate", "checkpoint_latency", "labelled_runs", "trained_benchmark"]

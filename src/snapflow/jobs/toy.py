@@ -26,6 +26,7 @@ from snapflow.objective.base import TwoBranchObjective
 from snapflow.objective.snapflow import SnapFlowObjective
 from snapflow.policies.mlp import MLPFlowModel, MLPPolicyConfig
 from snapflow.reporting.figures import pyplot, save_figure
+from snapflow.reporting.tables import markdown_table
 from snapflow.training.config import TrainConfig
 from snapflow.training.recipes import DistillSettings
 from snapflow.training.trainer import ObjectiveModule, train_step
@@ -153,6 +154,25 @@ def run_toy_experiment(config: ToyConfig | None = None, progress: bool = True) -
     return ToyResult(config, distances, step_s, contexts, data, samples)
 
 
+def markdown_toy(result: ToyResult) -> str:
+    """What the toy measured, then each sampler's energy distance, also relative to the naive one step."""
+    config = result.config
+    naive = result.distances["naive-1"]
+    student = "SnapFlow 1-NFE" if config.method == "snapflow" else f"{config.method} 1-NFE"
+    rows = [("teacher 10-NFE", "teacher-10", 10), ("naive 1-NFE", "naive-1", 1), (student, "snapflow-1", 1)]
+    table = markdown_table(
+        ["sampler", "NFE", "energy distance", "/ naive 1-NFE"],
+        [
+            [label, nfe, f"{result.distances[key]:.4f}", f"{result.distances[key] / naive:.3f}"]
+            for label, key, nfe in rows
+        ],
+    )
+    return (
+        f"Conditional Gaussian mixture, seed {config.seed}: {config.eval_contexts} contexts x "
+        f"{config.samples_per_context} samples, energy distance to exact samples (lower is better)\n\n{table}"
+    )
+
+
 def plot_toy_result(result: ToyResult, path: Path, num_contexts: int = 3) -> None:
     """PNG grid: one row per evaluation context, the exact data then each sampling mode."""
     plt = pyplot()
@@ -184,4 +204,4 @@ def plot_toy_result(result: ToyResult, path: Path, num_contexts: int = 3) -> Non
     save_figure(figure, path)
 
 
-__all__ = ["ToyConfig", "ToyResult", "run_toy_experiment", "plot_toy_result"]
+__all__ = ["ToyConfig", "ToyResult", "run_toy_experiment", "markdown_toy", "plot_toy_result"]

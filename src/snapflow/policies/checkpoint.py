@@ -44,6 +44,10 @@ class LoadedPolicy(OpenedPolicy):
     path: Path
 
     @property
+    def policy_type(self) -> str:
+        return self.metadata["policy"]
+
+    @property
     def distilled(self) -> bool:
         return "distill" in self.metadata
 

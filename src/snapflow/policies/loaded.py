@@ -27,6 +27,11 @@ class OpenedPolicy(ABC):
 
     @property
     @abstractmethod
+    def policy_type(self) -> str:
+        """Its policy type's registered name (a built-in policy's, or LeRobot's ``smolvla``, ``snapflow_smolvla``, ...)."""
+
+    @property
+    @abstractmethod
     def distilled(self) -> bool:
         """Whether it was SnapFlow-distilled (a student), so that its jump modes (``snapflow-N``) mean something."""
 

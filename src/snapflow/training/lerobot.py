@@ -141,7 +141,7 @@ def distill_lerobot(
     if settings.method != "snapflow" or not settings.target_time:
         raise ValueError(
             "LeRobot policies are distilled with SnapFlow and its target-time embedding; "
-            "the baselines and the no-phi_s ablation run on the built-in policies (snapflow train --policy ...)"
+            "the baselines and the no-phi_s ablation run on the built-in policies (snapflow train --policy-type ...)"
         )
     check_dataset(dataset_root, repo_id)
     # held here, not only by `train`, so that the export is inside the hold and a refusal comes before the loading;

@@ -7,6 +7,7 @@ that distils a built-in teacher with them is :func:`snapflow.training.stages.dis
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import MISSING, dataclass, fields, replace
 from typing import TYPE_CHECKING, Any
 
@@ -189,13 +190,43 @@ RECIPES: dict[str, Recipe] = {
     ),
 }
 DEFAULT_RECIPE = "snapflow"
+# snapflow's recipe is measured on built-in policies; a LeRobot student starts from the paper's
+LEROBOT_RECIPE = "paper"
+
+
+def student_settings(
+    recipe: str | None = None,
+    lerobot: bool = False,
+    train: Mapping[str, Any] | None = None,
+    distill: Mapping[str, Any] | None = None,
+) -> tuple[TrainConfig, DistillSettings]:
+    """What a student is distilled with: the recipe named ``recipe`` (default: :data:`DEFAULT_RECIPE` for a built-in
+    teacher, :data:`LEROBOT_RECIPE` for a LeRobot policy), each field given in ``train`` (:class:`TrainConfig`) and
+    ``distill`` (:class:`DistillSettings`) overriding the recipe's; ``distill``'s ``objective_options`` join the
+    recipe's. A LeRobot student trains with the paper's LeRobot optimisation
+    (:func:`snapflow.training.lerobot.paper_training`) whatever the recipe: the recipes' budgets are the built-in
+    policies'."""
+    chosen = RECIPES[recipe or (LEROBOT_RECIPE if lerobot else DEFAULT_RECIPE)]
+    if lerobot:
+        from snapflow.training.lerobot import paper_training  # torch: the bf16 question is asked of the machine
+
+        base_train = paper_training()
+    else:
+        base_train = chosen.train
+    options = {**chosen.distill_options, **(distill or {})}
+    joined = {**chosen.distill_options.get("objective_options", {}), **options.get("objective_options", {})}
+    if joined:
+        options["objective_options"] = joined
+    return replace(base_train, **(train or {})), DistillSettings(**options)
 
 
 __all__ = [
     "DEFAULT_RECIPE",
     "DistillSettings",
+    "LEROBOT_RECIPE",
     "RECIPES",
     "Recipe",
     "TargetOption",
     "parse_target_steps",
+    "student_settings",
 ]

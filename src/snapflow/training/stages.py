@@ -17,13 +17,27 @@ from snapflow.nn.snapflow_policy import SnapFlowPolicy
 from snapflow.objective.snapflow import SnapFlowObjective
 from snapflow.policies.checkpoint import BUILTIN_TIME_SAMPLER, load_policy, policy_metadata
 from snapflow.policies.configuration import PolicyConfig
-from snapflow.policies.factory import fit_processor, make_model
+from snapflow.policies.factory import default_config, fit_processor, make_model
 from snapflow.reporting.records import as_record
 from snapflow.training.config import TEACHER_TRAINING, VAL_FRACTION, TrainConfig
 from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES, DistillSettings
 from snapflow.training.trainer import train
 
 # the built-in policies train on U(0, 1) flow-matching times
+
+
+def policy_config_for(
+    policy_type: str, demonstrations: Demonstrations, state_dim: int | None = None, **overrides: Any
+) -> PolicyConfig:
+    """The default configuration of the registered policy ``policy_type`` for ``demonstrations``: their actions, their
+    tasks' instructions and their state (its leading ``state_dim`` entries; default all); ``overrides`` set fields."""
+    return default_config(
+        policy_type,
+        state_dim or demonstrations.states.shape[1],
+        demonstrations.actions.shape[1],
+        list(demonstrations.instructions.values()),
+        **overrides,
+    )
 
 
 def train_teacher(
@@ -111,4 +125,4 @@ def distill(
     )
 
 
-__all__ = ["train_teacher", "distill"]
+__all__ = ["policy_config_for", "train_teacher", "distill"]

@@ -145,6 +145,10 @@ class LoadedLeRobotPolicy(OpenedPolicy):
         return LeRobotProcessor(self.config, preprocessor, postprocessor)
 
     @property
+    def policy_type(self) -> str:
+        return self.config.type
+
+    @property
     def distilled(self) -> bool:
         return bool(self.marker.get("target_time"))
 

@@ -1,0 +1,301 @@
+"""What every ``snapflow`` command shares: the parser's one-line errors and defaults in the help, the checked
+argument types, the flag groups several commands take (output folder, training flags from ``TrainConfig``, the
+objective's flags, threads and progress), the output-folder check, and the run of a command with its errors and
+Ctrl-C told in one line.
+
+Plain Python at import, as every command module is at the top (see :mod:`snapflow.cli`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tempfile
+from collections.abc import Callable
+from dataclasses import MISSING, fields
+from pathlib import Path
+from typing import Any, NoReturn
+
+from snapflow.envs.factory import make_benchmark
+from snapflow.objective.registry import methods, targets
+from snapflow.training.config import TEACHER_TRAINING, TrainConfig
+from snapflow.training.recipes import RECIPES, TargetOption, parse_target_steps
+
+# TrainConfig fields every training command takes, with their help
+TRAINING_OPTIONS = {
+    "steps": "optimisation steps",
+    "batch_size": "training pairs per step",
+    "learning_rate": "peak learning rate (linear warm-up, then cosine decay)",
+    "warmup_steps": "steps of linear warm-up to the peak learning rate",
+    "seed": "seed of the initialisation, the batches and the noise",
+    "checkpoint_every": "steps between checkpoints (an interrupted run resumes from the last one)",
+}
+# the pip extra that installs each optional module a command may need
+EXTRAS = {
+    "lerobot": "lerobot",
+    "metaworld": "metaworld",
+    "mujoco": "metaworld",
+    "onnx": "onnx",
+    "onnxruntime": "onnx",
+    "onnxscript": "onnx",
+}
+TASKS_HELP = (
+    "comma-separated sets of the benchmark's tasks (metaworld: mt10, the default, or mt50; libero: libero_spatial, "
+    "the default, libero_object, libero_goal, libero_10) and task names (libero: <suite>_<index>)"
+)
+RECIPE_SUMMARIES = "; ".join(f"{name}: {recipe.summary}" for name, recipe in RECIPES.items())
+INTERRUPTED = 130  # what main returns after Ctrl-C: 128 + SIGINT, the status a shell shows for it
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with a one-line error (the problem, then where to read more) instead of a usage dump."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+class HelpFormatter(argparse.HelpFormatter):
+    """Each option's help ends with its default, where it has one."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text, default = action.help or "", action.default
+        if not action.option_strings or default is None or default is False or default == argparse.SUPPRESS:
+            return text
+        if "default:" in text:  # the help states a default the parser cannot hold
+            return text
+        if isinstance(default, list):  # as typed: space-separated values, or one comma-separated list
+            default = (" " if action.nargs in ("+", "*") else ",").join(map(str, default))
+        return f"{text} (default: {str(default).replace('%', '%%')})"
+
+
+def number(kind: type, minimum: float | None = None, maximum: float | None = None, strict: bool = False) -> Callable:
+    """An argparse type: a finite ``kind`` within [minimum, maximum] (``strict``: the open interval)."""
+
+    def parse(text: str) -> Any:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{'an integer' if kind is int else 'a number'} is needed, got {text!r}"
+            ) from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"a finite number is needed, got {text!r}")
+        if minimum is not None and (value <= minimum if strict else value < minimum):
+            raise argparse.ArgumentTypeError(f"must be {'above' if strict else 'at least'} {minimum}, got {text}")
+        if maximum is not None and (value >= maximum if strict else value > maximum):
+            raise argparse.ArgumentTypeError(f"must be {'below' if strict else 'at most'} {maximum}, got {text}")
+        return value
+
+    return parse
+
+
+COUNT = number(int, 1)  # episodes, steps, repeats, workers, sizes: 0 and negatives are refused, never defaulted
+NON_NEGATIVE_COUNT = number(int, 0)
+SHARE = number(float, 0, 1)
+POSITIVE = number(float, 0, strict=True)
+NON_NEGATIVE = number(float, 0)
+
+
+def argument_type(parse: Callable[[str], Any]) -> Callable[[str], Any]:
+    """An argparse type from a parser of the API: its ValueError becomes argparse's one-line refusal."""
+
+    def convert(text: str) -> Any:
+        try:
+            return parse(text)
+        except ValueError as error:
+            raise argparse.ArgumentTypeError(str(error)) from None
+
+    return convert
+
+
+_target_steps = argument_type(parse_target_steps)
+_target_option = argument_type(TargetOption.parse)
+
+
+def tasks(benchmark_name: str, value: str | None) -> list[str]:
+    """``--tasks`` of the benchmark (None: its default tasks); a mistyped task or set is refused by name."""
+    benchmark = make_benchmark(benchmark_name)
+    return list(benchmark.default_tasks) if value is None else benchmark.resolve_tasks(value)
+
+
+def check_writable(output: str | Path) -> None:
+    """Refuse, before any work, an output folder that cannot be created or written (a probe file in the nearest
+    existing folder: permission bits alone miss read-only file systems and root)."""
+    path = Path(output).absolute()
+    existing = next(folder for folder in (path, *path.parents) if folder.exists())
+    if not existing.is_dir():
+        raise ValueError(f"cannot write to {output}: {existing} is a file, not a folder; choose another --output")
+    try:
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as error:
+        raise ValueError(
+            f"cannot write to {output}: {error.strerror.lower()} in {existing}; choose another --output"
+        ) from None
+
+
+def given(values: dict[str, Any]) -> dict[str, Any]:
+    """The values of the flags given (None: not given, the library's default stands)."""
+    return {name: value for name, value in values.items() if value is not None}
+
+
+def training_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """The TrainConfig fields the training flags set (None: not given)."""
+    return {name: getattr(args, name) for name in (*TRAINING_OPTIONS, "ema_decay")}
+
+
+def add_command(
+    subparsers: Any,
+    name: str,
+    help: str,
+    run: Callable[[argparse.Namespace], int],
+    interrupted: Callable[[argparse.Namespace], str],
+) -> argparse.ArgumentParser:
+    """The sub-command ``name``, with the flags every command takes (``--no-progress``, ``--threads``); ``run``
+    runs it, ``interrupted`` says what Ctrl-C left."""
+    parser = subparsers.add_parser(name, help=help, description=help, formatter_class=HelpFormatter)
+    parser.set_defaults(run=run, interrupted=interrupted)
+    parser.add_argument("--no-progress", action="store_true", help="hide progress bars")
+    parser.add_argument(
+        "--threads",
+        type=COUNT,
+        help="torch CPU threads (default: torch's, one per core; give 1 where other jobs share the cores: "
+        "multi-threaded ops then wait on each other's time slices, ten times slower or worse)",
+    )
+    return parser
+
+
+def add_output(parser: argparse.ArgumentParser, default: str | None, help: str) -> None:
+    """``--output`` (``--output-dir`` kept as an alias), the one name for where every command writes."""
+    parser.add_argument("--output", "--output-dir", dest="output", required=default is None, default=default, help=help)
+
+
+def add_training_options(parser: argparse.ArgumentParser, base: TrainConfig | None, data_required: bool = True) -> None:
+    """``--data``, ``--output``, the TrainConfig fields of ``TRAINING_OPTIONS`` (defaults from ``base``; None: the
+    command picks its base once it knows the policy) and ``--resume``."""
+    parser.add_argument("--data", required=data_required, help="demonstrations directory written by `snapflow collect`")
+    add_output(parser, None, "run directory for checkpoints")
+    for name, help in TRAINING_OPTIONS.items():
+        kind = type(getattr(TEACHER_TRAINING, name))
+        parser.add_argument(
+            f"--{name.replace('_', '-')}",
+            type=POSITIVE if kind is float else (NON_NEGATIVE_COUNT if name in ("seed", "warmup_steps") else COUNT),
+            default=getattr(base, name) if base is not None else None,
+            help=help if base is not None else f"{help} (default: the recipe's; for LeRobot the paper's training)",
+        )
+    parser.add_argument(
+        "--ema-decay",
+        type=number(float, 0, 1, strict=True),
+        default=base.ema_decay if base is not None else None,
+        help="save an exponential moving average of the trained weights with this decay (e.g. 0.999) as each "
+        "checkpoint's policy; the raw weights are kept beside it for --resume (default: off)",
+    )
+    parser.add_argument("--resume", action="store_true", help="continue from the run's latest checkpoint")
+
+
+def _default(cls: type, name: str) -> Any:
+    field = next(field for field in fields(cls) if field.name == name)
+    return field.default if field.default is not MISSING else field.default_factory()
+
+
+def add_consistency_weight(parser: argparse.ArgumentParser, default: float | None, recipe: str = "") -> None:
+    """``--consistency-weight`` (``--lambda``): the one declaration of lambda; ``recipe`` ends its help."""
+    parser.add_argument(
+        "--consistency-weight",
+        "--lambda",
+        type=NON_NEGATIVE,
+        default=default,
+        dest="consistency_weight",
+        help="lambda, the weight of the one-step (consistency) loss" + recipe,
+    )
+
+
+def add_objective_options(parser: argparse.ArgumentParser, cls: type | None) -> None:
+    """``--method``, ``--lambda``, ``--target`` and ``--target-steps`` with the defaults of the dataclass ``cls``
+    (ToyConfig), or none (None: the distill recipe's)."""
+    recipe = "" if cls else " (default: the recipe's)"
+    parser.add_argument(
+        "--method",
+        choices=methods(),
+        default=_default(cls, "method") if cls else None,
+        help="distillation objective (the others are baselines)" + recipe,
+    )
+    add_consistency_weight(parser, _default(cls, "consistency_weight") if cls else None, recipe)
+    parser.add_argument(
+        "--target",
+        choices=targets(),
+        default=_default(cls, "target") if cls else None,
+        help="SnapFlow's one-step target: the average of Euler velocities, or bootstrapped from the model's own half-jumps"
+        + recipe,
+    )
+    parser.add_argument(
+        "--target-steps",
+        type=_target_steps,
+        default=_default(cls, "target_steps") if cls else None,
+        help="Euler steps the target spans (2: the paper); a schedule such as 2,4,8 splits training into equal stages"
+        + recipe,
+    )
+
+
+def add_target_options(parser: argparse.ArgumentParser, default: tuple[str, ...]) -> None:
+    """``--targets``: the SnapFlow targets a command compares, the first the reference."""
+    parser.add_argument(
+        "--targets",
+        nargs="+",
+        type=_target_option,
+        default=[TargetOption.parse(text) for text in default],
+        help="TARGET:STEPS options, the first the reference: euler:8, euler:2,4,8 (a schedule), bootstrap:8",
+    )
+
+
+def training_interrupted(args: argparse.Namespace) -> str:
+    """What Ctrl-C left of a training run: its last checkpoint, or nothing yet."""
+    from snapflow.policies.checkpoint import LATEST  # imported at the interrupt: the parser loads no torch
+
+    latest = Path(args.output) / LATEST
+    if latest.is_file():
+        checkpoint = json.loads(latest.read_text()).get("checkpoint", "?")
+        return f"interrupted; {args.output} keeps its last checkpoint ({checkpoint}): run the same command with --resume to continue"
+    return (
+        f"interrupted before the first checkpoint (one every --checkpoint-every steps); nothing was kept in "
+        f"{args.output}: run the command again"
+    )
+
+
+def nothing_written(args: argparse.Namespace) -> str:
+    """What Ctrl-C left of a command that writes only at its end."""
+    return f"interrupted; nothing was written to {args.output}"
+
+
+def runs_kept(args: argparse.Namespace) -> str:
+    """What Ctrl-C left of a command of cached runs."""
+    return "interrupted; finished runs are kept: run the same command again to continue"
+
+
+def run_command(args: argparse.Namespace) -> int:
+    """Run the parsed command: its exit code; 2 after an error the user can fix, told in one line on stderr (a
+    missing extra with its install command); :data:`INTERRUPTED` after Ctrl-C, with what was kept."""
+    prefix = f"snapflow {args.command}:"
+    if args.threads:
+        import torch
+
+        torch.set_num_threads(args.threads)
+    try:
+        return args.run(args)
+    except (ValueError, TypeError, FileNotFoundError, FileExistsError) as error:
+        print(f"{prefix} error: {error}", file=sys.stderr)
+    except ModuleNotFoundError as error:
+        module = (error.name or "").partition(".")[0]
+        if module not in EXTRAS:
+            raise
+        print(
+            f'{prefix} error: this needs {module}, which is not installed: pip install "snapflow[{EXTRAS[module]}]"',
+            file=sys.stderr,
+        )
+    except OSError as error:  # after the named cases above: a disk full, a folder made read-only mid-run, ...
+        print(f"{prefix} error: {error.strerror or error}: {error.filename}", file=sys.stderr)
+    except KeyboardInterrupt:
+        print(f"{prefix} {args.interrupted(args)}", file=sys.stderr)
+        return INTERRUPTED
+    return 2

@@ -1,0 +1,146 @@
+"""``snapflow distill``: a teacher SnapFlow-distilled into a one-step student, a built-in policy on demonstrations or
+a LeRobot pi0, pi0.5 or SmolVLA on a LeRobotDataset, from a named recipe that each flag given overrides."""
+
+from __future__ import annotations
+
+import argparse
+import tomllib
+from dataclasses import fields
+from pathlib import Path
+from typing import Any
+
+from snapflow.cli.common import (
+    POSITIVE,
+    RECIPE_SUMMARIES,
+    SHARE,
+    add_command,
+    add_objective_options,
+    add_training_options,
+    check_writable,
+    given,
+    training_interrupted,
+    training_overrides,
+)
+from snapflow.objective.options import TEACHER_VELOCITIES
+from snapflow.objective.registry import OBJECTIVES
+from snapflow.training.config import TrainConfig
+from snapflow.training.recipes import DEFAULT_RECIPE, LEROBOT_RECIPE, RECIPES, DistillSettings, student_settings
+
+
+def _objective_option(text: str) -> tuple[str, Any]:
+    """``NAME=VALUE``, the value read as in TOML (0.9, 10, true, [2, 4]), or else as text."""
+    name, equals, value = text.partition("=")
+    if not equals or not name.isidentifier():
+        raise argparse.ArgumentTypeError(f"an objective option reads NAME=VALUE, e.g. adaptive_power=0.5; got {text!r}")
+    try:
+        return name, tomllib.loads(f"value = {value}")["value"]
+    except tomllib.TOMLDecodeError:
+        return name, value
+
+
+def add_parser(subparsers: Any) -> None:
+    parser = add_command(
+        subparsers, "distill", "SnapFlow-distill a teacher into a 1-NFE student", run, training_interrupted
+    )
+    # no parser defaults: the recipe's, and a LeRobot policy trains with the paper's settings
+    add_training_options(parser, None, data_required=False)
+    parser.add_argument(
+        "--recipe",
+        choices=list(RECIPES),
+        help="the student's settings, each overridden by the options below: "
+        + RECIPE_SUMMARIES
+        + f" (default: {DEFAULT_RECIPE} for a built-in teacher, {LEROBOT_RECIPE} for a LeRobot policy)",
+    )
+    parser.add_argument("--teacher", help="teacher run or checkpoint directory (built-in policy)")
+    parser.add_argument("--policy", help="LeRobot pi0, pi0.5 or SmolVLA: hub id or local pretrained directory")
+    parser.add_argument("--dataset", help="LeRobotDataset: root directory on disk, or repo id")
+    parser.add_argument("--repo-id", help="repo id of a dataset given as a directory (default: local/<folder name>)")
+    parser.add_argument("--alpha", type=SHARE, default=None, help="flow-matching share of each batch")
+    parser.add_argument(
+        "--clamp",
+        type=POSITIVE,
+        default=None,
+        help="bound on the no-grad teacher velocities (default: the recipe's, none in both)",
+    )
+    parser.add_argument("--train-prefix", action="store_true", help="also train the prefix encoder (frozen by default)")
+    parser.add_argument(
+        "--teacher-velocity",
+        choices=TEACHER_VELOCITIES,
+        default=None,
+        help="snapflow's consistency target from the model's marginal velocity, or eps - a (ablation; default: the "
+        "recipe's)",
+    )
+    parser.add_argument("--no-target-time", action="store_true", help="ablation: no target-time embedding phi_s")
+    parser.add_argument(
+        "--intermediate-jumps",
+        type=SHARE,
+        default=None,
+        help="share of the one-step rows that jump between inner times t -> s instead of 1 -> 0 (default: the recipe's)",
+    )
+    add_objective_options(parser, None)
+    settings_fields = {field.name for field in fields(DistillSettings)}
+    own_options = {
+        entry.name: [option for option in entry.options if option not in settings_fields]
+        for entry in OBJECTIVES.values()
+    }
+    parser.add_argument(
+        "--objective-option",
+        type=_objective_option,
+        action="append",
+        metavar="NAME=VALUE",
+        help="an option of the chosen objective that no flag here sets, the value read as in TOML; repeatable ("
+        + "; ".join(f"{name}: {', '.join(options)}" for name, options in own_options.items() if options)
+        + ")",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    built_in = bool(args.teacher and args.data) and not (args.policy or args.dataset)
+    lerobot = bool(args.policy and args.dataset) and not (args.teacher or args.data)
+    if not (built_in or lerobot):
+        raise ValueError("give either --teacher and --data (a built-in policy) or --policy and --dataset (LeRobot)")
+    check_writable(args.output)
+    if lerobot:
+        return _distill_lerobot(args)
+    from snapflow.training.stages import distill
+
+    train, settings = _student_settings(args, lerobot=False)
+    state = distill(
+        args.teacher, args.data, args.output, train, settings, resume=args.resume, progress=not args.no_progress
+    )
+    print(
+        f"SnapFlow student trained to step {state['step']} in {state['wall_time_s']:.0f} s; checkpoints in {args.output}"
+    )
+    return 0
+
+
+def _distill_lerobot(args: argparse.Namespace) -> int:
+    from snapflow.adapters.hub import dataset_source
+
+    dataset_root, repo_id = dataset_source(args.dataset, args.repo_id)  # a mistyped root is named before LeRobot loads
+    train, settings = _student_settings(args, lerobot=True)
+    from snapflow.training.lerobot import EXPORT_DIRECTORY, distill_lerobot
+
+    state = distill_lerobot(
+        args.policy, dataset_root, repo_id, args.output, train, settings, args.resume, not args.no_progress
+    )
+    print(f"SnapFlow student trained to step {state['step']}; LeRobot policy in {Path(args.output) / EXPORT_DIRECTORY}")
+    return 0
+
+
+def _student_settings(args: argparse.Namespace, lerobot: bool) -> tuple[TrainConfig, DistillSettings]:
+    """The student's recipe (``--recipe``, or its family's), each flag given overriding it."""
+    overrides = {
+        "alpha": args.alpha,
+        "consistency_weight": args.consistency_weight,
+        "teacher_velocity_clamp": args.clamp,
+        "freeze_prefix": False if args.train_prefix else None,
+        "method": args.method,
+        "teacher_velocity": args.teacher_velocity,
+        "target_time": False if args.no_target_time else None,
+        "target": args.target,
+        "target_steps": args.target_steps,
+        "intermediate_jumps": args.intermediate_jumps,
+        "objective_options": dict(args.objective_option) if args.objective_option else None,
+    }
+    return student_settings(args.recipe, lerobot, given(training_overrides(args)), given(overrides))

@@ -1,0 +1,148 @@
+"""``snapflow eval``: closed-loop success, offline metrics and latency of policies on a benchmark, or a distilled
+LeRobot policy's success in LeRobot's own environments."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from snapflow.cli.common import (
+    COUNT,
+    NON_NEGATIVE_COUNT,
+    TASKS_HELP,
+    add_command,
+    add_output,
+    argument_type,
+    check_writable,
+    given,
+    nothing_written,
+    tasks,
+)
+from snapflow.envs.factory import BENCHMARKS, DEFAULT_BENCHMARK, make_benchmark
+from snapflow.evaluation.config import N_ACT
+from snapflow.flow.modes import SamplingMode
+from snapflow.inference.compile import COMPILE_MODES
+
+_modes = argument_type(lambda text: [SamplingMode.parse(name) for name in text.split(",")])
+
+
+def add_parser(subparsers: Any) -> None:
+    parser = add_command(
+        subparsers,
+        "eval",
+        "closed-loop success, offline metrics and latency on a benchmark, "
+        "or success of a distilled LeRobot policy in LeRobot's environments",
+        run,
+        nothing_written,
+    )
+    parser.add_argument(
+        "--policy",
+        required=True,
+        nargs="+",
+        help="run or checkpoint directories, or LeRobot policy folders (run/lerobot_policy); PATH=MODES runs "
+        "only those modes of that one, e.g. teacher/lerobot_policy=teacher-10,naive student/lerobot_policy=snapflow-1 "
+        "(with --lerobot-env: one distilled LeRobot policy directory)",
+    )
+    parser.add_argument(
+        "--modes",
+        type=_modes,
+        default=_modes("teacher-10,naive,snapflow-1"),
+        help="comma-separated: teacher-N, naive, snapflow-N (snapflow-N needs a distilled policy)",
+    )
+    parser.add_argument(
+        "--env",
+        choices=list(BENCHMARKS),
+        help="benchmark (default: the one the first policy's demonstrations came from)",
+    )
+    parser.add_argument("--tasks", help=TASKS_HELP)
+    parser.add_argument("--episodes", type=COUNT, default=10, help="episodes per task")
+    parser.add_argument(
+        "--n-act",
+        "--n-action-steps",
+        type=COUNT,
+        dest="n_act",
+        help=f"actions executed per predicted chunk (default: {N_ACT}; with --lerobot-env the policy's own)",
+    )
+    parser.add_argument("--data", help="demonstrations for offline metrics on the held-out episodes")
+    parser.add_argument(
+        "--seed", type=NON_NEGATIVE_COUNT, help="evaluation seed (default: 0; with --lerobot-env LeRobot's 1000)"
+    )
+    parser.add_argument(
+        "--compile",
+        choices=COMPILE_MODES,
+        help="the fast path: torch.compile each policy's prefix pass and one-pass velocity (snapflow.inference)",
+    )
+    parser.add_argument(
+        "--lerobot-env", help="evaluate in LeRobot's environment of this type (pusht, aloha, libero, metaworld, ...)"
+    )
+    parser.add_argument("--env-task", help="with --lerobot-env: the task or suite (default: the environment's own)")
+    parser.add_argument("--n-envs", type=COUNT, default=1, help="with --lerobot-env: environments stepped in parallel")
+    parser.add_argument(
+        "--max-episode-steps", type=COUNT, help="with --lerobot-env: cut episodes short of the environment's limit"
+    )
+    add_output(parser, "outputs/eval", "where report.json, report.md and the plots go")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.lerobot_env:
+        return _eval_in_lerobot_env(args)
+    # every registered benchmark is checked again below once the policies name theirs; a typo is caught here first
+    tasks(args.env or DEFAULT_BENCHMARK, args.tasks)
+    check_writable(args.output)
+    from snapflow.evaluation.pipeline import evaluate, labelled_runs, trained_benchmark
+    from snapflow.evaluation.report import markdown_report, write_report
+    from snapflow.inference.compile import compile_policy
+    from snapflow.sources import open_policy
+
+    modes = dict(_policy_modes(entry, args.modes) for entry in args.policy)
+    policies = {path: (open_policy(path), policy_modes) for path, policy_modes in modes.items()}
+    if args.compile:
+        for policy, _ in policies.values():
+            compile_policy(policy.policy, args.compile)
+    first, _ = next(iter(policies.values()))
+    env = args.env or trained_benchmark(first)
+    report = evaluate(
+        labelled_runs(policies),
+        make_benchmark(env),
+        tasks(env, args.tasks),
+        args.episodes,
+        data=args.data,
+        progress=not args.no_progress,
+        **given({"n_act": args.n_act, "seed": args.seed}),
+    )
+    write_report(report, args.output)
+    print(markdown_report(report))
+    print(f"wrote report.json, report.md and PNG plots to {args.output}")
+    return 0
+
+
+def _policy_modes(entry: str, default: list[SamplingMode]) -> tuple[str, list[SamplingMode]]:
+    """``PATH`` (the --modes) or ``PATH=MODES``: the sampling modes of one policy of several."""
+    path, separator, modes = entry.rpartition("=")
+    if not separator:
+        return entry, default
+    return path, [SamplingMode.parse(name) for name in modes.split(",")]
+
+
+def _eval_in_lerobot_env(args: argparse.Namespace) -> int:
+    if len(args.policy) != 1:
+        raise ValueError("--lerobot-env evaluates one distilled LeRobot policy directory at a time")
+    check_writable(args.output)
+    from snapflow.evaluation.lerobot_env import evaluate_in_lerobot_env, lerobot_eval_table, write_lerobot_eval
+
+    report = evaluate_in_lerobot_env(
+        args.policy[0],
+        args.lerobot_env,
+        args.modes,
+        args.episodes,
+        args.env_task,
+        args.n_act,
+        args.n_envs,
+        max_episode_steps=args.max_episode_steps,
+        compile_mode=args.compile,
+        **given({"seed": args.seed}),
+    )
+    write_lerobot_eval(report, args.output)
+    print(lerobot_eval_table(report))
+    print(f"wrote report.json, report.md and each mode's eval_info.json to {args.output}")
+    return 0

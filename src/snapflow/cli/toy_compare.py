@@ -1,0 +1,48 @@
+"""``snapflow toy-compare``: SnapFlow's one-step targets on the toy mixture, over seeds."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from typing import Any
+
+from snapflow.cli.common import (
+    COUNT,
+    NON_NEGATIVE_COUNT,
+    add_command,
+    add_consistency_weight,
+    add_output,
+    add_target_options,
+    check_writable,
+    runs_kept,
+)
+from snapflow.cli.toy import add_step_options
+from snapflow.jobs.toy_config import ToyConfig
+
+
+def add_parser(subparsers: Any) -> None:
+    parser = add_command(
+        subparsers, "toy-compare", "SnapFlow's one-step targets on the toy mixture, over seeds", run, runs_kept
+    )
+    add_target_options(parser, ("euler:2", "euler:4", "euler:8"))
+    parser.add_argument("--seeds", nargs="+", type=NON_NEGATIVE_COUNT, default=[0, 1, 2], help="seeds of every run")
+    add_step_options(parser)
+    add_consistency_weight(parser, ToyConfig.consistency_weight)
+    parser.add_argument("--workers", type=COUNT, default=1, help="runs in parallel, each on cores / workers threads")
+    add_output(parser, "outputs/toy-compare", "where runs, JSON, table and PNG go (finished runs are reused)")
+
+
+def run(args: argparse.Namespace) -> int:
+    check_writable(args.output)
+    from snapflow.jobs.toy_compare import compare_targets, markdown_comparison
+
+    base = ToyConfig(
+        teacher_steps=args.teacher_steps, distill_steps=args.distill_steps, consistency_weight=args.consistency_weight
+    )
+    started = time.perf_counter()
+    summary = compare_targets(args.targets, args.seeds, base, args.output, args.workers, not args.no_progress)
+    print(markdown_comparison(summary))
+    print(
+        f"\ndone in {(time.perf_counter() - started) / 60:.1f} min; wrote comparison.json, comparison.md and comparison.png to {args.output}"
+    )
+    return 0
