@@ -33,7 +33,8 @@ def add_parser(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     check_writable(args.output)
-    from snapflow.evaluation.diagnosis import diagnose_student, markdown_diagnosis, write_diagnosis
+    from snapflow.evaluation.diagnosis import diagnose_student
+    from snapflow.evaluation.diagnosis_report import markdown_diagnosis, write_diagnosis
     from snapflow.sources import open_policy
 
     diagnosis = diagnose_student(
