@@ -31,8 +31,22 @@ from snapflow.training.stages import distill, train_teacher
 RECORD = "job.json"  # a collect or train job's record, inside the folder it fills
 
 
+class FolderJob(Job):
+    """A job that fills one folder, ``directory``, and keeps its record there."""
+
+    directory: Path
+
+    @property
+    def record_path(self) -> Path:
+        return self.directory / RECORD
+
+    @property
+    def outputs(self) -> tuple[Path, ...]:
+        return (self.directory,)
+
+
 @dataclass(frozen=True)
-class CollectJob(Job):
+class CollectJob(FolderJob):
     """The expert demonstrations of one task (``data.tasks`` holds it alone), in ``directory``."""
 
     kind: ClassVar[str] = "collect"
@@ -42,14 +56,6 @@ class CollectJob(Job):
 
     def settings(self) -> dict[str, Any]:
         return as_record(self.data)
-
-    @property
-    def record_path(self) -> Path:
-        return self.directory / RECORD
-
-    @property
-    def outputs(self) -> tuple[Path, ...]:
-        return (self.directory,)
 
     def run(self) -> dict[str, Any]:
         data = self.data
@@ -68,7 +74,7 @@ class CollectJob(Job):
 
 
 @dataclass(frozen=True)
-class DataJob(Job):
+class DataJob(FolderJob):
     """The sweep's demonstrations: every task's collected part, in task order, in one folder."""
 
     kind: ClassVar[str] = "data"
@@ -84,14 +90,6 @@ class DataJob(Job):
     def dependencies(self) -> tuple[Job, ...]:
         return self.parts
 
-    @property
-    def record_path(self) -> Path:
-        return self.directory / RECORD
-
-    @property
-    def outputs(self) -> tuple[Path, ...]:
-        return (self.directory,)
-
     def run(self) -> dict[str, Any]:
         Demonstrations.concatenate([Demonstrations.load(part.directory) for part in self.parts]).save(self.directory)
         return {}
@@ -101,7 +99,7 @@ class DataJob(Job):
 
 
 @dataclass(frozen=True)
-class TrainJob(Job):
+class TrainJob(FolderJob):
     """A teacher (``policy``: flow matching on the data) or a student (``teacher`` and ``distill``), in ``directory``.
 
     Both resume an interrupted run of the same settings; the runner clears the folder of one made with others.
@@ -130,14 +128,6 @@ class TrainJob(Job):
     @property
     def dependencies(self) -> tuple[Job, ...]:
         return (self.data,) if self.teacher is None else (self.data, self.teacher)
-
-    @property
-    def record_path(self) -> Path:
-        return self.directory / RECORD
-
-    @property
-    def outputs(self) -> tuple[Path, ...]:
-        return (self.directory,)
 
     def run(self) -> dict[str, Any]:
         if self.teacher is None:
