@@ -9,7 +9,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from snapflow.adapters.hub import local_folder
+from snapflow.adapters.hub import check_source, local_folder
 from snapflow.policies.checkpoint import is_builtin_checkpoint
 from snapflow.policies.loaded import CheckpointError, OpenedPolicy
 
@@ -24,8 +24,13 @@ class SourceKind:
     recognises: Callable[[Path | None], bool]
     opener: str
     extra: str | None = None  # the pip extra its opener needs
+    #: a cheap check of the source run before the opener's module is imported (a hub repo named in one line in
+    #: seconds, before an import of LeRobot that takes longer than the answer)
+    precheck: Callable[[str], None] | None = None
 
     def open(self, source: str) -> OpenedPolicy:
+        if self.precheck is not None:
+            self.precheck(source)
         module, _, function = self.opener.partition(":")
         try:
             opener = getattr(importlib.import_module(module), function)
@@ -60,6 +65,7 @@ register_source_kind(
         lambda folder: folder is None or (folder / "config.json").is_file(),
         "snapflow.adapters.lerobot.evaluation:load_lerobot_policy",
         extra="lerobot",
+        precheck=lambda source: check_source(source, "config.json", "a LeRobot policy"),
     )
 )
 
