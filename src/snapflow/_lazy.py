@@ -30,8 +30,9 @@ def lazy_exports(
     return __getattr__, __dir__, list(owner)
 
 
-def resolve(target: type | str) -> type:
-    """A class, or ``"module:Class"`` imported now: a registry names its classes without importing their modules."""
+def resolve(target: type | str) -> Any:
+    """A class, or ``"module:name"`` (a class or a function) imported now: a registry names what it holds without
+    importing their modules."""
     if isinstance(target, type):
         return target
     module, _, name = target.partition(":")

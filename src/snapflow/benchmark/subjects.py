@@ -69,7 +69,7 @@ def builtin_subject(
         {
             "parameters": _parameter_count(policy),
             "dtypes": parameter_dtypes(policy),
-            "policy_type": loaded.metadata["policy"],
+            "policy_type": loaded.policy_type,
             "config": processor.config.to_dict(),
             **({loaded.export["format"]: loaded.export} if loaded.exported else {}),
         },

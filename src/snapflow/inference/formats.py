@@ -14,16 +14,12 @@ they keep the format's record under its name (``"onnx": {...}``) beside the poli
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-
-def _resolve(target: str) -> Any:
-    module, _, name = target.partition(":")
-    return getattr(importlib.import_module(module), name)
+from snapflow._lazy import resolve
 
 
 @dataclass(frozen=True)
@@ -37,12 +33,12 @@ class ExportFormat:
 
     def export(self, policy: Any, observation: Any, noise: Any, folder: Path) -> dict[str, Any]:
         """Write the one-step graph of ``policy`` into ``folder``; returns the format's record."""
-        export: Callable[..., dict[str, Any]] = _resolve(self.exporter)
+        export: Callable[..., dict[str, Any]] = resolve(self.exporter)
         return export(policy, observation, noise, folder / self.file)
 
     def load(self, path: Path) -> Any:
         """The exported file at ``path`` as a policy that runs its one jump."""
-        return _resolve(self.runtime)(path)
+        return resolve(self.runtime)(path)
 
 
 EXPORT_FORMATS: dict[str, ExportFormat] = {}

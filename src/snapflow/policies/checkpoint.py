@@ -52,9 +52,8 @@ class LoadedPolicy(OpenedPolicy):
         return "distill" in self.metadata
 
     @property
-    def export(self) -> dict[str, Any] | None:
-        found = export_record(self.metadata)
-        return None if found is None else {"format": found[0].name, **found[1]}
+    def description(self) -> dict[str, Any]:
+        return self.metadata
 
     @property
     def distill_command(self) -> str:

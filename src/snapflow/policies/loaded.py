@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
+from snapflow.inference.formats import export_record
 
 
 class CheckpointError(ValueError):
@@ -37,8 +38,15 @@ class OpenedPolicy(ABC):
 
     @property
     @abstractmethod
+    def description(self) -> dict[str, Any]:
+        """What it says of itself on disk (a checkpoint's ``policy.json``, a LeRobot folder's snapflow marker); an
+        export keeps its format's record there under the format's name."""
+
+    @property
     def export(self) -> dict[str, Any] | None:
         """The record of the export this is (its format's name under ``format``, its source, ...), or None."""
+        found = export_record(self.description)
+        return None if found is None else {"format": found[0].name, **found[1]}
 
     @property
     @abstractmethod

@@ -74,7 +74,7 @@ class Processor(ABC):
     @property
     def extra_cameras(self) -> tuple[str, ...]:
         """The cameras it reads beyond the benchmark's main one, by the benchmark's names (LIBERO's wrist camera,
-        ``image2``): :meth:`observation` is given their frames as ``extra_images``. None for built-in policies."""
+        ``image2``): :meth:`observation` is given their frames as ``extra_images``. Empty for a policy of one camera."""
         return ()
 
     def normalized_state(self, states: np.ndarray | Tensor) -> Tensor:

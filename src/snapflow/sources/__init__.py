@@ -4,11 +4,11 @@ place, in the order they are tried."""
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from snapflow._lazy import resolve
 from snapflow.adapters.hub import check_source, local_folder
 from snapflow.policies.checkpoint import is_builtin_checkpoint
 from snapflow.policies.loaded import CheckpointError, OpenedPolicy
@@ -31,9 +31,8 @@ class SourceKind:
     def open(self, source: str) -> OpenedPolicy:
         if self.precheck is not None:
             self.precheck(source)
-        module, _, function = self.opener.partition(":")
         try:
-            opener = getattr(importlib.import_module(module), function)
+            opener = resolve(self.opener)
         except ImportError as error:
             hint = f": pip install 'snapflow[{self.extra}]'" if self.extra else ""
             raise CheckpointError(f"{source} is {self.description}, and {error}{hint}") from None

@@ -153,9 +153,8 @@ class LoadedLeRobotPolicy(OpenedPolicy):
         return bool(self.marker.get("target_time"))
 
     @property
-    def export(self) -> dict[str, Any] | None:
-        found = export_record(self.marker)
-        return None if found is None else {"format": found[0].name, **found[1]}
+    def description(self) -> dict[str, Any]:
+        return self.marker
 
     @property
     def distill_command(self) -> str:

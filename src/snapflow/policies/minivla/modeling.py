@@ -93,7 +93,7 @@ class ExpertLayer(nn.Module):
 
 def camera_keys(config: MiniVLAConfig) -> list[str]:
     """The observation keys of the cameras' frames: ``image`` (the main camera), then ``image.<camera>``."""
-    return ["image", *(f"image.{name}" for name in config.extra_cameras)][: config.cameras]
+    return ["image", *(f"image.{name}" for name in config.extra_cameras)]
 
 
 class MiniVLA(nn.Module):
