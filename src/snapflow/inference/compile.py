@@ -1,4 +1,5 @@
-"""The deployment fast path: a policy's prefix pass and its one-pass velocity, both compiled.
+"""The torch.compile fast paths: a policy's prefix pass and its one-pass velocity, both compiled (registered by mode
+in :mod:`snapflow.inference.fast_paths`: ``compile``, ``compile-reduce-overhead``, ``compile-max-autotune``).
 
 ``torch.compile`` replaces the two methods on the instance, so every sampler that calls them runs compiled:
 :func:`snapflow.flow.sample_actions` (``snapflow eval``, ``snapflow bench``) and a LeRobot adapter's
@@ -37,6 +38,21 @@ def compile_policy(policy: nn.Module, mode: CompileMode = "default") -> nn.Modul
     return policy
 
 
+def compile_default(policy: nn.Module) -> nn.Module:
+    """The ``compile`` fast path: :func:`compile_policy` in mode ``default``."""
+    return compile_policy(policy, "default")
+
+
+def compile_reduce_overhead(policy: nn.Module) -> nn.Module:
+    """The ``compile-reduce-overhead`` fast path: :func:`compile_policy` in mode ``reduce-overhead``."""
+    return compile_policy(policy, "reduce-overhead")
+
+
+def compile_max_autotune(policy: nn.Module) -> nn.Module:
+    """The ``compile-max-autotune`` fast path: :func:`compile_policy` in mode ``max-autotune``."""
+    return compile_policy(policy, "max-autotune")
+
+
 def _kept_outputs(compiled: Callable[..., Any], mode: str) -> Callable[..., Any]:
     """Under CUDA graphs (``reduce-overhead``), the prefix's outputs copied out of the graph: the jump reads them,
     and may extend a cache in place, after the graph has been replayed again."""
@@ -53,4 +69,12 @@ def _kept_outputs(compiled: Callable[..., Any], mode: str) -> Callable[..., Any]
     return run
 
 
-__all__ = ["CompileMode", "COMPILE_MODES", "DEFAULT_METHODS", "compile_policy"]
+__all__ = [
+    "CompileMode",
+    "COMPILE_MODES",
+    "DEFAULT_METHODS",
+    "compile_policy",
+    "compile_default",
+    "compile_reduce_overhead",
+    "compile_max_autotune",
+]
