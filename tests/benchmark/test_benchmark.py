@@ -149,7 +149,7 @@ def test_bench_cli_times_a_built_in_architecture_and_writes_every_result_file(ar
             assert timed["chunks_per_s"] == pytest.approx(int(size) * 1e3 / timed["end_to_end"]["median_ms"])
     assert "| 32 |" in (output / "bench.md").read_text()
     assert (
-        report["machine"]["torch"] == torch.__version__ and report["dtype"] == "float32" and report["compile"] is None
+        report["machine"]["torch"] == torch.__version__ and report["dtype"] == "float32" and report["fast_path"] is None
     )
     assert report["subject"] == f"{architecture} (random weights)" and report["details"]["policy_type"] == architecture
     expected = random_builtin_policy(architecture)

@@ -1,9 +1,10 @@
 """``snapflow bench``: batch-1 latency of one policy at NFE 10, 5, 2 and 1, with the fast path and a profile
 (the report it makes: :mod:`snapflow.benchmark.report`).
 
-The fast path is what deployment runs: the prefix encoded once per chunk, then one pass of the action expert.
-Optionally that pass is compiled (:func:`snapflow.inference.compile_policy`; ``reduce-overhead`` captures a CUDA graph on a GPU)
-and the policy runs in bfloat16 / float16. The profile of the one-step path shows where its time goes.
+One step is what deployment runs: the prefix encoded once per chunk, then one pass of the action expert. Optionally
+the policy runs a registered fast path (:mod:`snapflow.inference.fast_paths`: ``compile``, ``compile-reduce-overhead``
+capturing CUDA graphs on a GPU, ...) and in bfloat16 / float16. The profile of the one-step path shows where its time
+goes.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from snapflow.benchmark.report import BenchReport, OneStepProfile, Throughput
 from snapflow.benchmark.subjects import BenchSubject, parameter_dtypes
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.solver import sample_actions
-from snapflow.inference.compile import compile_policy
+from snapflow.inference.fast_paths import apply_fast_path
 from snapflow.protocol import map_tensors
 from snapflow.reporting.machine import machine
 
@@ -117,7 +118,7 @@ def run_bench(
     subject: BenchSubject,
     warmup: int = 10,
     repeats: int = 50,
-    compile_mode: str | None = None,
+    fast_path: str | None = None,
     profile: bool = True,
     modes: tuple[SamplingMode, ...] | None = None,
     batch_sizes: tuple[int, ...] = (),
@@ -125,15 +126,15 @@ def run_bench(
 ) -> BenchReport:
     """Time ``subject`` at batch 1 at every mode (default: the teacher's 10, 5, 2 steps and the subject's one-step
     mode; the first is the reference of the speedups), the throughput of the first and last mode at
-    ``batch_sizes``, and, optionally, profile its one-step mode. ``compile_mode`` runs the fast path
-    (:func:`snapflow.inference.compile_policy`)."""
+    ``batch_sizes``, and, optionally, profile its one-step mode, with the policy in fast path ``fast_path`` (a
+    registered name, :func:`snapflow.inference.apply_fast_path`) where one is given."""
     modes = modes or subject.only_modes or (*TEACHER_MODES, subject.one_step)
     exact = one_step_actions(subject) if tf32 else None
     with _tf32() if tf32 else contextlib.nullcontext():
         # what TF32 costs in accuracy, measured on the subject's inputs before it is timed
         tf32_difference = (one_step_actions(subject) - exact).abs().max().item() if exact is not None else None
-        if compile_mode:
-            compile_policy(subject.policy, compile_mode)
+        if fast_path:
+            apply_fast_path(subject.policy, fast_path)
         latency = measure_latency(subject.policy, subject.observation, subject.noise, list(modes), warmup, repeats)
         throughput = (
             measure_throughput(
@@ -152,7 +153,7 @@ def run_bench(
         subject.details,
         machine(),
         str(subject.noise.dtype).removeprefix("torch."),
-        compile_mode,
+        fast_path,
         latency,
         tf32_difference=tf32_difference,
         jump_to_teacher_pass_ratio=jump_ratio,

@@ -59,7 +59,7 @@ class BenchReport:
     details: dict[str, Any]  # the subject's (policy type, sizes, parameters by module group and dtype, ...)
     machine: dict[str, Any]
     dtype: str  # of the inputs
-    compile: str | None
+    fast_path: str | None  # the registered name of the fast path timed (snapflow.inference.fast_paths), or None
     latency: LatencyReport
     tf32_difference: float | None = None  # max |one-step actions with TF32 - without|, on the subject's inputs
     jump_to_teacher_pass_ratio: float | None = None  # one jump's time over one teacher step's
@@ -76,7 +76,7 @@ class BenchReport:
             "details": self.details,
             "machine": self.machine,
             "dtype": self.dtype,
-            "compile": self.compile,
+            "fast_path": self.fast_path,
             "latency": self.latency.to_dict(),
         }
         if self.tf32_difference is not None:
@@ -135,7 +135,7 @@ def _latency_markdown(report: BenchReport) -> str:
         [
             f"# Latency: {report.subject}",
             "",
-            f"Batch 1 on {device}, {_precision(report)}, torch {host['torch']}, compile: {report.compile or 'off'}; "
+            f"Batch 1 on {device}, {_precision(report)}, torch {host['torch']}, fast path: {report.fast_path or 'off'}; "
             f"medians (P90) of {latency.repeats} round-robin repeats after {latency.warmup} warm-up calls of each.",
             "",
             f"Prefix (VLM) encoding: {latency.prefix.median_ms:.2f} ms (P90 {latency.prefix.p90_ms:.2f}).",

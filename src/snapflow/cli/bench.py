@@ -7,8 +7,15 @@ import argparse
 from typing import Any
 
 from snapflow.benchmark.architectures import architectures
-from snapflow.cli.common import COUNT, NON_NEGATIVE_COUNT, add_command, add_output, check_writable, nothing_written
-from snapflow.inference.compile import COMPILE_MODES
+from snapflow.cli.common import (
+    COUNT,
+    NON_NEGATIVE_COUNT,
+    add_command,
+    add_fast_path,
+    add_output,
+    check_writable,
+    nothing_written,
+)
 
 
 def _counts(text: str) -> tuple[int, ...]:
@@ -38,12 +45,7 @@ def add_parser(subparsers: Any) -> None:
     parser.add_argument(
         "--dtype", choices=["float32", "bfloat16", "float16"], default="float32", help="weights and activations"
     )
-    parser.add_argument(
-        "--compile",
-        choices=COMPILE_MODES,
-        help="the fast path: torch.compile the prefix pass and the one-pass action expert (reduce-overhead: both "
-        "captured as CUDA graphs on a GPU)",
-    )
+    add_fast_path(parser, "the policy is timed in")
     parser.add_argument("--warmup", type=NON_NEGATIVE_COUNT, default=10, help="untimed calls of each quantity first")
     parser.add_argument("--repeats", type=COUNT, default=50, help="timed calls of each quantity, round-robin")
     parser.add_argument("--no-profile", action="store_true", help="skip the torch.profiler table of the 1-NFE path")
@@ -85,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     subject = make_subject(args.policy, args.architecture, device, dtype, args.vlm)
     vision_difference = vision_in_bfloat16(subject) if args.vision_dtype else None
     distill_step = None
-    if args.distill_batch_sizes:  # first, in place: before anything is compiled
+    if args.distill_batch_sizes:  # first, in place: before a fast path changes the policy
         from snapflow.benchmark.training_cost import distillation_step_cost
 
         distill_step = distillation_step_cost(
@@ -95,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
         subject,
         args.warmup,
         args.repeats,
-        args.compile,
+        args.fast_path,
         profile=not args.no_profile,
         batch_sizes=args.batch_sizes,
         tf32=args.tf32,

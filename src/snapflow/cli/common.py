@@ -1,6 +1,6 @@
 """What every ``snapflow`` command shares: the parser's one-line errors and defaults in the help, the checked
 argument types, the flag groups several commands take (output folder, training flags from ``TrainConfig``, the
-objective's flags, threads and progress), the output-folder check, and the run of a command with its errors and
+objective's flags, the fast path, threads and progress), the output-folder check, and the run of a command with its errors and
 Ctrl-C told in one line.
 
 Plain Python at import, as every command module is at the top (see :mod:`snapflow.cli`)."""
@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from snapflow.envs.factory import make_benchmark
+from snapflow.inference.fast_paths import FAST_PATHS
 from snapflow.objective.registry import methods, targets
 from snapflow.training.config import TEACHER_TRAINING, TrainConfig
 from snapflow.training.recipes import RECIPES, TargetOption, parse_target_steps
@@ -44,6 +45,12 @@ TASKS_HELP = (
     "comma-separated sets of the benchmark's tasks (metaworld: mt10, the default, or mt50; libero: libero_spatial, "
     "the default, libero_object, libero_goal, libero_10) and task names (libero: <suite>_<index>)"
 )
+# the deprecated ``--compile MODE``: the fast path each torch.compile mode is registered as
+COMPILE_FAST_PATHS = {
+    "default": "compile",
+    "reduce-overhead": "compile-reduce-overhead",
+    "max-autotune": "compile-max-autotune",
+}
 RECIPE_SUMMARIES = "; ".join(f"{name}: {recipe.summary}" for name, recipe in RECIPES.items())
 INTERRUPTED = 130  # what main returns after Ctrl-C: 128 + SIGINT, the status a shell shows for it
 
@@ -246,6 +253,33 @@ def add_target_options(parser: argparse.ArgumentParser, default: tuple[str, ...]
         type=_target_option,
         default=[TargetOption.parse(text) for text in default],
         help="TARGET:STEPS options, the first the reference: euler:8, euler:2,4,8 (a schedule), bootstrap:8",
+    )
+
+
+class _DeprecatedCompileFlag(argparse.Action):
+    """``--compile MODE``, the torch.compile flag from before the fast paths had names: still read, as ``--fast-path``
+    of that mode's name, with one line on stderr."""
+
+    def __call__(
+        self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any, option_string: Any = None
+    ) -> None:
+        name = COMPILE_FAST_PATHS[values]
+        print(f"{parser.prog}: warning: --compile is deprecated; use --fast-path {name}", file=sys.stderr)
+        setattr(namespace, self.dest, name)
+
+
+def add_fast_path(parser: argparse.ArgumentParser, runs: str) -> None:
+    """``--fast-path NAME``, a registered fast path (:mod:`snapflow.inference.fast_paths`) that ``runs`` what the
+    command times or evaluates, and ``--compile MODE``, its deprecated alias."""
+    flags = parser.add_mutually_exclusive_group()
+    described = "; ".join(f"{name}: {entry.description}" for name, entry in FAST_PATHS.items())
+    flags.add_argument("--fast-path", choices=list(FAST_PATHS), help=f"the deployment fast path {runs} ({described})")
+    flags.add_argument(
+        "--compile",
+        dest="fast_path",
+        choices=list(COMPILE_FAST_PATHS),
+        action=_DeprecatedCompileFlag,
+        help=argparse.SUPPRESS,
     )
 
 

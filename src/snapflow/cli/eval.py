@@ -11,6 +11,7 @@ from snapflow.cli.common import (
     NON_NEGATIVE_COUNT,
     TASKS_HELP,
     add_command,
+    add_fast_path,
     add_output,
     argument_type,
     check_writable,
@@ -21,7 +22,6 @@ from snapflow.cli.common import (
 from snapflow.envs.factory import BENCHMARKS, DEFAULT_BENCHMARK, make_benchmark
 from snapflow.evaluation.config import N_ACT
 from snapflow.flow.modes import SamplingMode
-from snapflow.inference.compile import COMPILE_MODES
 
 _modes = argument_type(lambda text: [SamplingMode.parse(name) for name in text.split(",")])
 
@@ -67,11 +67,7 @@ def add_parser(subparsers: Any) -> None:
     parser.add_argument(
         "--seed", type=NON_NEGATIVE_COUNT, help="evaluation seed (default: 0; with --lerobot-env LeRobot's 1000)"
     )
-    parser.add_argument(
-        "--compile",
-        choices=COMPILE_MODES,
-        help="the fast path: torch.compile each policy's prefix pass and one-pass velocity (snapflow.inference)",
-    )
+    add_fast_path(parser, "each policy runs in")
     parser.add_argument(
         "--lerobot-env", help="evaluate in LeRobot's environment of this type (pusht, aloha, libero, metaworld, ...)"
     )
@@ -91,14 +87,14 @@ def run(args: argparse.Namespace) -> int:
     check_writable(args.output)
     from snapflow.evaluation.pipeline import evaluate, labelled_runs, trained_benchmark
     from snapflow.evaluation.report import markdown_report, write_report
-    from snapflow.inference.compile import compile_policy
+    from snapflow.inference.fast_paths import apply_fast_path
     from snapflow.sources import open_policy
 
     modes = dict(_policy_modes(entry, args.modes) for entry in args.policy)
     policies = {path: (open_policy(path), policy_modes) for path, policy_modes in modes.items()}
-    if args.compile:
+    if args.fast_path:
         for policy, _ in policies.values():
-            compile_policy(policy.policy, args.compile)
+            apply_fast_path(policy.policy, args.fast_path)
     first, _ = next(iter(policies.values()))
     env = args.env or trained_benchmark(first)
     report = evaluate(
@@ -139,7 +135,7 @@ def _eval_in_lerobot_env(args: argparse.Namespace) -> int:
         args.n_act,
         args.n_envs,
         max_episode_steps=args.max_episode_steps,
-        compile_mode=args.compile,
+        fast_path=args.fast_path,
         **given({"seed": args.seed}),
     )
     write_lerobot_eval(report, args.output)

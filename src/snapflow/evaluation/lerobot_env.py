@@ -15,7 +15,7 @@ from snapflow.adapters.lerobot.checkpoint import load_distilled
 from snapflow.adapters.lerobot.libero import packaged_initial_states
 from snapflow.envs.libero import SUITES, Libero, suite_of
 from snapflow.flow.modes import SamplingMode
-from snapflow.inference.compile import CompileMode, compile_policy
+from snapflow.inference.fast_paths import apply_fast_path
 from snapflow.reporting.files import write_json, write_text
 from snapflow.reporting.tables import markdown_table
 
@@ -53,13 +53,14 @@ def evaluate_in_lerobot_env(
     seed: int = 1000,
     max_episode_steps: int | None = None,
     device: str | None = None,
-    compile_mode: CompileMode | None = None,
+    fast_path: str | None = None,
 ) -> dict[str, Any]:
     """Run ``episodes`` rollouts per mode and return ``{"modes": {name: LeRobot's eval info + NFE}, ...}``.
 
     ``n_action_steps`` actions of each predicted chunk are executed before re-planning (default: the policy's
     own setting); ``max_episode_steps`` cuts episodes short of the environment's own limit (quick checks);
-    ``compile_mode`` runs the denoising passes compiled (:func:`snapflow.inference.compile_policy`).
+    ``fast_path`` names a registered fast path the policy runs in (:func:`snapflow.inference.apply_fast_path`), which
+    LeRobot's rollout reaches through the adapter's sampling.
     """
     os.environ.setdefault("MUJOCO_GL", "egl")  # Meta-World and ALOHA render off-screen
     from lerobot.envs.factory import make_env, make_env_pre_post_processors
@@ -79,8 +80,8 @@ def evaluate_in_lerobot_env(
     device = device or ("cuda" if torch.cuda.is_available() else "cpu")
     policy.config.device = device
     policy.to(device).eval()
-    if compile_mode:
-        compile_policy(adapter, compile_mode)
+    if fast_path:
+        apply_fast_path(adapter, fast_path)
 
     cameras = [feature.shape[-1] for feature in policy.config.image_features.values()]
     env_config = make_lerobot_env_config(env_type, task, cameras[0] if cameras else None)
@@ -126,6 +127,7 @@ def evaluate_in_lerobot_env(
         "start_seed": seed,
         "max_episode_steps": max_episode_steps,
         "device": device,
+        "fast_path": fast_path,
         "modes": results,
     }
 
