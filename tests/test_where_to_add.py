@@ -1,6 +1,7 @@
 """docs/ARCHITECTURE.md's "Where to add", followed to the letter: a throw-away environment and a throw-away built-in
 policy, each added with the steps the document names and nothing else, run through the commands it says follow
-(collect, train, distill, eval, bench). (An export format: tests/inference/test_formats.py.)"""
+(collect, train, distill, eval, bench). (An export format: tests/inference/test_formats.py; a fast path:
+tests/inference/test_fast_paths.py.)"""
 
 from __future__ import annotations
 
