@@ -135,7 +135,8 @@ def _latency_markdown(report: BenchReport) -> str:
         [
             f"# Latency: {report.subject}",
             "",
-            f"Batch 1 on {device}, {_precision(report)}, torch {host['torch']}, fast path: {report.fast_path or 'off'}; "
+            f"Batch 1 on {device}, {_precision(report)}, torch {host['torch']}, "
+            f"fast path: {report.fast_path or 'off'}; "
             f"medians (P90) of {latency.repeats} round-robin repeats after {latency.warmup} warm-up calls of each.",
             "",
             f"Prefix (VLM) encoding: {latency.prefix.median_ms:.2f} ms (P90 {latency.prefix.p90_ms:.2f}).",

@@ -1,7 +1,7 @@
 """What every ``snapflow`` command shares: the parser's one-line errors and defaults in the help, the checked
 argument types, the flag groups several commands take (output folder, training flags from ``TrainConfig``, the
-objective's flags, the fast path, threads and progress), the output-folder check, and the run of a command with its errors and
-Ctrl-C told in one line.
+objective's flags, the fast path, threads and progress), the output-folder check, and the run of a command with its
+errors and Ctrl-C told in one line.
 
 Plain Python at import, as every command module is at the top (see :mod:`snapflow.cli`)."""
 
