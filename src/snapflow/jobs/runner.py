@@ -166,9 +166,16 @@ def _work(job: Job, threads: int) -> tuple[dict[str, Any], float]:
     return results, time.perf_counter() - started
 
 
+def _copy_to_ledger(job: Job) -> None:
+    """Give a job done here its ledger copy if it lacks one (it finished before its kind kept one)."""
+    if job.ledger_path is not None and not _matches(job.ledger_path, job):
+        write_json(job.ledger_path, read_record(job))
+
+
 def to_run(jobs: Iterable[Job]) -> list[Job]:
     """The jobs to run, shallowest first (collect before training before evaluation): each given job whose result is
-    not known (:func:`is_recorded`), and the dependencies not done here of each job that runs."""
+    not known (:func:`is_recorded`), and the dependencies not done here of each job that runs. A job done here whose
+    ledger lacks its record gets it."""
     depth: dict[Job, int] = {}
     writers: dict[Path, Job] = {}
 
@@ -176,7 +183,10 @@ def to_run(jobs: Iterable[Job]) -> list[Job]:
         other = writers.setdefault(job.record_path, job)
         if other != job:
             raise ValueError(f"{other.describe()} and {job.describe()} would write the same record {job.record_path}")
-        if is_done(job) or (not outputs_needed and is_recorded(job)):
+        if is_done(job):
+            _copy_to_ledger(job)
+            return -1
+        if not outputs_needed and is_recorded(job):
             return -1
         if job not in depth:
             depth[job] = 1 + max((visit(dep, True) for dep in job.dependencies), default=-1)

@@ -247,12 +247,10 @@ def jobs(config: SweepConfig) -> list[Job]:
 
 
 def plan(config: SweepConfig) -> list[Job]:
-    """The sweep's jobs that will run, dependencies first: each evaluation whose record is missing (here and in the
-    committed ledger) or was made with other settings, and each job that one of those needs and that is not done
-    here (:func:`snapflow.jobs.runner.to_run`)."""
-    return to_run(
-        eval_job(config, table, row, seed) for table in config.tables for row in table.rows for seed in table.seeds
-    )
+    """The sweep's jobs that will run, dependencies first: each evaluation and run the tables read whose record is
+    missing (here and in the committed ledger) or was made with other settings, and each job that one of those needs
+    and that is not done here (:func:`snapflow.jobs.runner.to_run`)."""
+    return to_run(job for job in jobs(config) if isinstance(job, (TrainJob, EvalJob)))
 
 
 def run_sweeps(configs: list[SweepConfig], workers: int = 1, progress: bool = True) -> dict[str, float]:
