@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, ClassVar
@@ -200,6 +201,29 @@ def test_a_new_seed_plans_only_what_it_needs(tmp_path):
         ("train", "snapflow", 2),
         ("eval", "teacher", 2, "teacher-10"),
         ("eval", "snapflow", 2, "snapflow-1"),
+    }
+
+
+def test_a_fresh_checkout_continues_from_the_ledger_committed_beside_the_results(tmp_path):
+    """Each finished run and evaluation keeps a copy of its record under the results folder, to be committed; with
+    the run folders gone, as on a fresh machine, nothing recorded there runs again, and a missing evaluation brings
+    back only what it reads: its policy, that policy's teacher, and the data."""
+    assert finish(tmp_path) == set()
+    ledger = tmp_path / "results" / "records"
+    recorded = {path.relative_to(ledger).as_posix() for path in ledger.rglob("*.json")}
+    assert recorded == {f"{run}/seed-{seed}/job.json" for _, run, seed in ALL_TRAINS} | {
+        f"evals/{run}/seed-{seed}/{mode}_nact4_eps2.json" for _, run, seed, mode in ALL_EVALS
+    }
+    config = load_sweep(write_config(tmp_path))
+    shutil.rmtree(ledger / "teacher")  # a run recorded before its kind kept a copy gets one when the sweep is planned
+    assert plan(config) == [] and {path.relative_to(ledger).as_posix() for path in ledger.rglob("*.json")} == recorded
+    shutil.rmtree(tmp_path / "runs")
+    assert plan(config) == []
+    (ledger / "evals" / "snapflow" / "seed-1" / "snapflow-1_nact4_eps2.json").unlink()
+    assert names(plan(config)) == DATA | {
+        ("train", "teacher", 1),
+        ("train", "snapflow", 1),
+        ("eval", "snapflow", 1, "snapflow-1"),
     }
 
 
@@ -510,6 +534,13 @@ def test_a_sweep_runs_caches_reruns_a_changed_student_and_writes_its_tables_into
     assert not (runs / "meanflow" / "seed-0" / "left-over.txt").exists(), "a stale run starts from an empty folder"
     assert (runs / "teacher" / "seed-0" / "left-over.txt").exists(), "the teacher did not run again"
     assert read_record(train_job(load_sweep(config_path), "meanflow", 0))["config"]["distill"]["alpha"] == 0.7
+
+    # a fresh checkout: the run folders gone, the ledger committed beside the results kept
+    config = load_sweep(config_path)
+    tables = write_results(config)["tables"]
+    shutil.rmtree(runs)
+    assert plan(config) == [], "every result is recorded: nothing runs again"
+    assert write_results(config)["tables"] == tables, "the tables come back from the ledger alone"
 
 
 def test_a_sweep_into_an_output_dir_another_process_holds_is_refused_before_any_job(tmp_path, capsys):

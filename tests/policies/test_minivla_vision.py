@@ -121,6 +121,8 @@ def test_the_configuration_round_trips_and_refuses_what_it_cannot_build():
         dataclasses.replace(CONFIG, image_encoder="resnet")
     with pytest.raises(ValueError, match="multiple of 8 x image_downsample"):
         dataclasses.replace(CONFIG, image_downsample=3)
+    with pytest.raises(ValueError, match=r"conv_width \(12\) must be a multiple of 8"):
+        dataclasses.replace(CONFIG, conv_width=12)
     with pytest.raises(ValueError, match="random_shift must be at least 0"):
         dataclasses.replace(CONFIG, random_shift=-1)
     assert "image_encoder" not in MiniVLAConfig().to_dict(), "an option added later is left out at its default"

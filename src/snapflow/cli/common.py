@@ -12,6 +12,7 @@ import json
 import math
 import sys
 import tempfile
+import tomllib
 from collections.abc import Callable
 from dataclasses import MISSING, fields
 from pathlib import Path
@@ -204,6 +205,22 @@ def add_training_options(parser: argparse.ArgumentParser, base: TrainConfig | No
 def _default(cls: type, name: str) -> Any:
     field = next(field for field in fields(cls) if field.name == name)
     return field.default if field.default is not MISSING else field.default_factory()
+
+
+def name_value(what: str, example: str) -> Callable[[str], tuple[str, Any]]:
+    """The argument type of a repeatable ``NAME=VALUE`` flag (``--objective-option``, ``--policy-option``): the value
+    read as in TOML (0.9, 10, true, ["image2"]), or else as text (conv)."""
+
+    def parse(text: str) -> tuple[str, Any]:
+        name, equals, value = text.partition("=")
+        if not equals or not name.isidentifier():
+            raise argparse.ArgumentTypeError(f"{what} reads NAME=VALUE, e.g. {example}; got {text!r}")
+        try:
+            return name, tomllib.loads(f"value = {value}")["value"]
+        except tomllib.TOMLDecodeError:
+            return name, value
+
+    return parse
 
 
 def add_consistency_weight(parser: argparse.ArgumentParser, default: float | None, recipe: str = "") -> None:

@@ -4,7 +4,6 @@ a LeRobot pi0, pi0.5 or SmolVLA on a LeRobotDataset, from a named recipe that ea
 from __future__ import annotations
 
 import argparse
-import tomllib
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
@@ -18,6 +17,7 @@ from snapflow.cli.common import (
     add_training_options,
     check_writable,
     given,
+    name_value,
     training_interrupted,
     training_overrides,
 )
@@ -25,17 +25,6 @@ from snapflow.objective.options import TEACHER_VELOCITIES
 from snapflow.objective.registry import OBJECTIVES
 from snapflow.training.config import TrainConfig
 from snapflow.training.recipes import DEFAULT_RECIPE, LEROBOT_RECIPE, RECIPES, DistillSettings, student_settings
-
-
-def _objective_option(text: str) -> tuple[str, Any]:
-    """``NAME=VALUE``, the value read as in TOML (0.9, 10, true, [2, 4]), or else as text."""
-    name, equals, value = text.partition("=")
-    if not equals or not name.isidentifier():
-        raise argparse.ArgumentTypeError(f"an objective option reads NAME=VALUE, e.g. adaptive_power=0.5; got {text!r}")
-    try:
-        return name, tomllib.loads(f"value = {value}")["value"]
-    except tomllib.TOMLDecodeError:
-        return name, value
 
 
 def add_parser(subparsers: Any) -> None:
@@ -85,7 +74,7 @@ def add_parser(subparsers: Any) -> None:
     }
     parser.add_argument(
         "--objective-option",
-        type=_objective_option,
+        type=name_value("an objective option", "adaptive_power=0.5"),
         action="append",
         metavar="NAME=VALUE",
         help="an option of the chosen objective that no flag here sets, the value read as in TOML; repeatable ("

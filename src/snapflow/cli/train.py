@@ -17,6 +17,7 @@ from snapflow.cli.common import (
     add_training_options,
     check_writable,
     given,
+    name_value,
     training_interrupted,
     training_overrides,
 )
@@ -74,6 +75,14 @@ def add_parser(subparsers: Any) -> None:
         "--state-dim", type=COUNT, help="read only the leading entries of the state (4: hand and gripper; default all)"
     )
     parser.add_argument(
+        "--policy-option",
+        type=name_value("a policy option", "image_encoder=conv"),
+        action="append",
+        metavar="NAME=VALUE",
+        help="a built-in policy's configuration field that no flag here sets, the value read as in TOML; repeatable "
+        '(minivla: image_encoder=conv, extra_cameras=["image2"], image_downsample=2, ...: the fields of its config)',
+    )
+    parser.add_argument(
         "--val-fraction",
         type=_validation_share,
         default=VAL_FRACTION,
@@ -87,6 +96,8 @@ def run(args: argparse.Namespace) -> int:
             f"give --data with a built-in policy ({', '.join(POLICIES)}) or --dataset with --policy-type "
             f"{' / '.join(LEROBOT_TEACHERS)} (a LeRobotDataset)"
         )
+    if args.dataset and args.policy_option:
+        raise ValueError("--policy-option sets a built-in policy's configuration; it does not apply to --dataset")
     check_writable(args.output)
     config = replace(TEACHER_TRAINING, **given(training_overrides(args)))
     if args.dataset:
@@ -94,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
     from snapflow.data.demonstrations import Demonstrations
     from snapflow.training.stages import policy_config_for, train_teacher
 
-    overrides = given(
+    overrides = dict(args.policy_option or ()) | given(
         {"chunk_length": args.chunk_length, "image_size": args.image_size, "use_image": args.use_image or None}
     )
     policy = policy_config_for(args.policy_type, Demonstrations.load(args.data), args.state_dim, **overrides)

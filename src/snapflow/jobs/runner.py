@@ -8,6 +8,11 @@ The cache rule: when a job has finished, the runner writes its *record*, ``{"con
 is done iff its record holds its current settings and its dependencies' current keys; anything else runs again,
 from scratch: its outputs are removed first, unless a *pending* record (written when it was started) shows an
 interrupted run with the same settings, which it then continues (trainers resume their checkpoints).
+
+A job may also keep its record in a *ledger* (``ledger_path``), a copy kept where it can be committed beside the
+results (a sweep's, under its results folder). A fresh machine then knows the result without the outputs: a job
+recorded there is not run again unless a job that does run needs its outputs (a student's teacher, the data an
+evaluation reads). So a long sweep's finished evaluations, committed as they arrive, are not repeated.
 """
 
 from __future__ import annotations
@@ -54,6 +59,11 @@ class Job(ABC):
         """Files and folders removed before the job runs again (its record is always removed)."""
         return ()
 
+    @property
+    def ledger_path(self) -> Path | None:
+        """Where a copy of the record is kept to be committed (None: nowhere)."""
+        return None
+
     @abstractmethod
     def run(self) -> dict[str, Any]:
         """Do the work (in a worker process); what it returns (JSON-able) goes into the record."""
@@ -82,13 +92,25 @@ def record(job: Job, results: dict[str, Any] | None = None) -> dict[str, Any]:
 
 
 def write_record(job: Job, results: dict[str, Any] | None = None) -> None:
-    """Mark ``job`` finished with ``results``: what the runner does after ``job.run()`` returned them."""
-    write_json(job.record_path, record(job, results))
+    """Mark ``job`` finished with ``results``: what the runner does after ``job.run()`` returned them (the ledger's
+    copy first, so that a record in the run folder always has its copy)."""
+    entry = record(job, results)
+    if job.ledger_path is not None:
+        write_json(job.ledger_path, entry)
+    write_json(job.record_path, entry)
 
 
 def read_record(job: Job) -> dict[str, Any]:
-    """The finished job's record; FileNotFoundError if there is none."""
-    return json.loads(job.record_path.read_text())
+    """The finished job's record, from its run folder or else its ledger; FileNotFoundError if neither holds one
+    made with the job's current settings."""
+    for path in _record_paths(job):
+        if _matches(path, job):
+            return json.loads(path.read_text())
+    raise FileNotFoundError(f"no record of {job.describe()} made with its current settings at {job.record_path}")
+
+
+def _record_paths(job: Job) -> tuple[Path, ...]:
+    return (job.record_path,) if job.ledger_path is None else (job.record_path, job.ledger_path)
 
 
 def _matches(path: Path, job: Job) -> bool:
@@ -105,6 +127,11 @@ def _matches(path: Path, job: Job) -> bool:
 def is_done(job: Job) -> bool:
     """The one cache rule: the record exists and was written for the job's current settings and dependencies."""
     return _matches(job.record_path, job)
+
+
+def is_recorded(job: Job) -> bool:
+    """Whether the job's result is known: done here, or recorded in its ledger with its current settings."""
+    return any(_matches(path, job) for path in _record_paths(job))
 
 
 def _pending_path(job: Job) -> Path:
@@ -139,38 +166,49 @@ def _work(job: Job, threads: int) -> tuple[dict[str, Any], float]:
     return results, time.perf_counter() - started
 
 
-def _to_do(jobs: Iterable[Job]) -> list[Job]:
-    """The jobs and their dependencies that are not done, shallowest first (collect before training before evaluation)."""
+def _copy_to_ledger(job: Job) -> None:
+    """Give a job done here its ledger copy if it lacks one (it finished before its kind kept one)."""
+    if job.ledger_path is not None and not _matches(job.ledger_path, job):
+        write_json(job.ledger_path, read_record(job))
+
+
+def to_run(jobs: Iterable[Job]) -> list[Job]:
+    """The jobs to run, shallowest first (collect before training before evaluation): each given job whose result is
+    not known (:func:`is_recorded`), and the dependencies not done here of each job that runs. A job done here whose
+    ledger lacks its record gets it."""
     depth: dict[Job, int] = {}
     writers: dict[Path, Job] = {}
 
-    def visit(job: Job) -> int:
+    def visit(job: Job, outputs_needed: bool) -> int:
+        other = writers.setdefault(job.record_path, job)
+        if other != job:
+            raise ValueError(f"{other.describe()} and {job.describe()} would write the same record {job.record_path}")
+        if is_done(job):
+            _copy_to_ledger(job)
+            return -1
+        if not outputs_needed and is_recorded(job):
+            return -1
         if job not in depth:
-            other = writers.setdefault(job.record_path, job)
-            if other != job:
-                raise ValueError(
-                    f"{other.describe()} and {job.describe()} would write the same record {job.record_path}"
-                )
-            depth[job] = 1 + max((visit(dep) for dep in job.dependencies), default=-1)
+            depth[job] = 1 + max((visit(dep, True) for dep in job.dependencies), default=-1)
         return depth[job]
 
     for job in jobs:
-        visit(job)
+        visit(job, False)
     # a stable sort: within a depth, jobs keep the order they were given in
-    return sorted((job for job in depth if not is_done(job)), key=depth.__getitem__)
+    return sorted(depth, key=depth.__getitem__)
 
 
 def run_jobs(
     jobs: Iterable[Job], workers: int = 1, progress: bool = True, description: str = "jobs"
 ) -> dict[str, float]:
-    """Run every job (and dependency) that is not done on ``workers`` spawned processes, each on cores / workers
+    """Run the jobs of :func:`to_run` on ``workers`` spawned processes, each on cores / workers
     torch threads, a job once its dependencies have finished; returns each job's wall time (s) by description.
 
     A failed job stops the run with its own error (after the jobs already running have finished).
     """
     if workers < 1:
         raise ValueError(f"workers must be at least 1, got {workers}")
-    waiting = _to_do(jobs)
+    waiting = to_run(jobs)
     if not waiting:
         return {}
     unfinished = set(waiting)
@@ -203,4 +241,4 @@ def run_jobs(
     return times
 
 
-__all__ = ["Job", "record", "write_record", "read_record", "is_done", "run_jobs"]
+__all__ = ["Job", "record", "write_record", "read_record", "is_done", "is_recorded", "to_run", "run_jobs"]

@@ -11,8 +11,8 @@ from typing import Any
 import numpy as np
 
 from snapflow.evaluation.results import EvaluationRow
-from snapflow.jobs.runner import is_done, read_record
-from snapflow.jobs.sweep.planning import eval_job
+from snapflow.jobs.runner import is_recorded, read_record
+from snapflow.jobs.sweep.planning import eval_job, train_job
 from snapflow.jobs.sweep.schema import RowSpec, SweepConfig, TableSpec
 from snapflow.reporting.statistics import mean_std, paired_difference, wilson_interval
 from snapflow.training.trainer import HISTORY
@@ -109,7 +109,7 @@ class TableResult:
 def _evaluation(config: SweepConfig, table: TableSpec, row: RowSpec, seed: int) -> EvaluationRow:
     """The cached evaluation of one cell; a FileNotFoundError if it is missing or was made with other settings."""
     job = eval_job(config, table, row, seed)
-    if not is_done(job):
+    if not is_recorded(job):
         raise FileNotFoundError(
             f"{config.name}: table {table.name!r} is incomplete ({job.path} is missing or was made with other settings); "
             "run the sweep first"
@@ -118,7 +118,10 @@ def _evaluation(config: SweepConfig, table: TableSpec, row: RowSpec, seed: int) 
 
 
 def _history(config: SweepConfig, run: str, seed: int) -> dict[str, Any]:
-    return json.loads((config.run_dir(run, seed) / HISTORY).read_text())
+    """The run's training steps and wall time: from its record, or, for a run recorded before records held them,
+    from the history in its folder."""
+    record = read_record(train_job(config, run, seed))
+    return record if "wall_time_s" in record else json.loads((config.run_dir(run, seed) / HISTORY).read_text())
 
 
 def _training_seconds(config: SweepConfig, run: str, seed: int) -> float:

@@ -17,7 +17,7 @@ from snapflow.envs.factory import make_benchmark
 from snapflow.evaluation.config import OFFLINE_SAMPLES
 from snapflow.evaluation.pipeline import evaluate
 from snapflow.flow.modes import SamplingMode
-from snapflow.jobs.runner import Job, is_done, run_jobs
+from snapflow.jobs.runner import Job, run_jobs, to_run
 from snapflow.jobs.sweep.schema import DataSpec, RowSpec, SweepConfig, TableSpec
 from snapflow.policies.checkpoint import load_policy
 from snapflow.policies.configuration import PolicyConfig
@@ -114,10 +114,15 @@ class TrainJob(FolderJob):
     policy: PolicyConfig | None = None
     teacher: TrainJob | None = None
     distill: DistillSettings | None = None
+    ledger: Path | None = None
 
     @property
     def seed(self) -> int:
         return self.train.seed
+
+    @property
+    def ledger_path(self) -> Path | None:
+        return self.ledger
 
     def settings(self) -> dict[str, Any]:
         if self.teacher is None:
@@ -131,11 +136,11 @@ class TrainJob(FolderJob):
 
     def run(self) -> dict[str, Any]:
         if self.teacher is None:
-            train_teacher(
+            state = train_teacher(
                 self.data.directory, self.directory, self.policy, self.train, VAL_FRACTION, resume=True, progress=False
             )
         else:
-            distill(
+            state = distill(
                 self.teacher.directory,
                 self.data.directory,
                 self.directory,
@@ -144,7 +149,7 @@ class TrainJob(FolderJob):
                 resume=True,
                 progress=False,
             )
-        return {}
+        return {"step": state["step"], "wall_time_s": state["wall_time_s"]}  # the tables' training cost
 
     def describe(self) -> str:
         return f"{self.sweep}: train {self.run_name} seed {self.seed}"
@@ -161,6 +166,7 @@ class EvalJob(Job):
     n_act: int
     episodes_per_task: int
     path: Path
+    ledger: Path | None = None
 
     def settings(self) -> dict[str, Any]:
         return {
@@ -178,6 +184,10 @@ class EvalJob(Job):
     @property
     def record_path(self) -> Path:
         return self.path
+
+    @property
+    def ledger_path(self) -> Path | None:
+        return self.ledger
 
     def run(self) -> dict[str, Any]:
         collected = self.policy.data
@@ -214,15 +224,16 @@ def train_job(config: SweepConfig, run: str, seed: int) -> TrainJob:
     spec = config.runs[run]
     teacher = train_job(config, spec.teacher, seed) if spec.teacher is not None else None
     train = replace(spec.train, seed=seed)
-    return TrainJob(
-        config.name, run, config.run_dir(run, seed), data_job(config), train, spec.policy, teacher, spec.distill
-    )
+    directory = config.run_dir(run, seed)
+    ledger = config.ledger_path(directory / RECORD)
+    return TrainJob(config.name, run, directory, data_job(config), train, spec.policy, teacher, spec.distill, ledger)
 
 
 def eval_job(config: SweepConfig, table: TableSpec, row: RowSpec, seed: int) -> EvalJob:
     """The evaluation behind one cell (row, seed) of a table."""
     path = config.eval_path(row.run, seed, row.mode, row.n_act, table.episodes_per_task)
-    return EvalJob(train_job(config, row.run, seed), row.mode, row.n_act, table.episodes_per_task, path)
+    policy = train_job(config, row.run, seed)
+    return EvalJob(policy, row.mode, row.n_act, table.episodes_per_task, path, config.ledger_path(path))
 
 
 def jobs(config: SweepConfig) -> list[Job]:
@@ -236,8 +247,10 @@ def jobs(config: SweepConfig) -> list[Job]:
 
 
 def plan(config: SweepConfig) -> list[Job]:
-    """The sweep's jobs that are not done (missing, or made with other settings: see :func:`snapflow.jobs.runner.is_done`)."""
-    return [job for job in jobs(config) if not is_done(job)]
+    """The sweep's jobs that will run, dependencies first: each evaluation and run the tables read whose record is
+    missing (here and in the committed ledger) or was made with other settings, and each job that one of those needs
+    and that is not done here (:func:`snapflow.jobs.runner.to_run`)."""
+    return to_run(job for job in jobs(config) if isinstance(job, (TrainJob, EvalJob)))
 
 
 def run_sweeps(configs: list[SweepConfig], workers: int = 1, progress: bool = True) -> dict[str, float]:

@@ -111,6 +111,11 @@ class SweepConfig:
     def eval_path(self, run: str, seed: int, mode: SamplingMode, n_act: int, episodes_per_task: int) -> Path:
         return self.output_dir / "evals" / run / f"seed-{seed}" / f"{mode.name}_nact{n_act}_eps{episodes_per_task}.json"
 
+    def ledger_path(self, record: Path) -> Path:
+        """Where the committed copy of the record at ``record`` (inside :attr:`output_dir`) is kept: under the
+        results, so that a fresh checkout continues the sweep instead of repeating what it finished."""
+        return self.results_dir / "records" / record.relative_to(self.output_dir)
+
 
 def _checked(section: str, table: Any, allowed: set[str], required: frozenset[str] = frozenset()) -> dict[str, Any]:
     if not isinstance(table, dict):

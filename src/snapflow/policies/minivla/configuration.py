@@ -8,6 +8,7 @@ from snapflow.policies.configuration import PolicyConfig
 from snapflow.reporting.records import added_option
 
 IMAGE_ENCODERS = ("patch", "conv")
+NORM_GROUPS = 8  # GroupNorm groups of the conv encoder: its width must divide into them
 
 
 @dataclass(frozen=True)
@@ -70,6 +71,11 @@ class MiniVLAConfig(PolicyConfig):
             raise ValueError(
                 f"MiniVLAConfig.image_size ({self.image_size}) must be a multiple of 8 x image_downsample "
                 f"({8 * self.image_downsample}): the conv encoder halves it three times"
+            )
+        elif self.conv_width % NORM_GROUPS:
+            raise ValueError(
+                f"MiniVLAConfig.conv_width ({self.conv_width}) must be a multiple of {NORM_GROUPS}: the conv encoder "
+                f"normalises its channels in {NORM_GROUPS} groups"
             )
 
     @property

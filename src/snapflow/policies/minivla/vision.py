@@ -7,6 +7,8 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
+from snapflow.policies.minivla.configuration import NORM_GROUPS
+
 
 def random_shift(images: Tensor, pad: int) -> Tensor:
     """Each image (B, C, H, W) shifted by its own whole number of pixels in [-pad, pad] along each axis, the border
@@ -47,10 +49,10 @@ def _stage(inputs: int, outputs: int) -> nn.Sequential:
     BatchNorm (batch statistics drift under a weight average and at batch 1)."""
     return nn.Sequential(
         nn.Conv2d(inputs, outputs, 3, stride=2, padding=1),
-        nn.GroupNorm(8, outputs),
+        nn.GroupNorm(NORM_GROUPS, outputs),
         nn.SiLU(),
         nn.Conv2d(outputs, outputs, 3, padding=1),
-        nn.GroupNorm(8, outputs),
+        nn.GroupNorm(NORM_GROUPS, outputs),
         nn.SiLU(),
     )
 
