@@ -462,7 +462,7 @@ def test_a_missing_extra_is_named_with_its_install_command(tmp_path, case):
     arguments, module = MISSING_EXTRAS[case]
     output = tmp_path / "out"
     result = _snapflow(*arguments, "--output", str(output), "--no-progress", cwd=tmp_path, missing=(module,))
-    _assert_refused(result, f'pip install "snapflow[{module}]"')
+    _assert_refused(result, f'pip install "snapflow-vla[{module}]"')
     assert not output.exists()
 
 

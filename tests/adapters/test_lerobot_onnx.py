@@ -11,7 +11,9 @@ import pytest
 import torch
 
 pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test command; this environment lacks it")
-pytest.importorskip("onnxruntime", reason='the ONNX export needs pip install "snapflow[onnx]" (the test extra has it)')
+pytest.importorskip(
+    "onnxruntime", reason='the ONNX export needs pip install "snapflow-vla[onnx]" (the test extra has it)'
+)
 
 from snapflow.adapters.lerobot.evaluation import load_lerobot_policy  # noqa: E402
 from snapflow.cli import main  # noqa: E402

@@ -20,7 +20,9 @@ from snapflow.policies.factory import default_config, make_model, make_processor
 from snapflow.policies.normalization import NormalizationStats
 from tests.lerobot_tiny import randomise_target_time
 
-pytest.importorskip("onnxruntime", reason='the ONNX export needs pip install "snapflow[onnx]" (the test extra has it)')
+pytest.importorskip(
+    "onnxruntime", reason='the ONNX export needs pip install "snapflow-vla[onnx]" (the test extra has it)'
+)
 
 STATE_DIM, ACTION_DIM = 39, 4
 INSTRUCTIONS = ["push the puck to the goal", "open the drawer", "reach the goal"]

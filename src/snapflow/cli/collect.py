@@ -30,7 +30,7 @@ def add_parser(subparsers: Any) -> None:
     parser.add_argument(
         "--lerobot-dataset",
         metavar="ROOT",
-        help="also write them as a LeRobotDataset at this (new) root, with LeRobot's writer (needs snapflow[lerobot])",
+        help="also write them as a LeRobotDataset at this (new) root, with LeRobot's writer (needs snapflow-vla[lerobot])",
     )
     parser.add_argument("--repo-id", help="the LeRobotDataset's repo id (default: local/<ROOT's folder name>)")
 

@@ -18,6 +18,7 @@ from dataclasses import MISSING, fields
 from pathlib import Path
 from typing import Any, NoReturn
 
+from snapflow import install_command
 from snapflow.envs.factory import make_benchmark
 from snapflow.inference.fast_paths import FAST_PATHS
 from snapflow.objective.registry import methods, targets
@@ -341,7 +342,7 @@ def run_command(args: argparse.Namespace) -> int:
         if module not in EXTRAS:
             raise
         print(
-            f'{prefix} error: this needs {module}, which is not installed: pip install "snapflow[{EXTRAS[module]}]"',
+            f"{prefix} error: this needs {module}, which is not installed: {install_command(EXTRAS[module])}",
             file=sys.stderr,
         )
     except OSError as error:  # after the named cases above: a disk full, a folder made read-only mid-run, ...

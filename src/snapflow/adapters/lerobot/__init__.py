@@ -1,14 +1,16 @@
 """LeRobot's pi0, pi0.5 and SmolVLA under SnapFlow, without editing LeRobot's code.
 
-Needs ``pip install "snapflow[lerobot]"``: lerobot 0.4.4 (SmolVLA) on Python 3.11, lerobot >= 0.5 (all three)
+Needs ``pip install "snapflow-vla[lerobot]"``: lerobot 0.4.4 (SmolVLA) on Python 3.11, lerobot >= 0.5 (all three)
 on Python >= 3.12.
 """
+
+from snapflow import install_command
 
 try:
     import lerobot  # noqa: F401
 except ImportError as error:  # pragma: no cover - depends on the environment
     raise ModuleNotFoundError(
-        'the LeRobot adapters need LeRobot: pip install "snapflow[lerobot]"', name="lerobot"
+        f"the LeRobot adapters need LeRobot: {install_command('lerobot')}", name="lerobot"
     ) from error
 
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
