@@ -1,11 +1,19 @@
-"""Project wiring: CI runs exactly the README's test command, and no layer outside the policy registry knows MiniVLA."""
+"""Project wiring: CI runs exactly the README's test command, no layer outside the policy registry knows MiniVLA,
+and the distribution has one name."""
 
 from __future__ import annotations
 
 import re
+import subprocess
+import sys
+import tomllib
+from importlib.metadata import version
 from pathlib import Path
 
 import pytest
+
+import snapflow
+from snapflow import DISTRIBUTION
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "src" / "snapflow"
@@ -59,3 +67,19 @@ def test_the_allow_lists_name_existing_files_that_need_them():
     assert (PACKAGE / "policies" / "minivla").is_dir() and re.search(
         r'register_policy\(\s*"minivla"', (PACKAGE / OWNERS[1]).read_text()
     )
+
+
+def test_the_distribution_is_named_where_pip_and_the_plugin_look_for_it():
+    """`snapflow` on PyPI is another project: the distribution, its self-referencing extras, the LeRobot plugin's
+    dependency and the version snapflow reports all use the one name, `snapflow.DISTRIBUTION`."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    plugin = tomllib.loads((ROOT / "plugins" / "lerobot_policy_snapflow" / "pyproject.toml").read_text())["project"]
+    assert project["name"] == DISTRIBUTION == "snapflow-vla"
+    requirements = [*plugin["dependencies"], *(r for extra in project["optional-dependencies"].values() for r in extra)]
+    own = [requirement for requirement in requirements if requirement.partition("[")[0] in ("snapflow", DISTRIBUTION)]
+    assert own and all(requirement.startswith(f"{DISTRIBUTION}[") for requirement in own)
+    assert snapflow.__version__ == version(DISTRIBUTION) == project["version"]
+    printed = subprocess.run([sys.executable, "-m", "snapflow.cli", "--version"], capture_output=True, text=True)
+    assert printed.stdout.strip() == f"snapflow {version(DISTRIBUTION)}"
+    by_old_name = re.compile(r"""version\(\s*["']snapflow["']""")
+    assert not [path for path in PACKAGE.rglob("*.py") if by_old_name.search(path.read_text())], "read DISTRIBUTION"

@@ -14,9 +14,9 @@ import argparse
 import os
 import signal
 import sys
-from importlib.metadata import version
 from typing import NoReturn
 
+from snapflow import __version__
 from snapflow.cli import (
     bench,
     bench_targets,
@@ -59,7 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="One-step action generation for flow-matching policies.",
         formatter_class=HelpFormatter,
     )
-    parser.add_argument("--version", action="version", version=f"snapflow {version('snapflow')}")
+    parser.add_argument("--version", action="version", version=f"snapflow {__version__}")
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for command in COMMANDS:
         command.add_parser(subparsers)
