@@ -20,7 +20,7 @@ def _run(command: list[str], **environment: str) -> subprocess.CompletedProcess:
 def test_every_package_imports_only_the_layers_below_it():
     result = _run([str(BIN / "lint-imports")])
     assert result.returncode == 0, result.stdout + result.stderr
-    assert "1 kept, 0 broken" in result.stdout
+    assert "2 kept, 0 broken" in result.stdout
 
 
 def test_the_layer_contract_catches_a_back_import(tmp_path):
@@ -32,6 +32,19 @@ def test_the_layer_contract_catches_a_back_import(tmp_path):
     assert result.returncode == 1
     assert "snapflow.flow is not allowed to import snapflow.jobs" in result.stdout
     assert "snapflow.flow.path -> snapflow.jobs.demo" in result.stdout
+
+
+def test_the_lerobot_contract_catches_the_registry_importing_the_plugin_back(tmp_path):
+    """The plugin, the adapter registry and the type declarations once imported each other in a circle; a copy whose
+    registry imports the plugin again breaks the contract."""
+    shutil.copytree(ROOT / "src" / "snapflow", tmp_path / "snapflow")
+    with open(tmp_path / "snapflow" / "adapters" / "lerobot" / "registry.py", "a") as registry:
+        registry.write("\nimport snapflow.adapters.lerobot.plugin  # a deliberate back-import\n")
+    result = _run([str(BIN / "lint-imports")], PYTHONPATH=str(tmp_path))
+    assert result.returncode == 1
+    assert (
+        "snapflow.adapters.lerobot.registry is not allowed to import snapflow.adapters.lerobot.plugin" in result.stdout
+    )
 
 
 def test_ruff_finds_nothing_to_fix_or_reformat():

@@ -613,6 +613,6 @@ def test_every_lerobot_adapter_runs_the_contract():
     pytest.importorskip(
         "lerobot", reason="LeRobot is installed by the README's test command; this environment lacks it"
     )
-    from snapflow.adapters.lerobot import ADAPTERS
+    from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES
 
-    assert sorted(cls.policy_type for cls in _contract_classes(LeRobotAdapterContract)) == sorted(ADAPTERS)
+    assert sorted(cls.policy_type for cls in _contract_classes(LeRobotAdapterContract)) == sorted(LEROBOT_POLICY_TYPES)

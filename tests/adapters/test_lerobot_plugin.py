@@ -51,7 +51,9 @@ def _sample(policy, batch: dict[str, torch.Tensor], noise: torch.Tensor) -> tupl
 def test_lerobots_own_loader_gives_the_one_step_student_and_its_teacher_one_field_away(student):
     from lerobot.configs.policies import PreTrainedConfig
 
-    from snapflow.adapters.lerobot.plugin import SnapFlowSmolVLAConfig, SnapFlowSmolVLAPolicy
+    from snapflow.adapters.lerobot.plugin import student_config_class, student_policy
+
+    SnapFlowSmolVLAConfig, SnapFlowSmolVLAPolicy = student_config_class("smolvla"), student_policy("smolvla")  # noqa: N806
 
     saved = json.loads((student / "config.json").read_text())
     assert saved["type"] == "snapflow_smolvla" and saved["sampling_mode"] == "snapflow-1"
@@ -84,7 +86,9 @@ def test_a_student_without_phi_s_or_with_an_unknown_mode_is_refused(student, tmp
 
     from safetensors.torch import load_file, save_file
 
-    from snapflow.adapters.lerobot.plugin import SnapFlowSmolVLAPolicy
+    from snapflow.adapters.lerobot.plugin import student_policy
+
+    SnapFlowSmolVLAPolicy = student_policy("smolvla")  # noqa: N806
 
     # LeRobot loads a plain SmolVLA non-strictly: a student must not silently lose phi_s (the naive step)
     broken = tmp_path / "no_phi_s"
@@ -114,10 +118,11 @@ def test_a_student_without_phi_s_or_with_an_unknown_mode_is_refused(student, tmp
 def test_lerobots_factory_resolves_the_student_types_by_its_conventions(vlm_directory):
     from lerobot.policies.factory import get_policy_class, make_policy_config, make_pre_post_processors
 
-    from snapflow.adapters.lerobot.plugin import STUDENT_POLICIES
+    from snapflow.adapters.lerobot.plugin import student_policy
+    from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES
 
-    for base_type, policy_class in STUDENT_POLICIES.items():
-        assert get_policy_class(f"snapflow_{base_type}") is policy_class
+    for base_type, declared in LEROBOT_POLICY_TYPES.items():
+        assert get_policy_class(declared.student_type) is student_policy(base_type)
     local = dict(vlm_model_name=str(vlm_directory), device="cpu")  # the tokenizer processor reads it
     config = make_policy_config("snapflow_smolvla", sampling_mode="teacher-4", **local)
     assert config.mode.num_steps == 4 and not config.mode.jump

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-LEROBOT_TEACHERS = ("smolvla",)  # the LeRobot policies `snapflow train --dataset` trains from scratch
-
 
 @dataclass(frozen=True)
 class SmolVLMSize:
@@ -38,4 +36,4 @@ SMOLVLM_SIZES = {
 }
 
 
-__all__ = ["LEROBOT_TEACHERS", "SmolVLMSize", "SMOLVLM_SIZES"]
+__all__ = ["SmolVLMSize", "SMOLVLM_SIZES"]

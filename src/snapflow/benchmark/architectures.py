@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
+from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES
 from snapflow.policies.factory import POLICIES
-
-LEROBOT_ARCHITECTURES = ("pi0", "pi05", "smolvla")
 
 
 def architectures() -> tuple[str, ...]:
-    """Every built-in policy, then LeRobot's."""
-    return (*POLICIES, *LEROBOT_ARCHITECTURES)
+    """Every built-in policy, then every declared LeRobot type."""
+    return (*POLICIES, *LEROBOT_POLICY_TYPES)
 
 
-__all__ = ["LEROBOT_ARCHITECTURES", "architectures"]
+__all__ = ["architectures"]

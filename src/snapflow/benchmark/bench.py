@@ -16,6 +16,7 @@ from collections.abc import Iterator
 
 import torch
 
+from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES
 from snapflow.benchmark.latency import Timing, measure_latency, time_round_robin
 from snapflow.benchmark.report import BenchReport, OneStepProfile, Throughput
 from snapflow.benchmark.subjects import BenchSubject, parameter_dtypes
@@ -27,11 +28,6 @@ from snapflow.reporting.machine import machine
 
 # the teacher's step counts timed before the subject's one-step mode
 TEACHER_MODES = (SamplingMode(10, jump=False), SamplingMode(5, jump=False), SamplingMode(2, jump=False))
-# the paper's A800 figures (end-to-end ms per chunk, batch 1), for the LeRobot architectures
-PAPER_A800 = {
-    "pi05": {"teacher_10_ms": 274.0, "snapflow_1_ms": 83.0, "denoising_share_10": 241.0 / 274.0, "per_step_ms": 23.0},
-    "smolvla": {"teacher_10_ms": 178.0, "snapflow_1_ms": 50.0},
-}
 
 
 @torch.inference_mode()
@@ -147,7 +143,8 @@ def run_bench(
     teacher, one_step = latency.modes[modes[0].name], latency.modes[modes[-1].name]
     # what one jump costs against one teacher step: phi_s's s path should add nothing measurable
     jump_ratio = one_step.per_pass_ms / teacher.per_pass_ms if modes[-1].jump and not modes[0].jump else None
-    paper = PAPER_A800.get(subject.details.get("policy_type", ""))
+    declared = LEROBOT_POLICY_TYPES.get(subject.details.get("policy_type", ""))
+    paper = declared.paper_latency if declared else None  # the paper's A800 figures, end-to-end ms, batch 1
     return BenchReport(
         subject.name,
         subject.details,
@@ -165,7 +162,6 @@ def run_bench(
 
 __all__ = [
     "TEACHER_MODES",
-    "PAPER_A800",
     "profile_one_step",
     "measure_throughput",
     "one_step_actions",

@@ -15,6 +15,7 @@ import torch
 from torch import Tensor, nn
 
 from snapflow.adapters.hub import check_source
+from snapflow.adapters.lerobot_types import lerobot_policy_type
 from snapflow.benchmark.architectures import architectures
 from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, SamplingMode
 from snapflow.flow.time_sampling import TimeSampler
@@ -170,6 +171,7 @@ def lerobot_architecture(policy_type: str, device: torch.device, vlm: str | None
     from snapflow.adapters.lerobot.registry import adapter_class
 
     adapter_class(policy_type)  # names an unsupported type or too old a LeRobot before a long build
+    declared = lerobot_policy_type(policy_type)
     features = {
         "input_features": {
             "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(LIBERO_STATE_DIM,)),
@@ -177,12 +179,10 @@ def lerobot_architecture(policy_type: str, device: torch.device, vlm: str | None
         },
         "output_features": {"action": PolicyFeature(type=FeatureType.ACTION, shape=(LIBERO_ACTION_DIM,))},
     }
-    extra: dict[str, Any] = (
-        {"load_vlm_weights": False, **({"vlm_model_name": vlm} if vlm else {})} if policy_type == "smolvla" else {}
-    )
+    extra = {**declared.architecture_options, **({declared.vlm_option: vlm} if vlm and declared.vlm_option else {})}
     config = make_policy_config(policy_type, device=str(device), push_to_hub=False, **features, **extra)
-    if policy_type == "smolvla":  # named in one line before the build reads the VLM's config and processor
-        check_source(config.vlm_model_name, CONFIG_NAME, "a VLM for SmolVLA")
+    if declared.vlm_option:  # named in one line before the build reads the VLM's config and processor
+        check_source(getattr(config, declared.vlm_option), CONFIG_NAME, f"a VLM for {declared.class_stem}")
     with torch.device(device):  # built where it runs: a full-size pi0.5 takes minutes on the CPU, seconds on a GPU
         return get_policy_class(policy_type)(config)
 

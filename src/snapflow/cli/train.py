@@ -9,7 +9,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from snapflow.adapters.lerobot_config import LEROBOT_TEACHERS, SMOLVLM_SIZES
+from snapflow.adapters.lerobot_config import SMOLVLM_SIZES
+from snapflow.adapters.lerobot_types import lerobot_teachers
 from snapflow.cli.common import (
     COUNT,
     SHARE,
@@ -48,7 +49,7 @@ def add_parser(subparsers: Any) -> None:
         subparsers, "train", "train a built-in flow-matching teacher on demonstrations", run, training_interrupted
     )
     add_training_options(parser, TEACHER_TRAINING, data_required=False)
-    policy_types = [*POLICIES, *LEROBOT_TEACHERS]
+    policy_types = [*POLICIES, *lerobot_teachers()]
     parser.add_argument(
         "--policy-type",
         choices=policy_types,
@@ -91,10 +92,10 @@ def add_parser(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if (args.policy_type in LEROBOT_TEACHERS) != bool(args.dataset) or bool(args.data) == bool(args.dataset):
+    if (args.policy_type in lerobot_teachers()) != bool(args.dataset) or bool(args.data) == bool(args.dataset):
         raise ValueError(
             f"give --data with a built-in policy ({', '.join(POLICIES)}) or --dataset with --policy-type "
-            f"{' / '.join(LEROBOT_TEACHERS)} (a LeRobotDataset)"
+            f"{' / '.join(lerobot_teachers())} (a LeRobotDataset)"
         )
     if args.dataset and args.policy_option:
         raise ValueError("--policy-option sets a built-in policy's configuration; it does not apply to --dataset")

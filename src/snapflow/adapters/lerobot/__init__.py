@@ -14,13 +14,12 @@ except ImportError as error:  # pragma: no cover - depends on the environment
     ) from error
 
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
-from snapflow.adapters.lerobot.checkpoint import load_distilled, save_distilled
+from snapflow.adapters.lerobot.checkpoint import load_distilled, load_pretrained_policy, save_distilled
 from snapflow.adapters.lerobot.pi0 import PI0FlowPolicy, PI05FlowPolicy
-from snapflow.adapters.lerobot.registry import ADAPTERS, load_pretrained_policy, wrap_policy
+from snapflow.adapters.lerobot.registry import wrap_policy
 from snapflow.adapters.lerobot.smolvla import SmolVLAFlowPolicy
 
 __all__ = [
-    "ADAPTERS",
     "LeRobotFlowPolicy",
     "PI0FlowPolicy",
     "PI05FlowPolicy",

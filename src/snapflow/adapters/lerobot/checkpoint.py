@@ -8,6 +8,9 @@ import json
 from pathlib import Path
 from typing import Any
 
+from torch import nn
+
+from snapflow.adapters.hub import check_source
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
 from snapflow.adapters.lerobot.registry import adapter_class, base_policy_type, wrap_policy
 from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
@@ -93,7 +96,7 @@ def load_distilled(directory: str | Path, mode: SamplingMode = SNAPFLOW_1) -> Le
     """Rebuild a saved SnapFlow policy as its student type, load every tensor strictly, and make LeRobot's own
     action API sample with ``mode`` (SnapFlow 1-NFE by default). (LeRobot's ``from_pretrained`` loads a plain
     SmolVLA non-strictly, so on its own it would silently drop phi_s and give back the teacher.)"""
-    from snapflow.adapters.lerobot.plugin import STUDENT_POLICIES, student_config
+    from snapflow.adapters.lerobot.plugin import student_config, student_policy
 
     directory = Path(directory)
     marker = read_marker(directory)
@@ -106,9 +109,27 @@ def load_distilled(directory: str | Path, mode: SamplingMode = SNAPFLOW_1) -> Le
     if base_policy_type(config) != policy_type:
         raise CheckpointError(f"{directory} holds a {config.type!r} config but its marker says {policy_type!r}")
     adapter_class(policy_type)  # the installed LeRobot serves it
-    policy = STUDENT_POLICIES[policy_type](student_config(config, mode))  # a plain config: an older export
+    policy = student_policy(policy_type)(student_config(config, mode))  # a plain config: an older export
     load_state_strict(policy, read_tensors(directory / SAFETENSORS_FILE), directory / SAFETENSORS_FILE)
     return wrap_policy(policy)
+
+
+def load_pretrained_policy(path: str) -> nn.Module:
+    """A LeRobot policy from a hub id or a local pretrained directory, as ``lerobot-eval`` loads it; a mistyped
+    folder, an unreachable hub or an unusable repo is named in one line before anything loads."""
+    from huggingface_hub.constants import CONFIG_NAME
+
+    check_source(path, CONFIG_NAME, "a LeRobot policy")  # before LeRobot's loaders import (seconds)
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.policies.factory import get_policy_class
+
+    from snapflow.adapters.lerobot.plugin import SnapFlowSampling, student_policy  # registers the student types
+
+    config = PreTrainedConfig.from_pretrained(path)
+    adapter_class(base_policy_type(config))
+    if isinstance(config, SnapFlowSampling):  # LeRobot < 0.5 resolves only its own types
+        return student_policy(config.base_type).from_pretrained(path)
+    return get_policy_class(config.type).from_pretrained(path)
 
 
 __all__ = [
@@ -121,4 +142,5 @@ __all__ = [
     "save_distilled",
     "save_teacher",
     "load_distilled",
+    "load_pretrained_policy",
 ]

@@ -27,12 +27,13 @@ from snapflow.adapters.lerobot.checkpoint import (
     SAFETENSORS_FILE,
     SNAPFLOW_MARKER,
     load_distilled,
+    load_pretrained_policy,
     load_student_config,
     read_marker,
     write_marker,
 )
 from snapflow.adapters.lerobot.dataset import IMAGE_PREFIX, STATE
-from snapflow.adapters.lerobot.registry import load_pretrained_policy, wrap_policy
+from snapflow.adapters.lerobot.registry import wrap_policy
 from snapflow.flow.time_sampling import BetaTimeSampler
 from snapflow.inference.formats import export_format, export_record
 from snapflow.policies.checkpoint import load_export

@@ -1,5 +1,5 @@
-"""The student configs: LeRobot's SmolVLA / pi0 / pi0.5 config plus ``sampling_mode``, registered with LeRobot's
-config registry under ``snapflow_<type>``."""
+"""The student configs: each declared LeRobot type's config plus ``sampling_mode``, registered with LeRobot's config
+registry under ``snapflow_<type>`` as ``SnapFlow<stem>Config`` in this module (where LeRobot's factory looks)."""
 
 from __future__ import annotations
 
@@ -7,10 +7,9 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from lerobot.configs.policies import PreTrainedConfig
-from lerobot.policies.pi0.configuration_pi0 import PI0Config
-from lerobot.policies.pi05.configuration_pi05 import PI05Config
-from lerobot.policies.smolvla.configuration_smolvla import SmolVLAConfig
 
+from snapflow._lazy import resolve
+from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES, lerobot_policy_type
 from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
 
 
@@ -33,28 +32,21 @@ class SnapFlowSampling:
         return SamplingMode.parse(self.sampling_mode)
 
 
-@PreTrainedConfig.register_subclass("snapflow_smolvla")
-@dataclass
-class SnapFlowSmolVLAConfig(SnapFlowSampling, SmolVLAConfig):
-    """A SnapFlow-distilled SmolVLA."""
-
-    base_type: ClassVar[str] = "smolvla"
-
-
-@PreTrainedConfig.register_subclass("snapflow_pi0")
-@dataclass
-class SnapFlowPI0Config(SnapFlowSampling, PI0Config):
-    """A SnapFlow-distilled pi0."""
-
-    base_type: ClassVar[str] = "pi0"
+def student_config_class(base_type: str) -> type[SnapFlowSampling]:
+    """The student config class of the declared LeRobot type ``base_type``, made and registered on first use."""
+    declared = lerobot_policy_type(base_type)
+    name = f"SnapFlow{declared.class_stem}Config"
+    if name not in globals():
+        namespace = {"__module__": __name__, "__qualname__": name, "__doc__": f"A SnapFlow-distilled {base_type}."}
+        made = dataclass(
+            type(name, (SnapFlowSampling, resolve(declared.config)), {**namespace, "base_type": base_type})
+        )
+        globals()[name] = PreTrainedConfig.register_subclass(declared.student_type)(made)
+    return globals()[name]
 
 
-@PreTrainedConfig.register_subclass("snapflow_pi05")
-@dataclass
-class SnapFlowPI05Config(SnapFlowSampling, PI05Config):
-    """A SnapFlow-distilled pi0.5."""
-
-    base_type: ClassVar[str] = "pi05"
+for _declared in LEROBOT_POLICY_TYPES:  # the declared types' classes exist as soon as the plugin is imported
+    student_config_class(_declared)
 
 
-__all__ = ["SnapFlowSampling", "SnapFlowSmolVLAConfig", "SnapFlowPI0Config", "SnapFlowPI05Config"]
+__all__ = ["SnapFlowSampling", "student_config_class"]

@@ -1,21 +1,15 @@
-"""The student policies: LeRobot's policy class with phi_s attached when built (so LeRobot's ``from_pretrained``
-finds it in the model), every tensor loaded strictly, and LeRobot's action API sampling with the config's
-``sampling_mode``."""
+"""The student policies: each declared LeRobot type's policy class with phi_s attached when built (so LeRobot's
+``from_pretrained`` finds it in the model), every tensor loaded strictly, and LeRobot's action API sampling with the
+config's ``sampling_mode``; ``SnapFlow<stem>Policy`` in this module, where LeRobot's factory looks."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from lerobot.policies.pi0.modeling_pi0 import PI0Policy
-from lerobot.policies.pi05.modeling_pi05 import PI05Policy
-from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
-
-from snapflow.adapters.lerobot.plugin.configuration_snapflow import (
-    SnapFlowPI0Config,
-    SnapFlowPI05Config,
-    SnapFlowSmolVLAConfig,
-)
+from snapflow._lazy import resolve
+from snapflow.adapters.lerobot.plugin.configuration_snapflow import student_config_class
 from snapflow.adapters.lerobot.registry import adapter_class
+from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES, lerobot_policy_type
 
 
 class SnapFlowStudent:
@@ -32,19 +26,27 @@ class SnapFlowStudent:
         return super()._load_as_safetensor(model, model_file, map_location, True)
 
 
-class SnapFlowSmolVLAPolicy(SnapFlowStudent, SmolVLAPolicy):
-    config_class = SnapFlowSmolVLAConfig
-    name = "snapflow_smolvla"
+def student_policy(base_type: str) -> type[SnapFlowStudent]:
+    """The student policy class of the declared LeRobot type ``base_type``, made on first use."""
+    declared = lerobot_policy_type(base_type)
+    name = f"SnapFlow{declared.class_stem}Policy"
+    if name not in globals():
+        config_class = student_config_class(base_type)
+        namespace = {"__module__": __name__, "__qualname__": name, "config_class": config_class}
+        made = type(name, (SnapFlowStudent, resolve(declared.policy)), {**namespace, "name": declared.student_type})
+
+        def __init__(self: Any, config: Any, **kwargs: Any) -> None:
+            SnapFlowStudent.__init__(self, config, **kwargs)
+
+        # LeRobot reads the config class off the annotation of ``config`` (a string under postponed annotations)
+        __init__.__annotations__ = {"config": config_class, "return": None}
+        made.__init__ = __init__
+        globals()[name] = made
+    return globals()[name]
 
 
-class SnapFlowPI0Policy(SnapFlowStudent, PI0Policy):
-    config_class = SnapFlowPI0Config
-    name = "snapflow_pi0"
+for _declared in LEROBOT_POLICY_TYPES:
+    student_policy(_declared)
 
 
-class SnapFlowPI05Policy(SnapFlowStudent, PI05Policy):
-    config_class = SnapFlowPI05Config
-    name = "snapflow_pi05"
-
-
-__all__ = ["SnapFlowStudent", "SnapFlowSmolVLAPolicy", "SnapFlowPI0Policy", "SnapFlowPI05Policy"]
+__all__ = ["SnapFlowStudent", "student_policy"]

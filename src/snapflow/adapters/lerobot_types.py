@@ -1,0 +1,114 @@
+"""The LeRobot policy types snapflow distils, each declared once, in plain Python: the CLI, bench and the
+architectures list read them before LeRobot (or torch) is imported, and without LeRobot installed.
+
+A declaration names LeRobot's config and policy classes and snapflow's adapter (``"module:name"``, resolved on first
+use); from it follow the adapter registry (:mod:`snapflow.adapters.lerobot.registry`), the student type
+``snapflow_<name>`` that LeRobot's tools load (:mod:`snapflow.adapters.lerobot.plugin`), ``snapflow bench
+--architecture <name>`` and, where ``trains_from_scratch``, ``snapflow train --policy-type <name>``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+
+@dataclass(frozen=True)
+class LeRobotPolicyType:
+    """One LeRobot policy type under SnapFlow."""
+
+    #: LeRobot's name of the type (``config.type``)
+    name: str
+    #: the stem of the student's class names: ``SnapFlow<stem>Config`` and ``SnapFlow<stem>Policy``
+    class_stem: str
+    #: LeRobot's config class, ``"module:Class"``
+    config: str
+    #: LeRobot's policy class, ``"module:Class"``
+    policy: str
+    #: snapflow's adapter, a :class:`~snapflow.adapters.lerobot.base.LeRobotFlowPolicy` subclass, ``"module:Class"``
+    adapter: str
+    #: ``snapflow train --dataset`` trains it from scratch (its small VLM is written locally)
+    trains_from_scratch: bool = False
+    #: config options of a full-size build with random weights (``snapflow bench --architecture``)
+    architecture_options: dict[str, Any] = field(default_factory=dict)
+    #: the config field naming the VLM whose config and processor a build reads (``bench --vlm``), if any
+    vlm_option: str | None = None
+    #: the paper's A800 figures for this architecture, which ``snapflow bench`` prints beside its own
+    paper_latency: dict[str, float] | None = None
+
+    @property
+    def student_type(self) -> str:
+        """The LeRobot type a distilled student of this type is saved as."""
+        return f"snapflow_{self.name}"
+
+
+LEROBOT_POLICY_TYPES: dict[str, LeRobotPolicyType] = {}
+
+
+def register_lerobot_policy_type(declaration: LeRobotPolicyType) -> None:
+    """Declare a LeRobot policy type (see the module's description)."""
+    if declaration.name in LEROBOT_POLICY_TYPES:
+        raise ValueError(f"a LeRobot policy type named {declaration.name!r} is declared already")
+    LEROBOT_POLICY_TYPES[declaration.name] = declaration
+
+
+def lerobot_policy_type(name: str) -> LeRobotPolicyType:
+    """The declared type ``name``, or a ValueError listing the declared ones."""
+    if name not in LEROBOT_POLICY_TYPES:
+        raise ValueError(
+            f"snapflow distills LeRobot's {', '.join(sorted(LEROBOT_POLICY_TYPES))} policies, not {name!r}"
+        )
+    return LEROBOT_POLICY_TYPES[name]
+
+
+def lerobot_teachers() -> tuple[str, ...]:
+    """The LeRobot types ``snapflow train --dataset`` trains from scratch."""
+    return tuple(name for name, declared in LEROBOT_POLICY_TYPES.items() if declared.trains_from_scratch)
+
+
+register_lerobot_policy_type(
+    LeRobotPolicyType(
+        "pi0",
+        "PI0",
+        "lerobot.policies.pi0.configuration_pi0:PI0Config",
+        "lerobot.policies.pi0.modeling_pi0:PI0Policy",
+        "snapflow.adapters.lerobot.pi0:PI0FlowPolicy",
+    )
+)
+register_lerobot_policy_type(
+    LeRobotPolicyType(
+        "pi05",
+        "PI05",
+        "lerobot.policies.pi05.configuration_pi05:PI05Config",
+        "lerobot.policies.pi05.modeling_pi05:PI05Policy",
+        "snapflow.adapters.lerobot.pi0:PI05FlowPolicy",
+        paper_latency={
+            "teacher_10_ms": 274.0,
+            "snapflow_1_ms": 83.0,
+            "denoising_share_10": 241.0 / 274.0,
+            "per_step_ms": 23.0,
+        },
+    )
+)
+register_lerobot_policy_type(
+    LeRobotPolicyType(
+        "smolvla",
+        "SmolVLA",
+        "lerobot.policies.smolvla.configuration_smolvla:SmolVLAConfig",
+        "lerobot.policies.smolvla.modeling_smolvla:SmolVLAPolicy",
+        "snapflow.adapters.lerobot.smolvla:SmolVLAFlowPolicy",
+        trains_from_scratch=True,
+        architecture_options={"load_vlm_weights": False},  # timing reads the VLM's config, never its weights
+        vlm_option="vlm_model_name",
+        paper_latency={"teacher_10_ms": 178.0, "snapflow_1_ms": 50.0},
+    )
+)
+
+
+__all__ = [
+    "LeRobotPolicyType",
+    "LEROBOT_POLICY_TYPES",
+    "register_lerobot_policy_type",
+    "lerobot_policy_type",
+    "lerobot_teachers",
+]
