@@ -165,3 +165,25 @@ def test_lerobot_eval_runs_the_distilled_student_in_metaworld(vlm_directory, tmp
     assert "Imported third-party plugin: lerobot_policy_snapflow" in finished.stderr
     info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == 2 and 0 <= info["overall"]["pc_success"] <= 100
+
+
+@PLUGINS
+@pytest.mark.parametrize("base_type", ["smolvla", "pi0", "pi05"])
+def test_each_student_type_resolves_as_lerobots_own_policy_tests_expect(base_type):
+    """What LeRobot checks of a policy type, by type name alone: its config and policy classes (the policy's
+    ``config`` annotation a class the config is an instance of), the defaults, and a processor factory."""
+    import inspect
+
+    from lerobot.policies.factory import get_policy_class, make_policy_config
+
+    from snapflow.adapters.lerobot.plugin import SnapFlowSampling, student_processors
+    from snapflow.adapters.lerobot_types import lerobot_policy_type
+
+    student_type = lerobot_policy_type(base_type).student_type
+    policy_class = get_policy_class(student_type)
+    config = make_policy_config(student_type)
+    annotation = inspect.signature(policy_class.__init__).parameters["config"].annotation
+    assert inspect.isclass(annotation) and isinstance(config, annotation) and policy_class.config_class is annotation
+    assert isinstance(config, SnapFlowSampling) and config.type == student_type and config.base_type == base_type
+    assert config.sampling_mode == "snapflow-1" and policy_class.name == student_type
+    assert callable(student_processors(base_type))
