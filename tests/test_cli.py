@@ -7,6 +7,8 @@ import argparse
 from pathlib import Path
 
 import numpy as np
+import pytest
+from packaging.version import Version
 
 from snapflow.cli import COMMANDS, build_parser, main
 from snapflow.data.demonstrations import Demonstrations, Episode
@@ -22,7 +24,7 @@ def test_each_sub_command_is_one_module_that_declares_its_flags_and_runs_them():
     commands = _commands()
     assert list(commands) == [
         *("toy", "toy-compare", "collect", "experts", "train", "distill", "eval", "diagnose"),
-        *("bench", "export", "bench-targets", "sweep", "demo"),
+        *("bench", "export", "serve", "bench-targets", "sweep", "demo"),
     ]
     for module, (name, parser) in zip(COMMANDS, commands.items(), strict=True):
         assert module.__name__ == f"snapflow.cli.{name.replace('-', '_')}"
@@ -81,3 +83,12 @@ def test_train_sets_any_field_of_a_built_in_policy_s_configuration_by_policy_opt
         error = capsys.readouterr().err
         assert message in error and "Traceback" not in error and len(error.strip().splitlines()) == 1
         assert not (output / "checkpoints").exists()
+
+
+def test_serve_names_the_lerobot_it_needs_in_one_line_where_lerobot_is_older(capsys):
+    lerobot = pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test command")
+    if Version(lerobot.__version__) >= Version("0.5"):
+        pytest.skip("this LeRobot serves: tests/adapters/test_lerobot_serve.py runs the server")
+    assert main(["serve", "--port", "1"]) == 2
+    error = capsys.readouterr().err
+    assert "snapflow serve needs lerobot >= 0.5" in error and len(error.strip().splitlines()) == 1

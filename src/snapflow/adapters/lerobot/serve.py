@@ -1,0 +1,76 @@
+"""A SnapFlow student behind LeRobot's async inference: LeRobot's own ``PolicyServer`` and gRPC service, in a process
+where snapflow's student types are registered and in the server's list of supported types, so LeRobot's robot
+client, unchanged, asks for ``policy_type=snapflow_<type>``.
+
+LeRobot's server alone refuses the student's type (its supported list is fixed), and never imports third-party
+plugins; asked for the teacher's type (``smolvla``) with a student folder, it would load the folder as a plain
+SmolVLA, drop phi_s with an "unexpected keys" warning and run ten denoising passes a chunk. This server refuses that
+request by name instead.
+"""
+
+from __future__ import annotations
+
+import pickle  # nosec - the request is LeRobot's own pickled RemotePolicyConfig, as its server reads it
+from concurrent import futures
+from typing import Any
+
+import grpc
+from lerobot.async_inference import constants
+from lerobot.async_inference.configs import PolicyServerConfig
+from lerobot.async_inference.policy_server import PolicyServer
+from lerobot.configs.policies import PreTrainedConfig
+from lerobot.transport import services_pb2_grpc
+
+from snapflow.adapters.lerobot.plugin import SnapFlowSampling
+from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES
+from snapflow.policies.loaded import CheckpointError
+
+
+class StudentTypeError(CheckpointError):
+    """A SnapFlow student folder asked for under another policy type (its teacher's)."""
+
+
+def check_policy_type(policy_type: str, pretrained: str) -> None:
+    """Refuse to load a SnapFlow student under any type but its own: as its teacher's, LeRobot drops phi_s."""
+    config = PreTrainedConfig.from_pretrained(pretrained)
+    if isinstance(config, SnapFlowSampling) and policy_type != config.type:
+        raise StudentTypeError(
+            f"{pretrained} is a SnapFlow student of {config.base_type} ({config.type}); ask for "
+            f"policy_type={config.type}: loaded as {policy_type!r}, LeRobot would drop its phi_s and run the "
+            f"{config.base_type} teacher's denoising loop"
+        )
+
+
+class StudentPolicyServer(PolicyServer):
+    """LeRobot's policy server, refusing a student asked for under its teacher's type."""
+
+    def SendPolicyInstructions(self, request: Any, context: Any) -> Any:  # noqa: N802 - gRPC's method name
+        specs = pickle.loads(request.data)  # nosec - as LeRobot's own server reads it, from its own client
+        check_policy_type(specs.policy_type, specs.pretrained_name_or_path)
+        return super().SendPolicyInstructions(request, context)
+
+
+def start_server(config: PolicyServerConfig) -> tuple[grpc.Server, StudentPolicyServer]:
+    """LeRobot's policy server on ``config.host:config.port``, started, with snapflow's student types supported; the
+    gRPC server and the policy server it serves (as LeRobot's ``serve`` builds them)."""
+    for declared in LEROBOT_POLICY_TYPES.values():  # registered by the plugin import above; now also supported
+        if declared.student_type not in constants.SUPPORTED_POLICIES:
+            constants.SUPPORTED_POLICIES.append(declared.student_type)  # the list LeRobot's server checks
+    policy_server = StudentPolicyServer(config)
+    server = grpc.server(futures.ThreadPoolExecutor(max_workers=4))
+    services_pb2_grpc.add_AsyncInferenceServicer_to_server(policy_server, server)
+    server.add_insecure_port(f"{config.host}:{config.port}")
+    server.start()
+    return server, policy_server
+
+
+def serve(config: PolicyServerConfig) -> None:
+    """Serve until interrupted."""
+    server, policy_server = start_server(config)
+    policy_server.logger.info(
+        f"snapflow: LeRobot's PolicyServer serving SnapFlow students on {config.host}:{config.port}"
+    )
+    server.wait_for_termination()
+
+
+__all__ = ["StudentTypeError", "check_policy_type", "StudentPolicyServer", "start_server", "serve"]

@@ -1,0 +1,89 @@
+"""``snapflow serve``: LeRobot's own async-inference policy server serves a distilled student to a client made of
+LeRobot's own gRPC types, one denoising pass a chunk (ten as its teacher), and refuses the student asked for under
+its teacher's type instead of dropping phi_s."""
+
+from __future__ import annotations
+
+import pickle
+import socket
+import time
+from importlib.metadata import version
+
+import numpy as np
+import pytest
+
+pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test command; this environment lacks it")
+from packaging.version import Version  # noqa: E402
+
+if Version(version("lerobot")) < Version("0.5"):
+    pytest.skip("LeRobot's tools load third-party policy types from lerobot 0.5 on", allow_module_level=True)
+grpc = pytest.importorskip("grpc", reason="LeRobot's async extra (lerobot[async]) brings grpcio")
+
+from lerobot.async_inference.configs import PolicyServerConfig  # noqa: E402
+from lerobot.async_inference.helpers import RemotePolicyConfig, TimedObservation  # noqa: E402
+from lerobot.transport import services_pb2, services_pb2_grpc  # noqa: E402
+from lerobot.transport.utils import send_bytes_in_chunks  # noqa: E402
+from lerobot.utils.feature_utils import hw_to_dataset_features  # noqa: E402
+
+from snapflow.adapters.lerobot.serve import StudentTypeError, check_policy_type, start_server  # noqa: E402
+from tests.lerobot_tiny import IMAGE_SIZE, save_tiny_student  # noqa: E402
+
+JOINTS = ("shoulder.pos", "elbow.pos", "wrist.pos", "gripper.pos")  # a robot's 4 motors: the student's 4-D state
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def student(vlm_directory, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("serve") / "student"
+    return save_tiny_student(vlm_directory, folder, image_key="observation.images.front", image_size=IMAGE_SIZE)
+
+
+def _chunk(stub, policy_server, student, sampling_mode: str, actions_per_chunk: int = 4) -> tuple[list, int]:
+    """What LeRobot's robot client does, with its own types: policy instructions, one observation, one chunk back;
+    and how many denoising passes the server's policy ran for it."""
+    features = hw_to_dataset_features(
+        {**dict.fromkeys(JOINTS, float), "front": (IMAGE_SIZE, IMAGE_SIZE, 3)}, "observation"
+    )
+    config = student / "config.json"
+    config.write_text(
+        config.read_text().replace('"snapflow-1"', f'"{sampling_mode}"').replace('"teacher-10"', f'"{sampling_mode}"')
+    )
+    specs = RemotePolicyConfig("snapflow_smolvla", str(student), features, actions_per_chunk, "cpu")
+    stub.SendPolicyInstructions(services_pb2.PolicySetup(data=pickle.dumps(specs)))
+    model, calls = policy_server.policy.model, []
+    denoise_step = model.denoise_step
+    model.denoise_step = lambda *args, **kwargs: calls.append(1) or denoise_step(*args, **kwargs)
+    raw = {joint: 0.1 * index for index, joint in enumerate(JOINTS)}
+    raw |= {"front": np.zeros((IMAGE_SIZE, IMAGE_SIZE, 3), np.uint8), "task": "reach the red block"}
+    observation = TimedObservation(timestamp=time.time(), observation=raw, timestep=0, must_go=True)
+    stub.SendObservations(send_bytes_in_chunks(pickle.dumps(observation), services_pb2.Observation))
+    actions = pickle.loads(stub.GetActions(services_pb2.Empty()).data)  # nosec - our own server's answer
+    return actions, len(calls)
+
+
+@pytest.mark.slow
+def test_lerobots_policy_server_serves_a_student_one_pass_a_chunk(student):
+    port = _free_port()
+    server, policy_server = start_server(PolicyServerConfig(host="127.0.0.1", port=port, inference_latency=0.0))
+    try:
+        with grpc.insecure_channel(f"127.0.0.1:{port}") as channel:
+            stub = services_pb2_grpc.AsyncInferenceStub(channel)
+            stub.Ready(services_pb2.Empty())
+            for mode, passes in (("snapflow-1", 1), ("teacher-10", 10)):
+                actions, counted = _chunk(stub, policy_server, student, mode)
+                assert counted == passes, mode
+                assert len(actions) == 4 and all(np.isfinite(a.get_action().numpy()).all() for a in actions)
+                assert [a.get_timestep() for a in actions] == [0, 1, 2, 3]
+    finally:
+        server.stop(0)
+
+
+def test_a_student_asked_for_under_its_teachers_type_is_refused_by_name(student):
+    with pytest.raises(StudentTypeError, match="ask for policy_type=snapflow_smolvla: loaded as 'smolvla'"):
+        check_policy_type("smolvla", str(student))
+    check_policy_type("snapflow_smolvla", str(student))  # its own type passes
