@@ -92,6 +92,48 @@ def lerobot_time_sampler(config: Any) -> BetaTimeSampler:
     return BetaTimeSampler(concentration=alpha, min_time=0.001)
 
 
+class RTCNotSupportedError(ValueError):
+    """Real-time chunking asked of a sampling mode it does not carry over to."""
+
+
+def rtc_enabled(model: nn.Module) -> bool:
+    """Whether LeRobot's guided real-time chunking is on for ``model`` (its config's ``rtc_config``)."""
+    return bool(getattr(model, "_rtc_enabled", lambda: False)())
+
+
+def check_rtc(mode: SamplingMode) -> None:
+    """Refuse guided RTC in a one-step mode. LeRobot's guidance steers each Euler step by ``w * J^T e`` (``e`` the
+    weighted gap between the previous chunk's prefix and the step's predicted actions), with ``w`` growing toward
+    t = 1 and clamped there at ``max_guidance_weight`` (10 by default): spread over ten steps of dt = 0.1 it pulls the
+    prefix in; applied once at t = 1 by a jump of length 1, it moves the actions ~10 times past the previous chunk."""
+    if mode.jump:
+        raise RTCNotSupportedError(
+            f"real-time chunking's guidance does not carry over to one jump ({mode.name}): at t = 1 its weight is "
+            "clamped to max_guidance_weight and applied once, which overshoots the previous chunk that many times; "
+            "run RTC with sampling_mode=teacher-10, or the student without rtc_config"
+        )
+
+
+def guided_rtc_sample(
+    model: nn.Module, velocity: Callable[[Tensor, Tensor], Tensor], noise: Tensor, mode: SamplingMode, rtc: dict
+) -> Tensor:
+    """``mode``'s Euler steps with LeRobot's own RTC guidance on each (``euler_integrate``, LeRobot >= 0.5)."""
+    try:
+        from lerobot.policies.common.flow_matching import euler_integrate
+    except ImportError:  # LeRobot 0.4.4 has no shared sampler to guide
+        raise RTCNotSupportedError("real-time chunking with snapflow's sampling modes needs lerobot >= 0.5") from None
+    return euler_integrate(
+        velocity,
+        noise,
+        mode.num_steps,
+        rtc_processor=model.rtc_processor,
+        rtc_enabled=True,
+        inference_delay=rtc.get("inference_delay"),
+        prev_chunk_left_over=rtc.get("prev_chunk_left_over"),
+        execution_horizon=rtc.get("execution_horizon"),
+    )
+
+
 class LeRobotFlowPolicy(nn.Module, ABC):
     """A LeRobot policy seen through :class:`snapflow.protocol.FlowPolicy`.
 
@@ -166,16 +208,21 @@ class LeRobotFlowPolicy(nn.Module, ABC):
 
     def use_sampling_mode(self, mode: SamplingMode) -> None:
         """Make LeRobot's own ``predict_action_chunk`` / ``select_action`` sample with ``mode``: SnapFlow
-        1-NFE for deployment, or ``teacher-N`` to run the same checkpoint as the N-step teacher."""
+        1-NFE for deployment, or ``teacher-N`` to run the same checkpoint as the N-step teacher. Real-time chunking
+        (LeRobot's guided RTC, on in the policy's config) runs in the teacher modes and is refused by name in a jump
+        (:func:`check_rtc`), never dropped."""
         adapter = self
 
-        def sample_actions(model: nn.Module, *inputs: Any, noise: Tensor | None = None, **_: Any) -> Tensor:
+        def sample_actions(model: nn.Module, *inputs: Any, noise: Tensor | None = None, **rtc: Any) -> Tensor:
             context = adapter.encode_inputs(*inputs)
             if noise is None:
                 masks = context["prefix_pad_masks"]
                 noise = model.sample_noise(
                     (masks.shape[0], model.config.chunk_size, model.config.max_action_dim), masks.device
                 )
+            if rtc.get("prev_chunk_left_over") is not None and rtc_enabled(model):
+                check_rtc(mode)
+                return guided_rtc_sample(model, lambda x, t: adapter.velocity(x, t, t, context), noise, mode, rtc)
             return euler_sample(lambda x, t, s: adapter.velocity(x, t, s, context), noise, mode)
 
         self.policy.model.sample_actions = types.MethodType(sample_actions, self.policy.model)
@@ -186,6 +233,10 @@ __all__ = [
     "OBS_LANGUAGE_ATTENTION_MASK",
     "OBS_LANGUAGE_TOKENS",
     "LeRobotFlowPolicy",
+    "RTCNotSupportedError",
+    "check_rtc",
+    "guided_rtc_sample",
+    "rtc_enabled",
     "cache_for_one_pass",
     "cache_tensors",
     "modeling_module",

@@ -19,6 +19,10 @@ class SnapFlowStudent:
         super().__init__(config, **kwargs)
         adapter_class(config.base_type)(self).use_sampling_mode(config.mode)
 
+    def supports_rtc(self) -> bool:
+        """LeRobot's guided real-time chunking runs in the teacher modes only (see ``check_rtc``)."""
+        return not self.config.mode.jump and super().supports_rtc()
+
     @classmethod
     def _load_as_safetensor(cls, model: Any, model_file: str, map_location: str, strict: bool) -> Any:
         # LeRobot loads SmolVLA non-strictly: a missing phi_s would leave it at zero, the naive step under
