@@ -208,7 +208,7 @@ def _default(cls: type, name: str) -> Any:
     return field.default if field.default is not MISSING else field.default_factory()
 
 
-def name_value(what: str, example: str) -> Callable[[str], tuple[str, Any]]:
+def _name_value(what: str, example: str) -> Callable[[str], tuple[str, Any]]:
     """The argument type of a repeatable ``NAME=VALUE`` flag (``--objective-option``, ``--policy-option``): the value
     read as in TOML (0.9, 10, true, ["image2"]), or else as text (conv)."""
 
@@ -222,6 +222,11 @@ def name_value(what: str, example: str) -> Callable[[str], tuple[str, Any]]:
             return name, value
 
     return parse
+
+
+def add_name_value_option(parser: argparse.ArgumentParser, flag: str, what: str, example: str, help: str) -> None:
+    """A repeatable ``NAME=VALUE`` flag (``--objective-option``, ``--policy-option``), each value read as in TOML."""
+    parser.add_argument(flag, type=_name_value(what, example), action="append", metavar="NAME=VALUE", help=help)
 
 
 def add_consistency_weight(parser: argparse.ArgumentParser, default: float | None, recipe: str = "") -> None:

@@ -13,11 +13,11 @@ from snapflow.cli.common import (
     RECIPE_SUMMARIES,
     SHARE,
     add_command,
+    add_name_value_option,
     add_objective_options,
     add_training_options,
     check_writable,
     given,
-    name_value,
     training_interrupted,
     training_overrides,
 )
@@ -72,12 +72,12 @@ def add_parser(subparsers: Any) -> None:
         entry.name: [option for option in entry.options if option not in settings_fields]
         for entry in OBJECTIVES.values()
     }
-    parser.add_argument(
+    add_name_value_option(
+        parser,
         "--objective-option",
-        type=name_value("an objective option", "adaptive_power=0.5"),
-        action="append",
-        metavar="NAME=VALUE",
-        help="an option of the chosen objective that no flag here sets, the value read as in TOML; repeatable ("
+        "an objective option",
+        "adaptive_power=0.5",
+        "an option of the chosen objective that no flag here sets, the value read as in TOML; repeatable ("
         + "; ".join(f"{name}: {', '.join(options)}" for name, options in own_options.items() if options)
         + ")",
     )

@@ -15,10 +15,10 @@ from snapflow.cli.common import (
     COUNT,
     SHARE,
     add_command,
+    add_name_value_option,
     add_training_options,
     check_writable,
     given,
-    name_value,
     training_interrupted,
     training_overrides,
 )
@@ -75,12 +75,12 @@ def add_parser(subparsers: Any) -> None:
     parser.add_argument(
         "--state-dim", type=COUNT, help="read only the leading entries of the state (4: hand and gripper; default all)"
     )
-    parser.add_argument(
+    add_name_value_option(
+        parser,
         "--policy-option",
-        type=name_value("a policy option", "image_encoder=conv"),
-        action="append",
-        metavar="NAME=VALUE",
-        help="a built-in policy's configuration field that no flag here sets, the value read as in TOML; repeatable "
+        "a policy option",
+        "image_encoder=conv",
+        "a built-in policy's configuration field that no flag here sets, the value read as in TOML; repeatable "
         '(minivla: image_encoder=conv, extra_cameras=["image2"], image_downsample=2, ...: the fields of its config)',
     )
     parser.add_argument(
