@@ -25,7 +25,7 @@ from lerobot.transport import services_pb2, services_pb2_grpc  # noqa: E402
 from lerobot.transport.utils import send_bytes_in_chunks  # noqa: E402
 from lerobot.utils.feature_utils import hw_to_dataset_features  # noqa: E402
 
-from snapflow.adapters.lerobot.serve import StudentTypeError, check_policy_type, start_server  # noqa: E402
+from snapflow.adapters.lerobot.serve import start_server  # noqa: E402
 from tests.lerobot_tiny import IMAGE_SIZE, save_tiny_student  # noqa: E402
 
 JOINTS = ("shoulder.pos", "elbow.pos", "wrist.pos", "gripper.pos")  # a robot's 4 motors: the student's 4-D state
@@ -67,7 +67,8 @@ def _chunk(stub, policy_server, student, sampling_mode: str, actions_per_chunk: 
 
 
 @pytest.mark.slow
-def test_lerobots_policy_server_serves_a_student_one_pass_a_chunk(student):
+def test_lerobots_policy_server_serves_a_student_one_pass_a_chunk(student, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # LeRobot's server writes its logs/ into the working directory
     port = _free_port()
     server, policy_server = start_server(PolicyServerConfig(host="127.0.0.1", port=port, inference_latency=0.0))
     try:
@@ -83,7 +84,19 @@ def test_lerobots_policy_server_serves_a_student_one_pass_a_chunk(student):
         server.stop(0)
 
 
-def test_a_student_asked_for_under_its_teachers_type_is_refused_by_name(student):
-    with pytest.raises(StudentTypeError, match="ask for policy_type=snapflow_smolvla: loaded as 'smolvla'"):
-        check_policy_type("smolvla", str(student))
-    check_policy_type("snapflow_smolvla", str(student))  # its own type passes
+def test_a_student_asked_for_under_its_teachers_type_is_refused_by_name(student, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # LeRobot's server writes its logs/ into the working directory
+    port = _free_port()
+    server, _ = start_server(PolicyServerConfig(host="127.0.0.1", port=port))
+    features = hw_to_dataset_features(
+        {**dict.fromkeys(JOINTS, float), "front": (IMAGE_SIZE, IMAGE_SIZE, 3)}, "observation"
+    )
+    try:
+        with grpc.insecure_channel(f"127.0.0.1:{port}") as channel:
+            stub = services_pb2_grpc.AsyncInferenceStub(channel)
+            stub.Ready(services_pb2.Empty())
+            specs = RemotePolicyConfig("smolvla", str(student), features, 4, "cpu")
+            with pytest.raises(grpc.RpcError, match="holds a SnapFlow student distilled from smolvla"):
+                stub.SendPolicyInstructions(services_pb2.PolicySetup(data=pickle.dumps(specs)))
+    finally:
+        server.stop(0)

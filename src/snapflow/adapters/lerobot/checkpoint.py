@@ -116,7 +116,8 @@ def load_distilled(directory: str | Path, mode: SamplingMode = SNAPFLOW_1) -> Le
 
 def load_pretrained_policy(path: str) -> nn.Module:
     """A LeRobot policy from a hub id or a local pretrained directory, as ``lerobot-eval`` loads it; a mistyped
-    folder, an unreachable hub or an unusable repo is named in one line before anything loads."""
+    folder, an unreachable hub or an unusable repo is named in one line before anything loads, and a SnapFlow student
+    whose config is typed as its teacher is refused (:class:`~.student_folder.StudentAsTeacherError`)."""
     from huggingface_hub.constants import CONFIG_NAME
 
     check_source(path, CONFIG_NAME, "a LeRobot policy")  # before LeRobot's loaders import (seconds)
@@ -124,11 +125,13 @@ def load_pretrained_policy(path: str) -> nn.Module:
     from lerobot.policies.factory import get_policy_class
 
     from snapflow.adapters.lerobot.plugin import SnapFlowSampling, student_policy  # registers the student types
+    from snapflow.adapters.lerobot.student_folder import refuse_student_as_teacher
 
     config = PreTrainedConfig.from_pretrained(path)
     adapter_class(base_policy_type(config))
     if isinstance(config, SnapFlowSampling):  # LeRobot < 0.5 resolves only its own types
         return student_policy(config.base_type).from_pretrained(path)
+    refuse_student_as_teacher(path, config.type)  # a student typed as its teacher: LeRobot's loader would drop phi_s
     return get_policy_class(config.type).from_pretrained(path)
 
 

@@ -18,27 +18,10 @@ import grpc
 from lerobot.async_inference import constants
 from lerobot.async_inference.configs import PolicyServerConfig
 from lerobot.async_inference.policy_server import PolicyServer
-from lerobot.configs.policies import PreTrainedConfig
 from lerobot.transport import services_pb2_grpc
 
-from snapflow.adapters.lerobot.plugin import SnapFlowSampling
+from snapflow.adapters.lerobot.student_folder import refuse_student_as_teacher
 from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES
-from snapflow.policies.loaded import CheckpointError
-
-
-class StudentTypeError(CheckpointError):
-    """A SnapFlow student folder asked for under another policy type (its teacher's)."""
-
-
-def check_policy_type(policy_type: str, pretrained: str) -> None:
-    """Refuse to load a SnapFlow student under any type but its own: as its teacher's, LeRobot drops phi_s."""
-    config = PreTrainedConfig.from_pretrained(pretrained)
-    if isinstance(config, SnapFlowSampling) and policy_type != config.type:
-        raise StudentTypeError(
-            f"{pretrained} is a SnapFlow student of {config.base_type} ({config.type}); ask for "
-            f"policy_type={config.type}: loaded as {policy_type!r}, LeRobot would drop its phi_s and run the "
-            f"{config.base_type} teacher's denoising loop"
-        )
 
 
 class StudentPolicyServer(PolicyServer):
@@ -46,7 +29,7 @@ class StudentPolicyServer(PolicyServer):
 
     def SendPolicyInstructions(self, request: Any, context: Any) -> Any:  # noqa: N802 - gRPC's method name
         specs = pickle.loads(request.data)  # nosec - as LeRobot's own server reads it, from its own client
-        check_policy_type(specs.policy_type, specs.pretrained_name_or_path)
+        refuse_student_as_teacher(specs.pretrained_name_or_path, specs.policy_type)
         return super().SendPolicyInstructions(request, context)
 
 
@@ -73,4 +56,4 @@ def serve(config: PolicyServerConfig) -> None:
     server.wait_for_termination()
 
 
-__all__ = ["StudentTypeError", "check_policy_type", "StudentPolicyServer", "start_server", "serve"]
+__all__ = ["StudentPolicyServer", "start_server", "serve"]
