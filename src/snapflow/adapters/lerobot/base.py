@@ -164,19 +164,22 @@ class LeRobotFlowPolicy(nn.Module, ABC):
     def velocity(self, x_t: Tensor, t: Tensor, s: Tensor, context: dict[str, Any]) -> Tensor:
         return self.denoise(context, x_t, torch.stack([t, s], dim=1))
 
-    def use_sampling_mode(self, mode: SamplingMode) -> None:
+    def use_sampling_mode(self, mode: SamplingMode | Callable[[], SamplingMode]) -> None:
         """Make LeRobot's own ``predict_action_chunk`` / ``select_action`` sample with ``mode``: SnapFlow
-        1-NFE for deployment, or ``teacher-N`` to run the same checkpoint as the N-step teacher."""
+        1-NFE for deployment, or ``teacher-N`` to run the same checkpoint as the N-step teacher. A callable is
+        asked at every chunk (a student reads its config then, and refuses a jump it was never distilled for)."""
         adapter = self
+        current = mode if callable(mode) else lambda: mode
 
         def sample_actions(model: nn.Module, *inputs: Any, noise: Tensor | None = None, **_: Any) -> Tensor:
+            chosen = current()
             context = adapter.encode_inputs(*inputs)
             if noise is None:
                 masks = context["prefix_pad_masks"]
                 noise = model.sample_noise(
                     (masks.shape[0], model.config.chunk_size, model.config.max_action_dim), masks.device
                 )
-            return euler_sample(lambda x, t, s: adapter.velocity(x, t, s, context), noise, mode)
+            return euler_sample(lambda x, t, s: adapter.velocity(x, t, s, context), noise, chosen)
 
         self.policy.model.sample_actions = types.MethodType(sample_actions, self.policy.model)
         self.policy.reset()
