@@ -20,8 +20,8 @@ from typing import Any, ClassVar
 import torch
 from torch import Tensor, nn
 
+from snapflow.adapters.lerobot.rtc import rtc_processor_in_force, sample_with_rtc
 from snapflow.flow.modes import SamplingMode
-from snapflow.flow.solver import euler_sample
 from snapflow.flow.time_sampling import BetaTimeSampler
 from snapflow.nn.time_embedding import TargetTimeEmbedding
 
@@ -167,19 +167,33 @@ class LeRobotFlowPolicy(nn.Module, ABC):
     def use_sampling_mode(self, mode: SamplingMode | Callable[[], SamplingMode]) -> None:
         """Make LeRobot's own ``predict_action_chunk`` / ``select_action`` sample with ``mode``: SnapFlow
         1-NFE for deployment, or ``teacher-N`` to run the same checkpoint as the N-step teacher. A callable is
-        asked at every chunk (a student reads its config then, and refuses a jump it was never distilled for)."""
+        asked at every chunk (a student reads its config then, and refuses a jump it was never distilled for).
+        With RTC enabled in the policy's config, the previous chunk LeRobot passes is continued
+        (:mod:`snapflow.adapters.lerobot.rtc`: LeRobot's guided RTC per Euler step, prefix inpainting for jumps)."""
         adapter = self
         current = mode if callable(mode) else lambda: mode
 
-        def sample_actions(model: nn.Module, *inputs: Any, noise: Tensor | None = None, **_: Any) -> Tensor:
+        def sample_actions(
+            model: nn.Module,
+            *inputs: Any,
+            noise: Tensor | None = None,
+            inference_delay: int | None = None,
+            prev_chunk_left_over: Tensor | None = None,
+            execution_horizon: int | None = None,
+            **_: Any,
+        ) -> Tensor:
             chosen = current()
+            processor = rtc_processor_in_force(model)
             context = adapter.encode_inputs(*inputs)
             if noise is None:
                 masks = context["prefix_pad_masks"]
                 noise = model.sample_noise(
                     (masks.shape[0], model.config.chunk_size, model.config.max_action_dim), masks.device
                 )
-            return euler_sample(lambda x, t, s: adapter.velocity(x, t, s, context), noise, chosen)
+            velocity = lambda x, t, s: adapter.velocity(x, t, s, context)  # noqa: E731
+            return sample_with_rtc(
+                velocity, noise, chosen, processor, prev_chunk_left_over, inference_delay, execution_horizon
+            )
 
         self.policy.model.sample_actions = types.MethodType(sample_actions, self.policy.model)
         self.policy.reset()
