@@ -91,3 +91,16 @@ def test_trained_rtc_is_refused_by_name(vlm_directory):
     prev = torch.zeros(4, 4, 4)
     with pytest.raises(ValueError, match="RTC mode 'trained' needs a policy trained with the previous chunk"):
         student.predict_action_chunk(tiny_batch(), inference_delay=1, prev_chunk_left_over=prev)
+
+
+def test_the_boundary_benchmark_measures_every_row_on_recorded_chunks(vlm_directory, tmp_path):
+    from snapflow.benchmark.rtc import ROWS, boundary_jumps, write_boundary_report
+
+    student = _student(vlm_directory)
+    rows = boundary_jumps(student, tiny_batch(batch_size=5), executed=2, inference_delay=1)
+    assert [row.name for row in rows] == [name for name, *_ in ROWS]
+    by_rtc = {row.rtc: row for row in rows}
+    assert by_rtc["inpaint"].prefix_error < 1e-5 < by_rtc["off"].prefix_error
+    assert by_rtc["guided"].prefix_error < rows[0].prefix_error
+    write_boundary_report(rows, {"chunk_size": 4}, tmp_path)
+    assert (tmp_path / "rtc_boundary.json").is_file() and "boundary jump" in (tmp_path / "rtc_boundary.md").read_text()

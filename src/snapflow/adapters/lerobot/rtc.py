@@ -1,17 +1,18 @@
 """Real-time chunking (RTC) for a LeRobot policy under any sampling mode.
 
-LeRobot's guided RTC steers each Euler step of the velocity toward the previous chunk's unexecuted prefix:
-``v <- v - w(t) * J^T [(prev - x0_hat) * weights]`` with ``x0_hat = x_t - t * v`` and ``J = d x0_hat / d x_t``, the
-weight ``w(t)`` growing to ``max_guidance_weight`` (10 by default) at t = 1. Over N steps each correction is scaled
-by dt = 1/N, so the pull toward the prefix is integrated gently. ``teacher-N`` keeps exactly that
-(:func:`guided_euler`, LeRobot's own ``RTCProcessor.denoise_step`` at every step).
+LeRobot's guided RTC steers each Euler step toward the previous chunk's unexecuted prefix:
+``v <- v - w(t) * J^T [(prev - x0_hat) * weights]`` with ``x0_hat = x_t - t * v``, the weight ``w(t)`` growing to
+``max_guidance_weight`` (10 by default) at t = 1. (LeRobot's ``RTCProcessor.denoise_step`` evaluates v before x_t
+requires grad, so its J is the identity: the correction is ``(prev - x0_hat) * weights``.) Over N steps each
+correction is scaled by dt = 1/N, so the pull toward the prefix is integrated gently. ``teacher-N`` keeps exactly
+that (:func:`guided_euler`, LeRobot's own ``denoise_step`` at every step).
 
-One jump does not integrate anything: the guided jump is ``a + w * J^T[(prev - a) * weights]``, and with J ~ I
-(the jump's output moves with its input noise) it is ``a + w * (prev - a) * weights``: w = 10 lands nine times past
-the prefix on the other side. The part that carries over is the same correction at w = 1, which is inpainting of
-the prefix with LeRobot's prefix weights (:func:`inpaint_prefix`): the executed actions are the previous chunk's,
-the next ones blend into the new chunk along the weights' ramp. That needs no backward pass. LeRobot's trained RTC
-(the prefix given in training) is refused by name: no student here was distilled with the prefix given.
+One jump integrates nothing: LeRobot's guided jump from t = 1 is ``a + w * (prev - a) * weights`` with w = 10, which
+lands nine times the gap past the prefix on its other side. What carries over is the same correction at w = 1:
+inpainting of the prefix with LeRobot's prefix weights (:func:`inpaint_prefix`): the actions executed while the chunk
+is computed are the previous chunk's, the next ones blend into the new chunk along the weights' ramp, and the rest
+is the jump's own. No backward pass. LeRobot's trained RTC (the prefix given in training) is refused by name: no
+student here was distilled with the prefix given.
 """
 
 from __future__ import annotations
