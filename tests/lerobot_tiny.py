@@ -236,9 +236,13 @@ def write_tiny_dataset(
     frames: int = 12,
     fps: int = 10,
     nan_at: int | None = None,
+    bimodal: bool = False,
+    seed: int = 0,
 ) -> Path:
     """A LeRobotDataset on disk (images stored in the parquet, no video) whose tasks use the tiny vocabulary;
-    ``nan_at`` puts a NaN into that frame's action."""
+    ``nan_at`` puts a NaN into that frame's action. ``bimodal``: each action is one of two far-apart values by a coin
+    the observation does not show, so the flow from noise to actions curves (one Euler step lands between the
+    modes)."""
     import numpy as np
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
@@ -251,7 +255,7 @@ def write_tiny_dataset(
         },
         "action": {"dtype": "float32", "shape": (4,), "names": None},
     }
-    generator = np.random.default_rng(0)
+    generator = np.random.default_rng(seed)
     dataset = LeRobotDataset.create(
         repo_id=repo_id,
         fps=fps,
@@ -264,6 +268,9 @@ def write_tiny_dataset(
     for episode in range(episodes):
         for frame in range(frames):
             action = (generator.standard_normal(4) + episode).astype(np.float32)
+            if bimodal:
+                action = generator.choice([-1.0, 1.0]) * np.array([2.0, -2.0, 1.0, 1.5]) + 0.1 * action
+                action = action.astype(np.float32)
             if episode * frames + frame == nan_at:
                 action[1] = np.nan
             dataset.add_frame(

@@ -187,35 +187,3 @@ def test_each_student_type_resolves_as_lerobots_own_policy_tests_expect(base_typ
     assert isinstance(config, SnapFlowSampling) and config.type == student_type and config.base_type == base_type
     assert config.sampling_mode == "snapflow-1" and policy_class.name == student_type
     assert callable(student_processors(base_type))
-
-
-@PLUGINS
-@pytest.mark.parametrize("mode", ["teacher-10", "snapflow-1"])
-def test_real_time_chunking_steers_the_teacher_modes_and_is_refused_by_name_in_a_jump(student, mode):
-    """LeRobot's guided RTC (on in the config, a previous chunk given) pulls a teacher-mode chunk's executed prefix
-    toward the previous chunk; in the one-jump mode it is refused by name, and ``supports_rtc`` says so, where it
-    was once dropped silently (the chunk came out the same with RTC as without)."""
-    from lerobot.configs.policies import PreTrainedConfig
-    from lerobot.policies.rtc.configuration_rtc import RTCConfig
-
-    from snapflow.adapters.lerobot.base import RTCNotSupportedError
-    from snapflow.adapters.lerobot.plugin import student_policy
-
-    config = PreTrainedConfig.from_pretrained(student)
-    config.sampling_mode, config.rtc_config = mode, RTCConfig(enabled=True, execution_horizon=3)
-    policy = student_policy("smolvla").from_pretrained(student, config=config)
-    assert policy.supports_rtc() is (mode == "teacher-10")
-    batch = tiny_batch(batch_size=2)
-    noise = torch.randn(2, config.chunk_size, config.max_action_dim, generator=torch.Generator().manual_seed(3))
-    inputs = model_inputs(policy, batch)
-    with torch.no_grad():
-        plain = policy.model.sample_actions(*inputs, noise=noise)
-        previous = plain + 1.0  # a previous chunk away from this one
-        rtc = {"inference_delay": 2, "prev_chunk_left_over": previous, "execution_horizon": 3}
-        if mode != "teacher-10":
-            with pytest.raises(RTCNotSupportedError, match="does not carry over to one jump"):
-                policy.model.sample_actions(*inputs, noise=noise, **rtc)
-            return
-        guided = policy.model.sample_actions(*inputs, noise=noise, **rtc)
-    gap = {name: (chunk[:, :2] - previous[:, :2]).abs().mean() for name, chunk in (("plain", plain), ("rtc", guided))}
-    assert gap["rtc"] < 0.5 * gap["plain"], gap

@@ -33,7 +33,8 @@ def _retyped_as_teacher(student: Path, folder: Path, marker: bool) -> Path:
     plugin reads it; an export older than the student types looks the same), with or without snapflow's marker."""
     shutil.copytree(student, folder)
     config = json.loads((folder / "config.json").read_text())
-    del config["sampling_mode"]
+    for field in [name for name in config if name == "sampling_mode" or name.startswith("distill")]:
+        del config[field]  # the student's own fields: the teacher's config class reads none of them
     (folder / "config.json").write_text(json.dumps({**config, "type": "smolvla"}))
     if not marker:
         (folder / SNAPFLOW_MARKER).unlink()

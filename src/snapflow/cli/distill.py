@@ -44,6 +44,13 @@ def add_parser(subparsers: Any) -> None:
     parser.add_argument("--policy", help="LeRobot pi0, pi0.5 or SmolVLA: hub id or local pretrained directory")
     parser.add_argument("--dataset", help="LeRobotDataset: root directory on disk, or repo id")
     parser.add_argument("--repo-id", help="repo id of a dataset given as a directory (default: local/<folder name>)")
+    parser.add_argument(
+        "--lerobot-train",
+        action="store_true",
+        help="with --policy and no --dataset: write the LeRobot policy as its SnapFlow student (phi_s at zero, these "
+        "settings in its config, its processors) into --output, for LeRobot's own trainer to distil: lerobot-train "
+        "--policy.path=OUTPUT --dataset.repo_id=... (training flags are lerobot-train's then)",
+    )
     parser.add_argument("--alpha", type=SHARE, default=None, help="flow-matching share of each batch")
     parser.add_argument(
         "--clamp",
@@ -84,6 +91,8 @@ def add_parser(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.lerobot_train:
+        return _write_student(args)
     built_in = bool(args.teacher and args.data) and not (args.policy or args.dataset)
     lerobot = bool(args.policy and args.dataset) and not (args.teacher or args.data)
     if not (built_in or lerobot):
@@ -114,6 +123,27 @@ def _distill_lerobot(args: argparse.Namespace) -> int:
         args.policy, dataset_root, repo_id, args.output, train, settings, args.resume, not args.no_progress
     )
     print(f"SnapFlow student trained to step {state['step']}; LeRobot policy in {Path(args.output) / EXPORT_DIRECTORY}")
+    return 0
+
+
+def _write_student(args: argparse.Namespace) -> int:
+    if not args.policy or args.dataset or args.teacher or args.data:
+        raise ValueError("--lerobot-train takes --policy and no dataset: lerobot-train reads the dataset")
+    if given(training_overrides(args)):
+        raise ValueError(
+            f"--lerobot-train writes no training run: give {', '.join(given(training_overrides(args)))} to "
+            "lerobot-train (--steps, --batch_size, --policy.optimizer_lr, ...)"
+        )
+    check_writable(args.output)
+    _, settings = _student_settings(args, lerobot=True)
+    from snapflow.training.lerobot_student import write_student
+
+    output = write_student(args.policy, args.output, settings)
+    print(
+        f"wrote {args.policy} as its SnapFlow student in {output} (the teacher's weights, phi_s at zero, not distilled "
+        f"yet); distil it with LeRobot's trainer: lerobot-train --policy.path={output} --dataset.repo_id=<dataset> "
+        "--output_dir=<run>"
+    )
     return 0
 
 

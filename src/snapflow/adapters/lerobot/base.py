@@ -20,8 +20,8 @@ from typing import Any, ClassVar
 import torch
 from torch import Tensor, nn
 
+from snapflow.adapters.lerobot.rtc import rtc_processor_in_force, sample_with_rtc
 from snapflow.flow.modes import SamplingMode
-from snapflow.flow.solver import euler_sample
 from snapflow.flow.time_sampling import BetaTimeSampler
 from snapflow.nn.time_embedding import TargetTimeEmbedding
 
@@ -90,48 +90,6 @@ def lerobot_time_sampler(config: Any) -> BetaTimeSampler:
             f"this {config.type} samples times from Beta({alpha}, {beta}); snapflow samples Beta(a, 1) only"
         )
     return BetaTimeSampler(concentration=alpha, min_time=0.001)
-
-
-class RTCNotSupportedError(ValueError):
-    """Real-time chunking asked of a sampling mode it does not carry over to."""
-
-
-def rtc_enabled(model: nn.Module) -> bool:
-    """Whether LeRobot's guided real-time chunking is on for ``model`` (its config's ``rtc_config``)."""
-    return bool(getattr(model, "_rtc_enabled", lambda: False)())
-
-
-def check_rtc(mode: SamplingMode) -> None:
-    """Refuse guided RTC in a one-step mode. LeRobot's guidance steers each Euler step by ``w * J^T e`` (``e`` the
-    weighted gap between the previous chunk's prefix and the step's predicted actions), with ``w`` growing toward
-    t = 1 and clamped there at ``max_guidance_weight`` (10 by default): spread over ten steps of dt = 0.1 it pulls the
-    prefix in; applied once at t = 1 by a jump of length 1, it moves the actions ~10 times past the previous chunk."""
-    if mode.jump:
-        raise RTCNotSupportedError(
-            f"real-time chunking's guidance does not carry over to one jump ({mode.name}): at t = 1 its weight is "
-            "clamped to max_guidance_weight and applied once, which overshoots the previous chunk that many times; "
-            "run RTC with sampling_mode=teacher-10, or the student without rtc_config"
-        )
-
-
-def guided_rtc_sample(
-    model: nn.Module, velocity: Callable[[Tensor, Tensor], Tensor], noise: Tensor, mode: SamplingMode, rtc: dict
-) -> Tensor:
-    """``mode``'s Euler steps with LeRobot's own RTC guidance on each (``euler_integrate``, LeRobot >= 0.5)."""
-    try:
-        from lerobot.policies.common.flow_matching import euler_integrate
-    except ImportError:  # LeRobot 0.4.4 has no shared sampler to guide
-        raise RTCNotSupportedError("real-time chunking with snapflow's sampling modes needs lerobot >= 0.5") from None
-    return euler_integrate(
-        velocity,
-        noise,
-        mode.num_steps,
-        rtc_processor=model.rtc_processor,
-        rtc_enabled=True,
-        inference_delay=rtc.get("inference_delay"),
-        prev_chunk_left_over=rtc.get("prev_chunk_left_over"),
-        execution_horizon=rtc.get("execution_horizon"),
-    )
 
 
 class LeRobotFlowPolicy(nn.Module, ABC):
@@ -206,24 +164,36 @@ class LeRobotFlowPolicy(nn.Module, ABC):
     def velocity(self, x_t: Tensor, t: Tensor, s: Tensor, context: dict[str, Any]) -> Tensor:
         return self.denoise(context, x_t, torch.stack([t, s], dim=1))
 
-    def use_sampling_mode(self, mode: SamplingMode) -> None:
+    def use_sampling_mode(self, mode: SamplingMode | Callable[[], SamplingMode]) -> None:
         """Make LeRobot's own ``predict_action_chunk`` / ``select_action`` sample with ``mode``: SnapFlow
-        1-NFE for deployment, or ``teacher-N`` to run the same checkpoint as the N-step teacher. Real-time chunking
-        (LeRobot's guided RTC, on in the policy's config) runs in the teacher modes and is refused by name in a jump
-        (:func:`check_rtc`), never dropped."""
+        1-NFE for deployment, or ``teacher-N`` to run the same checkpoint as the N-step teacher. A callable is
+        asked at every chunk (a student reads its config then, and refuses a jump it was never distilled for).
+        With RTC enabled in the policy's config, the previous chunk LeRobot passes is continued
+        (:mod:`snapflow.adapters.lerobot.rtc`: LeRobot's guided RTC per Euler step, prefix inpainting for jumps)."""
         adapter = self
+        current = mode if callable(mode) else lambda: mode
 
-        def sample_actions(model: nn.Module, *inputs: Any, noise: Tensor | None = None, **rtc: Any) -> Tensor:
+        def sample_actions(
+            model: nn.Module,
+            *inputs: Any,
+            noise: Tensor | None = None,
+            inference_delay: int | None = None,
+            prev_chunk_left_over: Tensor | None = None,
+            execution_horizon: int | None = None,
+            **_: Any,
+        ) -> Tensor:
+            chosen = current()
+            processor = rtc_processor_in_force(model)
             context = adapter.encode_inputs(*inputs)
             if noise is None:
                 masks = context["prefix_pad_masks"]
                 noise = model.sample_noise(
                     (masks.shape[0], model.config.chunk_size, model.config.max_action_dim), masks.device
                 )
-            if rtc.get("prev_chunk_left_over") is not None and rtc_enabled(model):
-                check_rtc(mode)
-                return guided_rtc_sample(model, lambda x, t: adapter.velocity(x, t, t, context), noise, mode, rtc)
-            return euler_sample(lambda x, t, s: adapter.velocity(x, t, s, context), noise, mode)
+            velocity = lambda x, t, s: adapter.velocity(x, t, s, context)  # noqa: E731
+            return sample_with_rtc(
+                velocity, noise, chosen, processor, prev_chunk_left_over, inference_delay, execution_horizon
+            )
 
         self.policy.model.sample_actions = types.MethodType(sample_actions, self.policy.model)
         self.policy.reset()
@@ -233,10 +203,6 @@ __all__ = [
     "OBS_LANGUAGE_ATTENTION_MASK",
     "OBS_LANGUAGE_TOKENS",
     "LeRobotFlowPolicy",
-    "RTCNotSupportedError",
-    "check_rtc",
-    "guided_rtc_sample",
-    "rtc_enabled",
     "cache_for_one_pass",
     "cache_tensors",
     "modeling_module",

@@ -71,7 +71,9 @@ def save_distilled(adapter: LeRobotFlowPolicy, directory: str | Path, val_fracti
 
     directory = Path(directory)
     adapter.policy.save_pretrained(directory)
-    student_config(adapter.policy.config)._save_pretrained(directory)
+    config = student_config(adapter.policy.config)
+    config.distilled = True
+    config._save_pretrained(directory)
     _write_marker(directory, adapter.policy_type, True, val_fraction)
     return directory
 

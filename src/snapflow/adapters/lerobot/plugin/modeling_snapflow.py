@@ -1,33 +1,111 @@
-"""The student policies: each declared LeRobot type's policy class with phi_s attached when built (so LeRobot's
-``from_pretrained`` finds it in the model), every tensor loaded strictly, and LeRobot's action API sampling with the
-config's ``sampling_mode``; ``SnapFlow<stem>Policy`` in this module, where LeRobot's factory looks."""
+"""The student policies: each declared LeRobot type's policy class (``SnapFlow<stem>Policy`` in this module, where
+LeRobot's factory looks) with phi_s attached when built (so LeRobot's ``from_pretrained`` finds it in the model), every
+tensor loaded strictly, LeRobot's action API sampling with the config's ``sampling_mode``, and LeRobot's training contract (``forward`` -> loss and logs, ``update`` after each optimiser
+step, ``get_optim_params``) running SnapFlow distillation, so ``lerobot-train`` on a student type distils it."""
 
 from __future__ import annotations
 
 from typing import Any
 
+import torch
+from torch import Tensor, nn
+
 from snapflow._lazy import resolve
+from snapflow.adapters.lerobot.base import LeRobotFlowPolicy, lerobot_time_sampler
 from snapflow.adapters.lerobot.plugin.configuration_snapflow import student_config_class
 from snapflow.adapters.lerobot.registry import adapter_class
 from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES, lerobot_policy_type
+from snapflow.flow.modes import SamplingMode
+from snapflow.objective.base import TwoBranchObjective
+from snapflow.objective.registry import make_objective
+
+
+class NotDistilledError(ValueError):
+    """A student whose config says it was never distilled was asked for the one-step jump."""
 
 
 class SnapFlowStudent:
-    """Mixed in before a LeRobot policy class."""
+    """Mixed in before a LeRobot policy class.
+
+    Training (``lerobot-train``): ``forward`` is the SnapFlow objective of :mod:`snapflow.objective.snapflow` on
+    the batch (its consistency target from the model's own no-grad passes), with the ``distill_*`` settings of the
+    config; only the action expert and phi_s are trained (``get_optim_params``, and the rest does not require grad),
+    as snapflow's own distillation keeps the VLM frozen; ``update`` records in the config that the checkpoint was
+    distilled.
+    """
 
     def __init__(self, config: Any, **kwargs: Any) -> None:
         super().__init__(config, **kwargs)
-        adapter_class(config.base_type)(self).use_sampling_mode(config.mode)
+        adapter = adapter_class(config.base_type)(self)
+        # a plain attribute, not a submodule: the adapter holds this policy, and a submodule cycle would recurse
+        object.__setattr__(self, "snapflow", adapter)
+        adapter.use_sampling_mode(self.requested_sampling_mode)
+        trainable = {id(parameter) for parameter in adapter.expert_parameters()}
+        for parameter in self.parameters():
+            parameter.requires_grad_(id(parameter) in trainable)
+        self._distilled_by_last_forward = False
 
-    def supports_rtc(self) -> bool:
-        """LeRobot's guided real-time chunking runs in the teacher modes only (see ``check_rtc``)."""
-        return not self.config.mode.jump and super().supports_rtc()
+    snapflow: LeRobotFlowPolicy
 
     @classmethod
     def _load_as_safetensor(cls, model: Any, model_file: str, map_location: str, strict: bool) -> Any:
         # LeRobot loads SmolVLA non-strictly: a missing phi_s would leave it at zero, the naive step under
         # SnapFlow's name
         return super()._load_as_safetensor(model, model_file, map_location, True)
+
+    def requested_sampling_mode(self) -> SamplingMode:
+        """The config's ``sampling_mode`` as it reads now; ``snapflow-N`` of a student never distilled is refused."""
+        mode = self.config.mode
+        if mode.jump and self.config.distilled is False:
+            raise NotDistilledError(
+                f"this {self.config.type} policy was not distilled (config distilled=false: a teacher's weights not "
+                f"trained by SnapFlow yet, or last trained by flow matching alone), so it has no {mode.name} jump; "
+                "sample it as its teacher (sampling_mode=teacher-10) or distil it first (lerobot-train "
+                "--policy.path=<this folder>, see the README)"
+            )
+        return mode
+
+    def get_optim_params(self) -> list[nn.Parameter]:
+        """What distillation trains: the action expert, its projections and phi_s (the VLM stays frozen)."""
+        return self.snapflow.expert_parameters()
+
+    def distillation_objective(self) -> TwoBranchObjective:
+        """The SnapFlow objective with the config's ``distill_*`` settings and the policy's own training times."""
+        return make_objective(
+            "snapflow", time_sampler=lerobot_time_sampler(self.config), **self.config.distill_options()
+        )
+
+    def forward(
+        self,
+        batch: dict[str, Tensor],
+        noise: Tensor | None = None,
+        time: Tensor | None = None,
+        reduction: str = "mean",
+        generator: torch.Generator | None = None,
+    ) -> tuple[Tensor, dict[str, float]]:
+        """SnapFlow's loss on a pre-processed batch, and its parts for LeRobot's logs.
+
+        ``noise`` (B, chunk, max_action_dim) and ``time`` (the flow-matching rows' times) are the objective's;
+        drawn from ``generator`` (LeRobot's global seed when None) otherwise. SnapFlow's loss is a mean per branch:
+        per-sample losses (``reduction="none"``, LeRobot's sample weighting) are refused."""
+        if reduction != "mean":
+            raise ValueError(f"a SnapFlow student's loss is a mean over its two branches; reduction={reduction!r}")
+        objective = self.distillation_objective()
+        output = objective(
+            self.snapflow, batch, self.prepare_action(batch), noise=noise, time=time, generator=generator
+        )
+        self._distilled_by_last_forward = output.num_consistency > 0 and objective.consistency_weight > 0
+        logs = {
+            "flow_matching_loss": output.flow_matching_loss.item(),
+            "consistency_loss": output.consistency_loss.item(),
+        }
+        return output.loss, logs
+
+    def update(self) -> None:
+        """Run by ``lerobot-train`` after each optimiser step: the step trained the one-step jump (the config, and
+        so every checkpoint from now on, says distilled), or, with alpha 1 or lambda 0, flow matching alone (says
+        not distilled: the jump was not trained and phi_s drifts)."""
+        self.config.distilled = self._distilled_by_last_forward
 
 
 def student_policy(base_type: str) -> type[SnapFlowStudent]:
@@ -53,4 +131,4 @@ for _declared in LEROBOT_POLICY_TYPES:
     student_policy(_declared)
 
 
-__all__ = ["SnapFlowStudent", "student_policy"]
+__all__ = ["NotDistilledError", "SnapFlowStudent", "student_policy"]

@@ -1,0 +1,227 @@
+"""``lerobot-train`` distils: a student type's ``forward`` is SnapFlow's objective (the VLM frozen, the settings in its
+config), its ``update`` records that the checkpoint was distilled, and a teacher written as its student is the
+teacher, refusing the jump by name, until it is."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from importlib.metadata import version
+from pathlib import Path
+
+import pytest
+import torch
+
+pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test command; this environment lacks it")
+
+from packaging.version import Version  # noqa: E402
+
+from snapflow.adapters.lerobot.base import lerobot_time_sampler  # noqa: E402
+from snapflow.flow.modes import SamplingMode  # noqa: E402
+from snapflow.flow.solver import sample_actions  # noqa: E402
+from tests.lerobot_tiny import build_tiny_smolvla, lerobot_sample, tiny_batch  # noqa: E402
+
+PLUGINS = pytest.mark.skipif(
+    Version(version("lerobot")) < Version("0.5"),
+    reason="lerobot-train imports third-party policies from lerobot 0.5 on",
+)
+
+
+def _student(vlm_directory, **fields):
+    from snapflow.adapters.lerobot.plugin import student_config, student_policy
+
+    teacher = build_tiny_smolvla(vlm_directory)
+    config = student_config(teacher.config)
+    for name, value in fields.items():
+        setattr(config, name, value)
+    student = student_policy("smolvla")(config)
+    student.load_state_dict(teacher.state_dict(), strict=False)  # phi_s stays at zero: the teacher
+    return student
+
+
+def test_the_student_types_forward_is_snapflows_objective_on_the_same_batch_and_generator(vlm_directory):
+    from snapflow.training.lerobot_student import config_settings
+
+    student = _student(vlm_directory, distill_consistency_weight=3.0, distill_target_steps=4)
+    batch = tiny_batch(batch_size=6)
+    loss, logs = student.forward(dict(batch), generator=torch.Generator().manual_seed(7))
+    loss.backward()
+    gradients = {
+        name: parameter.grad.clone() for name, parameter in student.named_parameters() if parameter.requires_grad
+    }
+    student.zero_grad()
+
+    settings = config_settings(student.config)
+    assert (settings.consistency_weight, settings.target_steps) == (3.0, 4)
+    objective = settings.objective(lerobot_time_sampler(student.config))
+    expected = objective(
+        student.snapflow, dict(batch), student.prepare_action(batch), generator=torch.Generator().manual_seed(7)
+    )
+    expected.loss.backward()
+    assert torch.equal(loss, expected.loss)
+    assert logs == {
+        "flow_matching_loss": expected.flow_matching_loss.item(),
+        "consistency_loss": expected.consistency_loss.item(),
+    }
+    assert expected.num_consistency == 3 and expected.consistency_loss > 0
+    for name, parameter in student.named_parameters():
+        if parameter.requires_grad:
+            assert torch.equal(gradients[name], parameter.grad), name
+
+    # what lerobot-train optimises: the action expert and phi_s, as snapflow distils; the VLM does not require grad
+    trainable = {id(parameter) for parameter in student.snapflow.expert_parameters()}
+    assert {id(parameter) for parameter in student.get_optim_params()} == trainable
+    assert {id(parameter) for parameter in student.parameters() if parameter.requires_grad} == trainable
+    assert not any(parameter.requires_grad for parameter in student.model.vlm_with_expert.vlm.parameters())
+    with pytest.raises(ValueError, match="reduction='none'"):
+        student.forward(dict(batch), reduction="none")
+
+
+def test_update_labels_the_checkpoint_distilled_only_after_a_step_of_the_one_step_objective(vlm_directory):
+    from snapflow.adapters.lerobot.plugin.modeling_snapflow import NotDistilledError
+
+    batch = tiny_batch()
+    student = _student(vlm_directory, distilled=False)
+    with pytest.raises(NotDistilledError, match=r"not distilled .* \(sampling_mode=teacher-10\)"):
+        student.predict_action_chunk(dict(batch))
+    student.forward(dict(batch))[0].backward()
+    student.update()  # lerobot-train, after the optimiser step
+    assert student.config.distilled is True
+    assert student.predict_action_chunk(dict(batch)).shape == (4, 4, 4)
+
+    # flow matching alone (alpha 1) trains no jump, and phi_s drifts at s = t: the label goes
+    student.config.distill_alpha = 1.0
+    student.forward(dict(batch))[0].backward()
+    student.update()
+    assert student.config.distilled is False
+
+
+def _save_teacher(vlm_directory, directory: Path) -> Path:
+    from lerobot.policies.factory import make_pre_post_processors
+
+    teacher = build_tiny_smolvla(vlm_directory)
+    teacher.save_pretrained(directory)
+    stats = {"observation.state": {"mean": torch.zeros(6), "std": torch.ones(6)}}
+    stats["action"] = {"mean": torch.zeros(4), "std": torch.ones(4)}
+    for processor in make_pre_post_processors(teacher.config, dataset_stats=stats):
+        processor.save_pretrained(directory)
+    return directory
+
+
+def test_a_teacher_written_as_its_student_is_the_teacher_until_distilled(vlm_directory, tmp_path, capsys):
+    from snapflow.adapters.lerobot import save_distilled, wrap_policy
+    from snapflow.adapters.lerobot.plugin import student_policy
+
+    SnapFlowSmolVLAPolicy = student_policy("smolvla")  # noqa: N806
+    from snapflow.adapters.lerobot.plugin.modeling_snapflow import NotDistilledError
+    from snapflow.cli import main
+    from snapflow.training.lerobot_student import student_fields
+    from snapflow.training.recipes import DistillSettings
+
+    teacher = _save_teacher(vlm_directory, tmp_path / "teacher")
+    student_folder = tmp_path / "student"
+    arguments = ["distill", "--policy", str(teacher), "--lerobot-train", "--output", str(student_folder)]
+    assert main([*arguments, "--recipe", "snapflow"]) == 0
+    saved = json.loads((student_folder / "config.json").read_text())
+    assert saved["type"] == "snapflow_smolvla" and saved["distilled"] is False
+    assert saved["distill_consistency_weight"] == 3.0, "snapflow's recipe: lambda 3"
+    assert (student_folder / "policy_preprocessor.json").is_file()
+
+    student = SnapFlowSmolVLAPolicy.from_pretrained(student_folder)
+    batch, noise = tiny_batch(), torch.randn(4, 4, 4, generator=torch.Generator().manual_seed(3))
+    with pytest.raises(NotDistilledError):
+        student.predict_action_chunk(dict(batch), noise=noise)
+    student.config.sampling_mode = "teacher-10"  # read at every chunk
+    plain = build_tiny_smolvla(vlm_directory)
+    assert torch.allclose(
+        student.predict_action_chunk(dict(batch), noise=noise), lerobot_sample(plain, batch, noise, 10)
+    )
+
+    # snapflow's own distillation labels what it saves; a folder written before the label existed still samples
+    save_distilled(wrap_policy(build_tiny_smolvla(vlm_directory)), tmp_path / "distilled")
+    assert json.loads((tmp_path / "distilled" / "config.json").read_text())["distilled"] is True
+    older = json.loads((tmp_path / "distilled" / "config.json").read_text())
+    del older["distilled"]
+    (tmp_path / "distilled" / "config.json").write_text(json.dumps(older))
+    assert SnapFlowSmolVLAPolicy.from_pretrained(tmp_path / "distilled").config.mode.jump
+
+    with pytest.raises(ValueError, match="only alpha, consistency_weight"):
+        student_fields(DistillSettings(target="bootstrap"))
+    assert main([*arguments, "--steps", "10"]) == 2
+    assert "give steps to lerobot-train" in capsys.readouterr().err
+
+
+def _held_out_distances(root: Path, checkpoint: Path) -> dict[str, float]:
+    """Mean squared distances on a dataset neither run saw, from the same noise: the checkpoint's one jump and the
+    teacher's naive step, each to the teacher's 10-step actions."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    from lerobot.policies.factory import make_pre_post_processors
+    from torch.utils.data import default_collate
+
+    from snapflow.adapters.lerobot.plugin import student_policy
+
+    SnapFlowSmolVLAPolicy = student_policy("smolvla")  # noqa: N806
+    from snapflow.adapters.lerobot.registry import load_pretrained_policy, wrap_policy
+
+    student = SnapFlowSmolVLAPolicy.from_pretrained(checkpoint).snapflow
+    teacher = wrap_policy(load_pretrained_policy(str(root / "teacher" / "lerobot_policy")))
+    preprocessor, _ = make_pre_post_processors(student.policy.config, pretrained_path=str(checkpoint))
+    held_out = LeRobotDataset("local/held", root=root / "held")
+    batch = preprocessor(default_collate([held_out[index] for index in range(len(held_out))]))
+    noise = torch.randn(len(held_out), 4, 4, generator=torch.Generator().manual_seed(0))
+    actions = {
+        name: sample_actions(policy, batch, noise, SamplingMode.parse(mode))
+        for name, policy, mode in [
+            ("teacher", teacher, "teacher-10"),
+            ("naive", teacher, "naive-1"),
+            ("snapflow", student, "snapflow-1"),
+        ]
+    }
+    return {name: (actions[name] - actions["teacher"]).pow(2).mean().item() for name in ("naive", "snapflow")}
+
+
+@pytest.mark.slow
+@PLUGINS
+def test_lerobot_train_on_a_student_type_distils_a_tiny_smolvla(tmp_path):
+    from snapflow.training.config import TrainConfig
+    from snapflow.training.lerobot import train_smolvla_teacher
+    from snapflow.training.lerobot_student import write_student
+    from tests.lerobot_tiny import write_tiny_dataset
+
+    data = write_tiny_dataset(tmp_path / "data", episodes=6, frames=16, bimodal=True)
+    write_tiny_dataset(tmp_path / "held", repo_id="local/held", episodes=2, frames=16, bimodal=True, seed=1)
+    training = TrainConfig(steps=300, batch_size=16, learning_rate=1e-3, warmup_steps=20, checkpoint_every=1000)
+    train_smolvla_teacher(data, "local/tiny", tmp_path / "teacher", training, chunk_size=4, val_fraction=0.0)
+    student = write_student(str(tmp_path / "teacher" / "lerobot_policy"), tmp_path / "student")
+    steps = 200
+    finished = subprocess.run(
+        [
+            str(Path(sys.executable).with_name("lerobot-train")),
+            f"--policy.path={student}",
+            "--dataset.repo_id=local/tiny",
+            f"--dataset.root={data}",
+            f"--output_dir={tmp_path / 'run'}",
+            f"--steps={steps}",
+            "--batch_size=16",
+            "--num_workers=0",
+            f"--save_freq={steps}",
+            "--wandb.enable=false",
+            "--policy.device=cpu",
+            "--policy.push_to_hub=false",
+            "--policy.optimizer_lr=1e-3",
+            "--policy.scheduler_warmup_steps=20",
+            f"--policy.scheduler_decay_steps={steps}",
+        ],
+        env={**os.environ, "HF_HUB_OFFLINE": "1"},
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    assert finished.returncode == 0, finished.stderr[-3000:]
+    assert "consistency_loss" in finished.stderr, "LeRobot logs the objective's parts"
+    checkpoint = tmp_path / "run" / "checkpoints" / "last" / "pretrained_model"
+    assert json.loads((checkpoint / "config.json").read_text())["distilled"] is True
+    distances = _held_out_distances(tmp_path, checkpoint)
+    assert distances["snapflow"] < 0.85 * distances["naive"], distances
