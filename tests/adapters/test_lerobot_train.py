@@ -160,12 +160,10 @@ def _held_out_distances(root: Path, checkpoint: Path) -> dict[str, float]:
     from lerobot.policies.factory import make_pre_post_processors
     from torch.utils.data import default_collate
 
+    from snapflow.adapters.lerobot import load_pretrained_policy, wrap_policy
     from snapflow.adapters.lerobot.plugin import student_policy
 
-    SnapFlowSmolVLAPolicy = student_policy("smolvla")  # noqa: N806
-    from snapflow.adapters.lerobot.registry import load_pretrained_policy, wrap_policy
-
-    student = SnapFlowSmolVLAPolicy.from_pretrained(checkpoint).snapflow
+    student = student_policy("smolvla").from_pretrained(checkpoint).snapflow
     teacher = wrap_policy(load_pretrained_policy(str(root / "teacher" / "lerobot_policy")))
     preprocessor, _ = make_pre_post_processors(student.policy.config, pretrained_path=str(checkpoint))
     held_out = LeRobotDataset("local/held", root=root / "held")
