@@ -10,6 +10,7 @@ import os
 import subprocess
 import sys
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -126,7 +127,9 @@ def test_cameras_are_rendered_only_when_asked_and_rotated_as_lerobot_shows_them(
     observation = eval_env.reset(0)
     assert observation.image.shape == (32, 32, 3) and observation.image.dtype == np.uint8
     assert set(observation.extra_images) == {"image2"} and observation.extra_images["image2"].shape == (32, 32, 3)
-    frame = eval_env._env.env.sim.render(camera_name="agentview", width=32, height=32)
+    sim = eval_env._env.env.sim
+    assert not sim._render_context_offscreen.scn.flags[mujoco.mjtRndFlag.mjRND_REFLECTION]  # rendered cheaply
+    frame = sim.render(camera_name="agentview", width=32, height=32)
     np.testing.assert_array_equal(observation.image, frame[::-1, ::-1])
     assert not np.array_equal(observation.image, observation.extra_images["image2"])
     stepped, success, done = eval_env.step(np.zeros(7))
@@ -158,6 +161,7 @@ def test_demonstrations_start_from_seeded_resets_never_the_evaluation_states():
             observation = env.reset(seed)
             assert observation.privileged["akita_black_bowl_1_pos"][2] > 0.92  # the table's top is at 0.90
             assert observation.image.shape == (32, 32, 3) and observation.image.std() > 10  # rendered after a reload
+            assert not env._env.env.sim._render_context_offscreen.scn.flags[mujoco.mjtRndFlag.mjRND_REFLECTION]
     finally:
         env.close()
 
