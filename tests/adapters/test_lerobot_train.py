@@ -223,3 +223,12 @@ def test_lerobot_train_on_a_student_type_distils_a_tiny_smolvla(tmp_path):
     assert json.loads((checkpoint / "config.json").read_text())["distilled"] is True
     distances = _held_out_distances(tmp_path, checkpoint)
     assert distances["snapflow"] < 0.85 * distances["naive"], distances
+
+    # lerobot-train writes no snapflow.json: snapflow's own tools open the checkpoint as the distilled student
+    from snapflow.flow.modes import SNAPFLOW_1
+    from snapflow.sources import open_policy
+
+    opened = open_policy(checkpoint)
+    assert opened.distilled and opened.policy_type == "snapflow_smolvla"
+    opened.check_mode(SNAPFLOW_1)
+    assert not opened.policy.policy.model.target_time_embedding.linear_out.weight.eq(0).all(), "phi_s was loaded"

@@ -151,7 +151,8 @@ class LoadedLeRobotPolicy(OpenedPolicy):
 
     @property
     def distilled(self) -> bool:
-        return bool(self.marker.get("target_time"))
+        # a lerobot-train checkpoint has no snapflow marker: its student config's own label says it
+        return bool(self.marker.get("target_time") or getattr(self.config, "distilled", False))
 
     @property
     def description(self) -> dict[str, Any]:
