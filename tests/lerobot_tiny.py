@@ -118,9 +118,15 @@ def tiny_pi_configs(policy_type: str) -> Iterator[None]:
         module.get_gemma_config, module.CONFIG_MAPPING, projector.__init__ = original
 
 
-def build_tiny_pi(policy_type: str, seed: int = 0):
+def build_tiny_pi(
+    policy_type: str,
+    seed: int = 0,
+    state_dim: int = 6,
+    image_key: str = "observation.images.top",
+    image_size: int = PI_IMAGE_SIZE,
+):
     """A random LeRobot PI0Policy ("pi0") or PI05Policy ("pi05") at tiny size (about 40M parameters, nearly all
-    in the 257k-token embedding tables)."""
+    in the 257k-token embedding tables); its camera's frames of ``image_size`` are resized to 28 px inside."""
     from lerobot.configs.types import FeatureType, PolicyFeature
     from lerobot.policies.factory import get_policy_class, make_policy_config
 
@@ -131,8 +137,8 @@ def build_tiny_pi(policy_type: str, seed: int = 0):
         **TINY_POLICY_SIZES,
         dtype="float32",
         input_features={
-            "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(6,)),
-            "observation.images.top": PolicyFeature(type=FeatureType.VISUAL, shape=(3, PI_IMAGE_SIZE, PI_IMAGE_SIZE)),
+            "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(state_dim,)),
+            image_key: PolicyFeature(type=FeatureType.VISUAL, shape=(3, image_size, image_size)),
         },
         output_features={"action": PolicyFeature(type=FeatureType.ACTION, shape=(4,))},
     )
@@ -210,6 +216,35 @@ def save_tiny_student(
     save_distilled(randomise_target_time(wrap_policy(policy)), directory)
     stats = {"observation.state": {"mean": torch.zeros(state_dim), "std": torch.ones(state_dim)}}
     stats["action"] = {"mean": torch.zeros(4), "std": torch.ones(4)}
+    for processor in make_pre_post_processors(policy.config, dataset_stats=stats):
+        processor.save_pretrained(directory)
+    return directory
+
+
+def save_tiny_pi_student(
+    policy_type: str,
+    vlm_directory: Path,
+    directory: Path,
+    state_dim: int = 6,
+    image_key: str = "observation.images.top",
+    image_size: int = PI_IMAGE_SIZE,
+) -> Path:
+    """A distilled tiny pi0 / pi0.5 (phi_s non-zero; by default a 6-D state and one ``observation.images.top``) saved
+    by snapflow with processors of unit statistics (quantiles too, which pi0.5 normalises by); its tokenizer,
+    PaliGemma's hub id, is the tiny one cached under that id. Loading it back needs :func:`tiny_pi_configs`."""
+    from lerobot.policies.factory import make_pre_post_processors
+
+    from snapflow.adapters.lerobot import save_distilled, wrap_policy
+
+    cache_as_hub_repo(vlm_directory, "google/paligemma-3b-pt-224")
+    policy = build_tiny_pi(policy_type, state_dim=state_dim, image_key=image_key, image_size=image_size)
+    with tiny_pi_configs(policy_type):
+        save_distilled(randomise_target_time(wrap_policy(policy)), directory)
+    unit = {"mean": 0.0, "std": 1.0, "min": -1.0, "max": 1.0, "q01": -1.0, "q99": 1.0, "q10": -0.5, "q90": 0.5}
+    stats = {
+        key: {name: torch.full((dim,), value) for name, value in unit.items()}
+        for key, dim in (("observation.state", state_dim), ("action", 4))
+    }
     for processor in make_pre_post_processors(policy.config, dataset_stats=stats):
         processor.save_pretrained(directory)
     return directory

@@ -167,6 +167,49 @@ def test_lerobot_eval_runs_the_distilled_student_in_metaworld(vlm_directory, tmp
     assert info["overall"]["n_episodes"] == 2 and 0 <= info["overall"]["pc_success"] <= 100
 
 
+@pytest.mark.slow
+@PLUGINS
+@pytest.mark.parametrize("policy_type", ["pi0", "pi05"])
+def test_lerobot_eval_runs_a_distilled_pi_student_in_metaworld(policy_type, vlm_directory, tmp_path, monkeypatch):
+    """LeRobot's own ``lerobot-eval`` entry point, in this process: a tiny pi policy loads only while its PaliGemma
+    config builders are swapped for tiny ones, which a subprocess would not have (it would build the 2B model)."""
+    from lerobot.envs import metaworld as lerobot_metaworld
+    from lerobot.scripts import lerobot_eval
+
+    from tests.lerobot_tiny import save_tiny_pi_student, tiny_pi_configs
+
+    # the features LeRobot's Meta-World env gives: a 4-D agent state and one 480-px observation.image
+    student = save_tiny_pi_student(policy_type, vlm_directory, tmp_path / "student", 4, "observation.image", 480)
+    assert json.loads((student / "config.json").read_text())["type"] == f"snapflow_{policy_type}"
+    arguments = [f"--policy.path={student}", "--policy.device=cpu", "--env.type=metaworld", "--env.task=reach-v3"]
+    arguments += ["--eval.n_episodes=1", "--eval.batch_size=1"]
+    monkeypatch.setattr(sys, "argv", ["lerobot-eval", *arguments, f"--output_dir={tmp_path / 'eval'}"])
+    monkeypatch.setenv("MUJOCO_GL", os.environ.get("MUJOCO_GL", "egl"))
+    # LeRobot's Meta-World episode is 500 steps whatever --env.episode_length says: 16 show the chunks as well
+    init = lerobot_metaworld.MetaworldEnv.__init__
+    monkeypatch.setattr(lerobot_metaworld.MetaworldEnv, "__init__", _with(init, _max_episode_steps=16))
+    with tiny_pi_configs(policy_type):
+        model_class = type(load_distilled(student).policy.model)
+        passes = []
+        denoise_step = model_class.denoise_step
+        monkeypatch.setattr(model_class, "denoise_step", lambda *a, **k: passes.append(1) or denoise_step(*a, **k))
+        lerobot_eval.main()
+    info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
+    assert info["overall"]["n_episodes"] == 1 and 0 <= info["overall"]["pc_success"] <= 100
+    n_action_steps = json.loads((student / "config.json").read_text())["n_action_steps"]
+    assert len(passes) == -(-16 // n_action_steps), "one denoising pass a chunk: the distilled one-step student"
+
+
+def _with(init, **attributes):
+    """``init`` followed by setting ``attributes`` on the new object."""
+
+    def patched(self, *args, **kwargs) -> None:
+        init(self, *args, **kwargs)
+        vars(self).update(attributes)
+
+    return patched
+
+
 @PLUGINS
 @pytest.mark.parametrize("base_type", ["smolvla", "pi0", "pi05"])
 def test_each_student_type_resolves_as_lerobots_own_policy_tests_expect(base_type):

@@ -1,13 +1,15 @@
-"""``snapflow serve``: LeRobot's own async-inference policy server serves a distilled student to a client made of
-LeRobot's own gRPC types, one denoising pass a chunk (ten as its teacher), and refuses the student asked for under
-its teacher's type instead of dropping phi_s."""
+"""``snapflow serve``: LeRobot's own async-inference policy server serves a distilled student (SmolVLA, pi0, pi0.5)
+to a client made of LeRobot's own gRPC types, one denoising pass a chunk (ten as its teacher), and refuses the student
+asked for under its teacher's type instead of dropping phi_s."""
 
 from __future__ import annotations
 
 import pickle
 import socket
 import time
+from dataclasses import dataclass
 from importlib.metadata import version
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -26,9 +28,31 @@ from lerobot.transport.utils import send_bytes_in_chunks  # noqa: E402
 from lerobot.utils.feature_utils import hw_to_dataset_features  # noqa: E402
 
 from snapflow.adapters.lerobot.serve import start_server  # noqa: E402
-from tests.lerobot_tiny import IMAGE_SIZE, save_tiny_student  # noqa: E402
+from tests.lerobot_tiny import (  # noqa: E402
+    IMAGE_SIZE,
+    PI_IMAGE_SIZE,
+    save_tiny_pi_student,
+    save_tiny_student,
+    tiny_pi_configs,
+)
 
-JOINTS = ("shoulder.pos", "elbow.pos", "wrist.pos", "gripper.pos")  # a robot's 4 motors: the student's 4-D state
+JOINTS = ("shoulder.pos", "elbow.pos", "wrist.pos", "wrist_roll.pos", "forearm.pos", "gripper.pos")
+
+
+@dataclass(frozen=True)
+class Served:
+    """A saved tiny student and what a robot client sends it: one motor per state dimension and one camera."""
+
+    base_type: str
+    folder: Path
+    joints: tuple[str, ...]
+    camera: str
+    image_size: int
+
+    @property
+    def features(self) -> dict:
+        robot = {**dict.fromkeys(self.joints, float), self.camera: (self.image_size, self.image_size, 3)}
+        return hw_to_dataset_features(robot, "observation")
 
 
 def _free_port() -> int:
@@ -37,29 +61,34 @@ def _free_port() -> int:
         return probe.getsockname()[1]
 
 
-@pytest.fixture(scope="module")
-def student(vlm_directory, tmp_path_factory):
-    folder = tmp_path_factory.mktemp("serve") / "student"
-    return save_tiny_student(vlm_directory, folder, image_key="observation.images.front", image_size=IMAGE_SIZE)
+@pytest.fixture(scope="module", params=["smolvla", "pi0", "pi05"])
+def student(request, vlm_directory, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("serve") / request.param
+    if request.param == "smolvla":  # a 4-D state, one front camera
+        save_tiny_student(vlm_directory, folder, image_key="observation.images.front", image_size=IMAGE_SIZE)
+        yield Served("smolvla", folder, JOINTS[:4], "front", IMAGE_SIZE)
+        return
+    save_tiny_pi_student(request.param, vlm_directory, folder)  # a 6-D state, one top camera
+    with tiny_pi_configs(request.param):  # the server loads it in this process
+        yield Served(request.param, folder, JOINTS, "top", PI_IMAGE_SIZE)
 
 
-def _chunk(stub, policy_server, student, sampling_mode: str, actions_per_chunk: int = 4) -> tuple[list, int]:
+def _chunk(stub, policy_server, student: Served, sampling_mode: str, actions_per_chunk: int = 4) -> tuple[list, int]:
     """What LeRobot's robot client does, with its own types: policy instructions, one observation, one chunk back;
     and how many denoising passes the server's policy ran for it."""
-    features = hw_to_dataset_features(
-        {**dict.fromkeys(JOINTS, float), "front": (IMAGE_SIZE, IMAGE_SIZE, 3)}, "observation"
-    )
-    config = student / "config.json"
+    config = student.folder / "config.json"
     config.write_text(
         config.read_text().replace('"snapflow-1"', f'"{sampling_mode}"').replace('"teacher-10"', f'"{sampling_mode}"')
     )
-    specs = RemotePolicyConfig("snapflow_smolvla", str(student), features, actions_per_chunk, "cpu")
+    specs = RemotePolicyConfig(
+        f"snapflow_{student.base_type}", str(student.folder), student.features, actions_per_chunk, "cpu"
+    )
     stub.SendPolicyInstructions(services_pb2.PolicySetup(data=pickle.dumps(specs)))
     model, calls = policy_server.policy.model, []
     denoise_step = model.denoise_step
     model.denoise_step = lambda *args, **kwargs: calls.append(1) or denoise_step(*args, **kwargs)
-    raw = {joint: 0.1 * index for index, joint in enumerate(JOINTS)}
-    raw |= {"front": np.zeros((IMAGE_SIZE, IMAGE_SIZE, 3), np.uint8), "task": "reach the red block"}
+    raw = {joint: 0.1 * index for index, joint in enumerate(student.joints)}
+    raw |= {student.camera: np.zeros((student.image_size,) * 2 + (3,), np.uint8), "task": "reach the red block"}
     observation = TimedObservation(timestamp=time.time(), observation=raw, timestep=0, must_go=True)
     stub.SendObservations(send_bytes_in_chunks(pickle.dumps(observation), services_pb2.Observation))
     actions = pickle.loads(stub.GetActions(services_pb2.Empty()).data)  # nosec - our own server's answer
@@ -88,15 +117,12 @@ def test_a_student_asked_for_under_its_teachers_type_is_refused_by_name(student,
     monkeypatch.chdir(tmp_path)  # LeRobot's server writes its logs/ into the working directory
     port = _free_port()
     server, _ = start_server(PolicyServerConfig(host="127.0.0.1", port=port))
-    features = hw_to_dataset_features(
-        {**dict.fromkeys(JOINTS, float), "front": (IMAGE_SIZE, IMAGE_SIZE, 3)}, "observation"
-    )
     try:
         with grpc.insecure_channel(f"127.0.0.1:{port}") as channel:
             stub = services_pb2_grpc.AsyncInferenceStub(channel)
             stub.Ready(services_pb2.Empty())
-            specs = RemotePolicyConfig("smolvla", str(student), features, 4, "cpu")
-            with pytest.raises(grpc.RpcError, match="holds a SnapFlow student distilled from smolvla"):
+            specs = RemotePolicyConfig(student.base_type, str(student.folder), student.features, 4, "cpu")
+            with pytest.raises(grpc.RpcError, match=f"holds a SnapFlow student distilled from {student.base_type}"):
                 stub.SendPolicyInstructions(services_pb2.PolicySetup(data=pickle.dumps(specs)))
     finally:
         server.stop(0)
