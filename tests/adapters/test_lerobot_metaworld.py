@@ -73,6 +73,30 @@ def test_a_dataset_root_is_never_written_over(collected):
 
 
 @pytest.mark.slow
+def test_demonstrations_already_in_the_output_are_written_as_a_dataset_not_collected_again(collected, tmp_path):
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    data = collected / "data"
+    written = {path.name: path.stat().st_mtime_ns for path in data.iterdir()}
+    command = [sys.executable, "-m", "snapflow.cli", "collect", "--tasks", "reach-v3,button-press-topdown-v3"]
+    command += ["--image-size", str(IMAGE_SIZE), "--output", str(data), "--no-progress", "--lerobot-dataset"]
+
+    other = subprocess.run([*command, str(tmp_path / "other"), "--episodes", "3"], capture_output=True, text=True)
+    assert other.returncode == 2
+    assert "already holds other demonstrations (metaworld, 2 tasks, [2] episodes a task, images 32)" in other.stderr
+    assert not (tmp_path / "other").exists()
+
+    same = subprocess.run([*command, str(tmp_path / "lerobot"), "--episodes", "2"], capture_output=True, text=True)
+    assert same.returncode == 0, same.stderr
+    assert f"wrote the 4 expert episodes in {data} as a LeRobotDataset" in same.stdout
+    assert {path.name: path.stat().st_mtime_ns for path in data.iterdir()} == written, "nothing collected again"
+    again = LeRobotDataset("local/lerobot", root=tmp_path / "lerobot").hf_dataset.with_format("numpy")
+    first = LeRobotDataset("local/lerobot", root=collected / "lerobot").hf_dataset.with_format("numpy")
+    for column in ("observation.state", "action", "episode_index"):
+        np.testing.assert_array_equal(np.stack(again[column]), np.stack(first[column]))
+
+
+@pytest.mark.slow
 def test_the_chain_trains_distills_and_evaluates_a_lerobot_smolvla(collected):
     from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
 

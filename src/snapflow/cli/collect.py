@@ -8,6 +8,7 @@ from typing import Any
 
 from snapflow.cli.common import COUNT, TASKS_HELP, add_command, add_output, check_writable, tasks
 from snapflow.data.collect import EPISODES_PER_TASK
+from snapflow.data.demonstrations import META_FILE, Demonstrations
 from snapflow.envs.factory import BENCHMARKS, DEFAULT_BENCHMARK, make_benchmark
 
 
@@ -30,7 +31,8 @@ def add_parser(subparsers: Any) -> None:
     parser.add_argument(
         "--lerobot-dataset",
         metavar="ROOT",
-        help="also write them as a LeRobotDataset at this (new) root, with LeRobot's writer (needs snapflow-vla[lerobot])",
+        help="also write them as a LeRobotDataset at this (new) root, with LeRobot's writer (needs "
+        "snapflow-vla[lerobot]); demonstrations of the same collection already in --output are written, not collected again",
     )
     parser.add_argument("--repo-id", help="the LeRobotDataset's repo id (default: local/<ROOT's folder name>)")
 
@@ -46,11 +48,22 @@ def run(args: argparse.Namespace) -> int:
     from snapflow.data.collect import collect
 
     progress = not args.no_progress
-    demonstrations = collect(benchmark, chosen, args.episodes, args.output, args.image_size, progress)
+    collected = args.lerobot_dataset and (Path(args.output) / META_FILE).is_file()
+    if collected:  # an export that did not finish, or the same demonstrations wanted as a LeRobotDataset
+        demonstrations = Demonstrations.load(args.output)
+        _check_same_collection(demonstrations, args.output, benchmark.name, chosen, args.episodes, args.image_size)
+    else:
+        demonstrations = collect(benchmark, chosen, args.episodes, args.output, args.image_size, progress)
     if args.lerobot_dataset:
         write_lerobot_dataset(
             demonstrations, args.lerobot_dataset, args.repo_id, benchmark.fps, benchmark.camera, progress
         )
+    if collected:
+        print(
+            f"wrote the {len(demonstrations.episodes)} expert episodes in {args.output} as a LeRobotDataset to "
+            f"{args.lerobot_dataset}"
+        )
+        return 0
     also = f" and as a LeRobotDataset to {args.lerobot_dataset}" if args.lerobot_dataset else ""
     print(
         f"wrote {len(demonstrations.episodes)} successful expert episodes ({len(demonstrations.states)} steps) "
@@ -59,9 +72,30 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _interrupted(args: argparse.Namespace) -> str:
-    from snapflow.data.demonstrations import META_FILE
+def _check_same_collection(
+    demonstrations: Demonstrations,
+    output: str,
+    env: str,
+    tasks: list[str],
+    episodes: int,
+    image_size: int | None,
+) -> None:
+    """Refuse demonstrations in ``output`` that another collection made: writing them would not give what the
+    command asks for."""
+    size = demonstrations.images.shape[1] if demonstrations.images is not None else None
+    per_task = {task: sum(e.task == task for e in demonstrations.episodes) for task in demonstrations.tasks}
+    found = (demonstrations.env, demonstrations.tasks, set(per_task.values()), size)
+    if found != (env, tasks, {episodes}, image_size):
+        raise FileExistsError(
+            f"{output} already holds other demonstrations ({demonstrations.env}, {len(per_task)} tasks, "
+            f"{sorted(set(per_task.values()))} episodes a task, images {size or 'none'}); choose another --output"
+        )
 
+
+def _interrupted(args: argparse.Namespace) -> str:
     if args.lerobot_dataset and (Path(args.output) / META_FILE).is_file():
-        return f"interrupted; the demonstrations are saved in {args.output}, no LeRobotDataset was written"
+        return (
+            f"interrupted; the demonstrations are saved in {args.output}, no LeRobotDataset was written "
+            "(the same command writes it from them)"
+        )
     return f"interrupted; no demonstrations were saved in {args.output}"
