@@ -107,11 +107,12 @@ def replace_block(document: str, key: str, body: str) -> str:
 
 
 def markdown_blocks(config: SweepConfig, results: dict[str, TableResult], directory: Path) -> dict[str, str]:
-    """Each table's block (``sweep-name/table-name`` -> Markdown) for a file in ``directory``, which links its plot."""
+    """Each finished table's block (``sweep-name/table-name`` -> Markdown) for a file in ``directory``, which links its
+    plot; tables not in ``results`` yet have none."""
     command = f"snapflow sweep {config.source.as_posix()}"
     link = Path(os.path.relpath(config.results_dir, directory)).as_posix()
     blocks = {}
-    for table in config.tables:
+    for table in (table for table in config.tables if table.name in results):
         key = f"{config.name}/{table.name}"
         body = markdown_rows(config, results[table.name], command)
         if table.per_task:

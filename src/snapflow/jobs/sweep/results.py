@@ -23,20 +23,18 @@ def write_results(
     into ``document`` (between their markers) if given. Returns the content of ``results.json``.
 
     ``tables``: rebuild only these from their evaluations; every other table is read back from the results.json
-    already there and kept as it is (a FileNotFoundError names one it lacks). Raises FileNotFoundError naming the
-    first evaluation not done when a rebuilt table has not run to the end.
+    already there and kept as it is, or left out if it has none yet (a sweep whose tables finish sessions apart).
+    Raises FileNotFoundError naming the first evaluation not done when a rebuilt table has not run to the end.
     """
     rebuilt = config.table_names(tables)
     stored = config.results_dir / "results.json"
     earlier = json.loads(stored.read_text())["tables"] if stored.is_file() and len(rebuilt) < len(config.tables) else {}
-    for table in config.tables:
-        if table.name not in rebuilt and table.name not in earlier:
-            raise FileNotFoundError(f"{stored} holds no table {table.name!r} to keep: run it too, or the whole sweep")
     results = {
         table.name: table_results(config, table)
         if table.name in rebuilt
         else TableResult.from_dict(earlier[table.name])
         for table in config.tables
+        if table.name in rebuilt or table.name in earlier
     }
     for name in rebuilt:
         plot_table(results[name], config.results_dir / f"{name}.png")
