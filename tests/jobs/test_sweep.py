@@ -14,7 +14,7 @@ from typing import Any, ClassVar
 import pytest
 
 from snapflow.cli import main
-from snapflow.jobs.runner import Job, is_done, read_record, run_jobs, write_record
+from snapflow.jobs.runner import Job, is_done, read_record, run_jobs, to_run, write_record
 from snapflow.jobs.sweep import (
     CollectJob,
     DataJob,
@@ -443,6 +443,25 @@ class LogJob(Job):
 
     def describe(self) -> str:
         return f"log {self.value}"
+
+
+@dataclass(frozen=True)
+class StageJob(LogJob):
+    """A log job that reads others' outputs."""
+
+    needs: tuple[Job, ...] = ()
+
+    @property
+    def dependencies(self) -> tuple[Job, ...]:
+        return self.needs
+
+
+def test_a_teachers_evaluation_runs_before_its_students_training(tmp_path):
+    teacher = StageJob(tmp_path / "teacher", 0)
+    student = StageJob(tmp_path / "student", 1, needs=(teacher,))
+    student_eval = StageJob(tmp_path / "student-eval", 2, needs=(student,))
+    teacher_eval = StageJob(tmp_path / "teacher-eval", 3, needs=(teacher,))
+    assert to_run([student_eval, teacher_eval]) == [teacher, teacher_eval, student, student_eval]
 
 
 @pytest.mark.slow

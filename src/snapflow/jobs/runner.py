@@ -173,7 +173,8 @@ def _copy_to_ledger(job: Job) -> None:
 
 
 def to_run(jobs: Iterable[Job]) -> list[Job]:
-    """The jobs to run, shallowest first (collect before training before evaluation): each given job whose result is
+    """The jobs to run, shallowest first (collect before training before evaluation), and at one depth the ones no
+    other job needs first (a teacher's evaluation before its students' training): each given job whose result is
     not known (:func:`is_recorded`), and the dependencies not done here of each job that runs. A job done here whose
     ledger lacks its record gets it."""
     depth: dict[Job, int] = {}
@@ -194,8 +195,10 @@ def to_run(jobs: Iterable[Job]) -> list[Job]:
 
     for job in jobs:
         visit(job, False)
-    # a stable sort: within a depth, jobs keep the order they were given in
-    return sorted(depth, key=depth.__getitem__)
+    awaited = {dependency for job in depth for dependency in job.dependencies}
+    # within a depth, the jobs nothing waits for (evaluations: results a session can commit, and the first word on
+    # a teacher) before the ones that unblock others; a stable sort keeps the given order within each
+    return sorted(depth, key=lambda job: (depth[job], job in awaited))
 
 
 def run_jobs(
