@@ -3,12 +3,16 @@
 # trained by flow matching (LeRobot's SmolVLAPolicy over a small SmolVLM written locally), its SnapFlow student,
 # then teacher 10-NFE, naive 1-NFE and SnapFlow 1-NFE closed loop on the benchmark's evaluation variations with
 # offline metrics and batch-1 latency. BENCH picks the benchmark: mt10 (Meta-World MT10, state and one camera;
-# docs/results/lerobot-smolvla-mt10/) or libero (two LIBERO-Spatial tasks, 8-D state and two cameras, evaluated on
-# LIBERO's fixed initial states by snapflow's evaluator and again by LeRobot's own LIBERO environment).
+# docs/results/lerobot-smolvla-mt10/) or libero (LIBERO-Spatial's ten tasks, 8-D state and two 128-px cameras,
+# evaluated on LIBERO's first 10 fixed initial states a task by snapflow's evaluator and again in LeRobot's own LIBERO
+# environment: by LeRobot's lerobot-eval where LeRobot loads snapflow's plugin policies (lerobot >= 0.5), else by
+# snapflow eval --lerobot-env).
 #
 #   bash scripts/lerobot-smolvla.sh [OUTPUT]              # default outputs/lerobot-smolvla-$BENCH
 #   BENCH=libero bash scripts/lerobot-smolvla.sh [OUTPUT]
-#   SHORT=1 bash scripts/lerobot-smolvla.sh OUTPUT        # two tasks, a tiny SmolVLA, a few steps: the chain only
+#   DATA=DIR ...                                          # demonstrations already collected with the same settings
+#                                                         # (a sweep's data folder): written as the dataset, not collected
+#   SHORT=1 bash scripts/lerobot-smolvla.sh OUTPUT        # one or two tasks, a tiny SmolVLA, a few steps: the chain only
 #   THREADS=1 ...                                         # torch threads, where other jobs share the cores
 #
 # Run it again after an interruption: finished stages are kept, training resumes from its last checkpoint.
@@ -19,44 +23,58 @@ options=(${THREADS:+--threads "$THREADS"})
 [ -t 2 ] || options+=(--no-progress)
 case "$bench" in
     mt10) env=metaworld tasks=mt10 short_tasks=reach-v3,button-press-topdown-v3 ;;
-    libero) env=libero tasks=libero_spatial_0,libero_spatial_1 short_tasks=libero_spatial_0 ;;
+    libero) env=libero tasks=libero_spatial short_tasks=libero_spatial_0 ;;
     *) echo "BENCH must be mt10 or libero, got $bench" >&2; exit 2 ;;
 esac
 if [ "${SHORT:-0}" = 1 ]; then
-    tasks=$short_tasks demos=2 image=32 size=tiny
+    tasks=$short_tasks demos=2 image=32 seen=32 size=tiny
     teacher=(--steps 4 --batch-size 4 --checkpoint-every 2) student=(--steps 2 --batch-size 4) episodes=1
 elif [ "$bench" = libero ]; then
-    demos=20 image=64 size=small episodes=10  # the paper's 10 initial states per task
-    teacher=(--steps 1000 --batch-size 32 --learning-rate 3e-4 --checkpoint-every 250)
-    student=(--steps 300 --batch-size 32 --learning-rate 3e-5 --warmup-steps 50 --checkpoint-every 100)
+    # the LIBERO sweeps' demonstrations (128 px), which SmolVLA reads at 64; the paper's 10 initial states a task
+    demos=50 image=128 seen=64 size=small episodes=10
+    teacher=(--steps 5000 --batch-size 32 --learning-rate 3e-4 --checkpoint-every 500)  # ~2 passes over 75,737 frames
+    student=(--steps 2000 --batch-size 32 --learning-rate 3e-5 --warmup-steps 50 --checkpoint-every 500)
 else
-    demos=30 image=64 size=small episodes=20
+    demos=30 image=64 seen=64 size=small episodes=20
     teacher=(--steps 5000 --batch-size 32 --learning-rate 3e-4 --checkpoint-every 500)
     student=(--steps 2000 --batch-size 32 --learning-rate 3e-5 --warmup-steps 50 --checkpoint-every 500)
 fi
 
+data="${DATA:-$out/data}"
 [ -f "$out/lerobot/meta/info.json" ] || {
-    rm -rf "$out/data"  # an interrupted collection saved nothing; start it again
-    snapflow collect --env "$env" --tasks "$tasks" --episodes "$demos" --image-size "$image" --output "$out/data" \
+    [ -f "$data/meta.json" ] || rm -rf "$data"  # an interrupted collection saved nothing; start it again
+    # demonstrations already in $data are written as the dataset, not collected again
+    snapflow collect --env "$env" --tasks "$tasks" --episodes "$demos" --image-size "$image" --output "$data" \
         --lerobot-dataset "$out/lerobot" "${options[@]}"
 }
 [ -f "$out/teacher/lerobot_policy/snapflow.json" ] ||
-    snapflow train --policy-type smolvla --smolvlm "$size" --image-size "$image" --dataset "$out/lerobot" \
+    snapflow train --policy-type smolvla --smolvlm "$size" --image-size "$seen" --dataset "$out/lerobot" \
         --output "$out/teacher" --resume "${teacher[@]}" "${options[@]}"
 [ -f "$out/student/lerobot_policy/snapflow.json" ] ||
     snapflow distill --policy "$out/teacher/lerobot_policy" --dataset "$out/lerobot" --recipe snapflow \
         --output "$out/student" --resume "${student[@]}" "${options[@]}"
 [ -f "$out/eval/report.json" ] ||
     snapflow eval --policy "$out/teacher/lerobot_policy=teacher-10,naive" "$out/student/lerobot_policy=snapflow-1" \
-        --env "$env" --tasks "$tasks" --episodes "$episodes" --data "$out/data" --output "$out/eval" "${options[@]}"
+        --env "$env" --tasks "$tasks" --episodes "$episodes" --data "$data" --output "$out/eval" "${options[@]}"
 if [ "$bench" = libero ]; then
     # the student again, in LeRobot's own LIBERO environment, on the same initial states: one environment per
     # episode (LeRobot's environment k starts from initial state k, and moves on by itself after a success), one
     # task at a time (a LIBERO environment with cameras holds ~850 MB)
-    for task in ${tasks//,/ }; do
-        [ -f "$out/lerobot-eval/$task/report.json" ] ||
-            snapflow eval --lerobot-env libero --env-task "$task" --policy "$out/student/lerobot_policy" \
-                --modes snapflow-1 --episodes "$episodes" --n-envs "$episodes" --n-action-steps 4 \
-                --output "$out/lerobot-eval/$task" "${options[@]}"
+    plugins=$(python -c 'import lerobot; from packaging.version import Version as V; print(int(V(lerobot.__version__) >= V("0.5")))')
+    for task in $(python -c "from snapflow.envs.factory import make_benchmark; print(*make_benchmark('libero').resolve_tasks('$tasks'))"); do
+        [ -f "$out/lerobot-eval/$task/report.json" ] || [ -f "$out/lerobot-eval/$task/eval_info.json" ] || {
+            if [ "$plugins" = 1 ]; then  # LeRobot's lerobot-eval itself, with the package's initial states
+                rm -rf "$out/lerobot-eval/$task.tmp"
+                python -m snapflow.adapters.lerobot.libero --policy.path="$out/student/lerobot_policy" \
+                    --policy.device=cpu --policy.n_action_steps=4 --env.type=libero --env.task=libero_spatial --env.task_ids="[${task##*_}]" \
+                    --env.observation_height="$image" --env.observation_width="$image" \
+                    --eval.n_episodes="$episodes" --eval.batch_size="$episodes" --eval.use_async_envs=false --output_dir="$out/lerobot-eval/$task.tmp"
+                mv "$out/lerobot-eval/$task.tmp" "$out/lerobot-eval/$task"
+            else
+                snapflow eval --lerobot-env libero --env-task "$task" --policy "$out/student/lerobot_policy" \
+                    --modes snapflow-1 --episodes "$episodes" --n-envs "$episodes" --n-action-steps 4 \
+                    --output "$out/lerobot-eval/$task" "${options[@]}"
+            fi
+        }
     done
 fi

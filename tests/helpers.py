@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import os
 import subprocess
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -82,7 +83,13 @@ def run_short_lerobot_chain(folder: Path, bench: str) -> Path:
     into ``folder``, which it returns; the chain's stderr tail is the failure message."""
     finished = subprocess.run(
         ["bash", str(Path(__file__).resolve().parents[1] / "scripts" / "lerobot-smolvla.sh"), str(folder)],
-        env={**os.environ, "SHORT": "1", "BENCH": bench},
+        # the chain's python and snapflow are this interpreter's, whichever environment is first on PATH
+        env={
+            **os.environ,
+            "SHORT": "1",
+            "BENCH": bench,
+            "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}",
+        },
         capture_output=True,
         text=True,
         stdin=subprocess.DEVNULL,

@@ -7,9 +7,11 @@ on them and its student are evaluated by snapflow's evaluator and by LeRobot's L
 from __future__ import annotations
 
 import json
+from importlib.metadata import version
 
 import numpy as np
 import pytest
+from packaging.version import Version
 
 from snapflow.data.demonstrations import Demonstrations
 from tests.helpers import run_short_lerobot_chain
@@ -18,6 +20,7 @@ pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test
 pytest.importorskip("libero")
 
 IMAGE_SIZE = 32  # the short chain's
+LEROBOT = Version(version("lerobot"))
 
 
 @pytest.fixture(scope="module")
@@ -82,13 +85,21 @@ def test_its_features_are_those_lerobots_libero_environment_gives_a_policy(colle
 def test_the_student_runs_in_snapflows_evaluator_and_in_lerobots_libero_environment(collected):
     """Both cameras reach the SmolVLA through LeRobot's processors in snapflow's evaluator (teacher, naive and
     student rows on LIBERO's first initial state), and LeRobot's own LIBERO environment, built on this package
-    through snapflow's initial-state shim, runs the student's one-step sampling."""
+    through snapflow's initial-state shim, runs the student's one-step sampling: by LeRobot's ``lerobot-eval`` where
+    LeRobot loads snapflow's plugin policies (>= 0.5), else by ``snapflow eval --lerobot-env``."""
     report = json.loads((collected / "eval" / "report.json").read_text())
     rows = report["rows"]
     assert [row["mode"] for row in rows.values()] == ["teacher-10", "naive-1", "snapflow-1"]
     for row in rows.values():
         assert set(row["success"]) == {"libero_spatial_0", "mean"} and row["success"]["mean"]["episodes"] == 1
-    lerobot = json.loads((collected / "lerobot-eval" / "libero_spatial_0" / "report.json").read_text())
+    folder = collected / "lerobot-eval" / "libero_spatial_0"
+    if LEROBOT >= Version("0.5"):  # LeRobot's lerobot-eval itself, the student's type loaded from snapflow's plugin
+        info = json.loads((folder / "eval_info.json").read_text())
+        (task,) = info["per_task"]
+        assert (task["task_group"], task["task_id"], len(task["metrics"]["successes"])) == ("libero_spatial", 0, 1)
+        assert info["overall"]["n_episodes"] == 1
+        return
+    lerobot = json.loads((folder / "report.json").read_text())
     assert (lerobot["env"], lerobot["task"], list(lerobot["modes"])) == ("libero", "libero_spatial", ["snapflow-1"])
     assert lerobot["modes"]["snapflow-1"]["nfe"] == 1
     assert lerobot["modes"]["snapflow-1"]["overall"]["n_episodes"] == 1

