@@ -60,7 +60,7 @@ if [ "$bench" = libero ]; then
     # the student again, in LeRobot's own LIBERO environment, on the same initial states: one environment per
     # episode (LeRobot's environment k starts from initial state k, and moves on by itself after a success), one
     # task at a time (a LIBERO environment with cameras holds ~850 MB)
-    plugins=$(python -c 'import lerobot; from packaging.version import Version as V; print(int(V(lerobot.__version__) >= V("0.5")))')
+    plugins=$(python -c 'from snapflow.adapters.lerobot_types import lerobot_loads_plugins as f; print(int(f()))')
     for task in $(python -c "from snapflow.envs.factory import make_benchmark; print(*make_benchmark('libero').resolve_tasks('$tasks'))"); do
         [ -f "$out/lerobot-eval/$task/report.json" ] || [ -f "$out/lerobot-eval/$task/eval_info.json" ] || {
             if [ "$plugins" = 1 ]; then  # LeRobot's lerobot-eval itself, with the package's initial states

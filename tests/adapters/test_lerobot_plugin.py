@@ -17,16 +17,14 @@ import torch
 
 pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test command; this environment lacks it")
 
-from packaging.version import Version  # noqa: E402
-
 from snapflow.adapters.lerobot import load_distilled, save_distilled, wrap_policy  # noqa: E402
+from snapflow.adapters.lerobot_types import PLUGIN_LEROBOT, lerobot_loads_plugins  # noqa: E402
 from snapflow.policies.checkpoint import CheckpointError  # noqa: E402
 from tests.lerobot_tiny import build_tiny_smolvla, model_inputs, randomise_target_time, tiny_batch  # noqa: E402
 
-LEROBOT = Version(version("lerobot"))
 PLUGINS = pytest.mark.skipif(
-    LEROBOT < Version("0.5"),
-    reason=f"LeRobot imports third-party policies from lerobot 0.5 on; lerobot {LEROBOT} is installed",
+    not lerobot_loads_plugins(),
+    reason=f"LeRobot imports third-party policies from lerobot {PLUGIN_LEROBOT} on; lerobot {version('lerobot')} is installed",
 )
 
 

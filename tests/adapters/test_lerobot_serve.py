@@ -8,17 +8,18 @@ import pickle
 import socket
 import time
 from dataclasses import dataclass
-from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test command; this environment lacks it")
-from packaging.version import Version  # noqa: E402
+from snapflow.adapters.lerobot_types import PLUGIN_LEROBOT, lerobot_loads_plugins  # noqa: E402
 
-if Version(version("lerobot")) < Version("0.5"):
-    pytest.skip("LeRobot's tools load third-party policy types from lerobot 0.5 on", allow_module_level=True)
+if not lerobot_loads_plugins():
+    pytest.skip(
+        f"LeRobot's tools load third-party policy types from lerobot {PLUGIN_LEROBOT} on", allow_module_level=True
+    )
 grpc = pytest.importorskip("grpc", reason="LeRobot's async extra (lerobot[async]) brings grpcio")
 
 from lerobot.async_inference.configs import PolicyServerConfig  # noqa: E402

@@ -8,7 +8,6 @@ import json
 import os
 import subprocess
 import sys
-from importlib.metadata import version
 from pathlib import Path
 
 import pytest
@@ -16,16 +15,15 @@ import torch
 
 pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test command; this environment lacks it")
 
-from packaging.version import Version  # noqa: E402
-
 from snapflow.adapters.lerobot.base import lerobot_time_sampler  # noqa: E402
+from snapflow.adapters.lerobot_types import PLUGIN_LEROBOT, lerobot_loads_plugins  # noqa: E402
 from snapflow.flow.modes import SamplingMode  # noqa: E402
 from snapflow.flow.solver import sample_actions  # noqa: E402
 from tests.lerobot_tiny import build_tiny_smolvla, lerobot_sample, tiny_batch  # noqa: E402
 
 PLUGINS = pytest.mark.skipif(
-    Version(version("lerobot")) < Version("0.5"),
-    reason="lerobot-train imports third-party policies from lerobot 0.5 on",
+    not lerobot_loads_plugins(),
+    reason=f"lerobot-train imports third-party policies from lerobot {PLUGIN_LEROBOT} on",
 )
 
 
@@ -135,7 +133,8 @@ def test_a_teacher_written_as_its_student_is_the_teacher_until_distilled(vlm_dir
         student.predict_action_chunk(dict(batch), noise=noise)
     student.config.sampling_mode = "teacher-10"  # read at every chunk
     plain = build_tiny_smolvla(vlm_directory)
-    assert torch.allclose(
+    # the same computation in another order of float32 sums: equal to rounding (~5e-7 seen), not bit for bit
+    torch.testing.assert_close(
         student.predict_action_chunk(dict(batch), noise=noise), lerobot_sample(plain, batch, noise, 10)
     )
 

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import asdict
-from importlib.metadata import version
 
 import pytest
 import torch
@@ -17,7 +16,6 @@ pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test
 from lerobot.configs.policies import PreTrainedConfig  # noqa: E402
 from lerobot.policies.smolvla.configuration_smolvla import SmolVLAConfig  # noqa: E402
 from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy  # noqa: E402
-from packaging.version import Version  # noqa: E402
 
 from snapflow.adapters.lerobot import load_distilled, save_distilled, wrap_policy  # noqa: E402
 from snapflow.adapters.lerobot.plugin import (  # noqa: E402
@@ -31,6 +29,7 @@ from snapflow.adapters.lerobot.smolvla import SmolVLAFlowPolicy  # noqa: E402
 from snapflow.adapters.lerobot_types import (  # noqa: E402
     LEROBOT_POLICY_TYPES,
     LeRobotPolicyType,
+    lerobot_loads_plugins,
     register_lerobot_policy_type,
 )
 from snapflow.benchmark.architectures import architectures  # noqa: E402
@@ -98,7 +97,7 @@ def test_a_lerobot_policy_type_is_an_adapter_and_one_declaration(declared, vlm_d
     assert isinstance(loaded.policy, ThrowawayPolicy) and loaded.policy.config.base_type == NAME
     saved, back = (p.model.target_time_embedding.state_dict() for p in (adapter.policy, loaded.policy))
     assert all(torch.equal(saved[key], back[key]) for key in saved), "phi_s came back"
-    if Version(version("lerobot")) >= Version("0.5"):  # LeRobot's factory finds third-party types from 0.5 on
+    if lerobot_loads_plugins():  # LeRobot's factory finds third-party types from 0.5 on
         from lerobot.policies.factory import get_policy_class
 
         assert get_policy_class(declared.student_type) is student_policy(NAME)

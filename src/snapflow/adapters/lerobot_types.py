@@ -61,6 +61,20 @@ def lerobot_policy_type(name: str) -> LeRobotPolicyType:
     return LEROBOT_POLICY_TYPES[name]
 
 
+#: the first LeRobot whose tools (lerobot-eval, lerobot-train, its policy server) load third-party policy types, and so
+#: the student types ``snapflow_<name>``
+PLUGIN_LEROBOT = "0.5"
+
+
+def lerobot_loads_plugins() -> bool:
+    """Whether the installed LeRobot's tools load the student types (lerobot >= :data:`PLUGIN_LEROBOT`)."""
+    from importlib.metadata import version
+
+    from packaging.version import Version
+
+    return Version(version("lerobot")) >= Version(PLUGIN_LEROBOT)
+
+
 def lerobot_teachers() -> tuple[str, ...]:
     """The LeRobot types ``snapflow train --dataset`` trains from scratch."""
     return tuple(name for name, declared in LEROBOT_POLICY_TYPES.items() if declared.trains_from_scratch)
@@ -111,4 +125,6 @@ __all__ = [
     "register_lerobot_policy_type",
     "lerobot_policy_type",
     "lerobot_teachers",
+    "PLUGIN_LEROBOT",
+    "lerobot_loads_plugins",
 ]

@@ -7,9 +7,8 @@ import argparse
 from importlib.metadata import version
 from typing import Any
 
+from snapflow.adapters.lerobot_types import PLUGIN_LEROBOT, lerobot_loads_plugins
 from snapflow.cli.common import COUNT, add_command
-
-MINIMUM_LEROBOT = "0.5"  # the first release whose tools load third-party policy types
 
 
 def add_parser(subparsers: Any) -> None:
@@ -25,13 +24,11 @@ def add_parser(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from packaging.version import Version
-
-    installed = version("lerobot")  # a missing LeRobot is named with its install command by run_command
-    if Version(installed) < Version(MINIMUM_LEROBOT):
+    # a missing LeRobot is named with its install command by run_command
+    if not lerobot_loads_plugins():
         raise ValueError(
-            f"snapflow serve needs lerobot >= {MINIMUM_LEROBOT} (Python >= 3.12), whose tools load third-party "
-            f"policy types; lerobot {installed} is installed"
+            f"snapflow serve needs lerobot >= {PLUGIN_LEROBOT} (Python >= 3.12), whose tools load third-party "
+            f"policy types; lerobot {version('lerobot')} is installed"
         )
     from lerobot.async_inference.configs import PolicyServerConfig
 
