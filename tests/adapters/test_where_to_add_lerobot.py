@@ -97,7 +97,7 @@ def test_a_lerobot_policy_type_is_an_adapter_and_one_declaration(declared, vlm_d
     assert isinstance(loaded.policy, ThrowawayPolicy) and loaded.policy.config.base_type == NAME
     saved, back = (p.model.target_time_embedding.state_dict() for p in (adapter.policy, loaded.policy))
     assert all(torch.equal(saved[key], back[key]) for key in saved), "phi_s came back"
-    if lerobot_loads_plugins():  # LeRobot's factory finds third-party types from 0.5 on
+    if lerobot_loads_plugins():  # LeRobot's factory finds third-party types
         from lerobot.policies.factory import get_policy_class
 
         assert get_policy_class(declared.student_type) is student_policy(NAME)
