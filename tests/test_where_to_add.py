@@ -74,7 +74,9 @@ class Line(Benchmark):
     def num_variations(self, split: str) -> int:
         return 10
 
-    def make_env(self, task: str, split: str, image_size: int | None = None) -> Environment:
+    def make_env(
+        self, task: str, split: str, image_size: int | None = None, extra_cameras: Sequence[str] | None = None
+    ) -> Environment:
         return LineEnv(task, split)
 
     def make_expert(self, task: str) -> LineExpert:

@@ -137,6 +137,30 @@ def test_cameras_are_rendered_only_when_asked_and_rotated_as_lerobot_shows_them(
 
 
 @pytest.mark.slow
+def test_an_environment_asked_for_the_main_camera_alone_renders_its_frames_unchanged():
+    """A policy of the agentview alone is evaluated without the wrist's frames: the same agentview frames, bit for
+    bit, as a new environment rendering both, since a variation's scene is seeded (unseeded, LIBERO moves the
+    fixtures by millimetres at each reset); a camera LIBERO lacks is named."""
+    benchmark = Libero()
+    both_cameras = benchmark.make_env("libero_spatial_0", "eval", image_size=32)
+    main_only = benchmark.make_env("libero_spatial_0", "eval", image_size=32, extra_cameras=())
+    try:
+        for env in (both_cameras, main_only):
+            env.reset(1)
+        for _ in range(3):
+            both, _, _ = both_cameras.step(np.full(7, 0.3), render=True)
+            alone, _, _ = main_only.step(np.full(7, 0.3), render=True)
+            assert alone.extra_images == {} and set(both.extra_images) == {"image2"}
+            np.testing.assert_array_equal(alone.image, both.image)
+            np.testing.assert_array_equal(alone.state, both.state)
+    finally:
+        both_cameras.close()
+        main_only.close()
+    with pytest.raises(ValueError, match=r"libero has no camera\(s\) \['wrist'\]: .* renders \['image2'\]"):
+        LiberoEnv("libero_spatial_0", "eval", 32, extra_cameras=["wrist"])
+
+
+@pytest.mark.slow
 def test_demonstrations_start_from_seeded_resets_never_the_evaluation_states():
     """A training variation is a fresh reset seeded by its number: the same seed places the objects the same way,
     another seed elsewhere, none is one of LIBERO's evaluation starts, and a bowl that starts on a fixture (the

@@ -56,7 +56,8 @@ def test_tasks_are_named_by_set_or_one_by_one():
 
 
 def test_unknown_task_empty_task_list_and_unknown_split_are_named():
-    """Every entry point names the unknown task and lists the benchmark's, before the simulator is built."""
+    """Every entry point names the unknown task and lists the benchmark's, before the simulator is built; a camera it
+    lacks is named too."""
     benchmark = MetaWorld()
     message = (
         r"unknown metaworld task\(s\) \['fly-to-the-moon-v3'\]; give a set \(mt10, mt50\) or tasks of \['assembly-v3'"
@@ -77,6 +78,8 @@ def test_unknown_task_empty_task_list_and_unknown_split_are_named():
     for call in (lambda: benchmark.num_variations("test"), lambda: MetaWorldEnv("reach-v3", "test")):
         with pytest.raises(ValueError, match=r"split must be one of \['train', 'eval'\], got 'test'"):
             call()
+    with pytest.raises(ValueError, match=r"metaworld has no camera\(s\) \['image2'\]: besides its main camera"):
+        benchmark.make_env("reach-v3", "eval", 64, extra_cameras=["image2"])
 
 
 def test_experts_are_meta_worlds_scripted_policies_routed_through_a_via_point_in_the_variant():

@@ -3,7 +3,9 @@ scripted benchmark registered for the test (the same code runs Meta-World in tes
 
 from __future__ import annotations
 
+import dataclasses
 import json
+from collections.abc import Sequence
 
 import numpy as np
 import pytest
@@ -15,7 +17,7 @@ from snapflow.envs import factory
 from snapflow.envs.base import Benchmark, Environment, Observation
 from snapflow.evaluation.closed_loop import ClosedLoopEvaluator
 from snapflow.evaluation.offline import offline_metrics
-from snapflow.evaluation.pipeline import evaluate
+from snapflow.evaluation.pipeline import evaluate, runs_evaluator
 from snapflow.evaluation.report import markdown_report, write_report
 from snapflow.evaluation.results import (
     EpisodeResult,
@@ -29,6 +31,7 @@ from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, TEACHER_10, SamplingMode
 from snapflow.flow.solver import sample_actions
 from snapflow.policies.checkpoint import load_policy
 from snapflow.policies.factory import default_config
+from snapflow.policies.mlp.processor import MLPProcessor
 from snapflow.reporting.statistics import wilson_interval
 from snapflow.training.recipes import DistillSettings
 from snapflow.training.stages import distill, train_teacher
@@ -65,9 +68,11 @@ class ScriptedEnv(Environment):
 class ScriptedBenchmark(Benchmark):
     name, title = "scripted", "Scripted test benchmark"
     state_dim, action_dim, max_episode_steps = STATE_DIM, ACTION_DIM, EPISODE_STEPS
+    camera, extra_cameras = "image", ("wrist",)
 
     def __init__(self) -> None:
         self.envs: list[ScriptedEnv] = []
+        self.rendered_cameras: list[tuple[str, ...] | None] = []  # each environment's extra cameras, as asked for
 
     @property
     def tasks(self) -> tuple[str, ...]:
@@ -79,7 +84,10 @@ class ScriptedBenchmark(Benchmark):
     def num_variations(self, split: str) -> int:
         return 3
 
-    def make_env(self, task: str, split: str, image_size: int | None = None) -> ScriptedEnv:
+    def make_env(
+        self, task: str, split: str, image_size: int | None = None, extra_cameras: Sequence[str] | None = None
+    ) -> ScriptedEnv:
+        self.rendered_cameras.append(None if extra_cameras is None else tuple(extra_cameras))
         self.envs.append(ScriptedEnv(task))
         return self.envs[-1]
 
@@ -184,6 +192,28 @@ def test_closed_loop_replans_every_n_act_actions_in_one_batch_and_scores_each_ep
         ClosedLoopEvaluator(scripted, ["reach-v3"], 4)
     with pytest.raises(ValueError, match=r"unknown scripted task\(s\) \['fly-v3'\]"):
         ClosedLoopEvaluator(scripted, ["fly-v3"], 1)
+
+
+def test_environments_render_only_the_cameras_the_evaluated_policies_read(scripted, runs):
+    """A benchmark's extra camera is asked of its environments only when a policy being evaluated reads it: frames
+    nobody reads are not rendered (LIBERO's wrist camera for a policy of the agentview alone); a policy reading a
+    camera its evaluator does not render, or a camera the benchmark lacks, is refused by name."""
+    _, teacher, student = runs
+
+    class WristReader(MLPProcessor):  # the teacher's processor, as if its policy also read the wrist camera
+        extra_cameras = ("wrist",)
+
+    wrist = WristReader(teacher.processor.config, teacher.processor.stats, teacher.processor.instructions)
+    runs_evaluator([("teacher", teacher, TEACHER_10)], scripted, ["reach-v3"], 1).run(
+        teacher.policy, teacher.processor, TEACHER_10, n_act=4, progress=False
+    )
+    assert scripted.rendered_cameras == [()], "the MLP teacher reads no camera: none is rendered"
+    both = [("teacher", teacher, TEACHER_10), ("student", dataclasses.replace(student, processor=wrist), SNAPFLOW_1)]
+    assert runs_evaluator(both, scripted, ["reach-v3"], 1).extra_cameras == ("wrist",), "one of the runs reads it"
+    with pytest.raises(ValueError, match=r"reads camera\(s\) \['wrist'\] that this evaluator does not render"):
+        ClosedLoopEvaluator(scripted, ["reach-v3"], 1).run(teacher.policy, wrist, TEACHER_10, n_act=4, progress=False)
+    with pytest.raises(ValueError, match=r"scripted has no camera\(s\) \['side'\]: .* renders \['wrist'\]"):
+        ClosedLoopEvaluator(scripted, ["reach-v3"], 1, extra_cameras=["side"])
 
 
 def test_more_episodes_than_max_envs_run_in_waves_on_the_same_environments_and_one_noise_stream(scripted, runs):

@@ -66,6 +66,7 @@ class Benchmark(ABC):
     max_episode_steps: int
     fps: int  # control steps per simulated second (a LeRobotDataset records it)
     camera: str  # the camera its images are rendered from
+    extra_cameras: tuple[str, ...] = ()  # the other cameras it can render (their frames: Observation.extra_images)
     # environments one evaluation process holds at once, which their memory decides: Meta-World's 200 take ~4 GB
     max_envs: int = 200
 
@@ -101,8 +102,13 @@ class Benchmark(ABC):
         """How many variations each task has in ``split`` (one of :data:`SPLITS`)."""
 
     @abstractmethod
-    def make_env(self, task: str, split: str, image_size: int | None = None) -> Environment:
-        """``task`` on ``split``'s variations; ``image_size``: also render a square camera image of that side."""
+    def make_env(
+        self, task: str, split: str, image_size: int | None = None, extra_cameras: Sequence[str] | None = None
+    ) -> Environment:
+        """``task`` on ``split``'s variations; ``image_size``: also render a square camera image of that side, from
+        :attr:`camera` and the :attr:`extra_cameras` named in ``extra_cameras`` (``None``: all of them; a policy
+        that reads fewer is evaluated without paying for the others' frames). Names are checked by
+        :meth:`check_cameras`."""
 
     @abstractmethod
     def make_expert(self, task: str) -> Expert:
@@ -128,6 +134,19 @@ class Benchmark(ABC):
             value = [name.strip() for name in value.split(",") if name.strip()]
         tasks = [task for name in value for task in self.task_sets.get(name, (name,))]
         return self.check_tasks(list(dict.fromkeys(tasks)))
+
+    def check_cameras(self, extra_cameras: Sequence[str] | None) -> tuple[str, ...]:
+        """The extra cameras ``extra_cameras`` names (``None``: all of :attr:`extra_cameras`), or a ValueError naming
+        the ones this benchmark has."""
+        if extra_cameras is None:
+            return self.extra_cameras
+        unknown = [name for name in extra_cameras if name not in self.extra_cameras]
+        if unknown:
+            raise ValueError(
+                f"{self.name} has no camera(s) {unknown}: besides its main camera {self.camera!r} it renders "
+                f"{list(self.extra_cameras) or 'none'}"
+            )
+        return tuple(dict.fromkeys(extra_cameras))
 
     def check_split(self, split: str) -> None:
         if split not in SPLITS:

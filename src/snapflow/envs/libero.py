@@ -11,14 +11,15 @@ What a policy sees is what LeRobot's ``LiberoEnv`` gives one: an 8-D state (end-
 axis-angle, the two finger positions) and two cameras, ``image`` (agentview) and ``image2`` (wrist), rotated 180
 degrees as LeRobot rotates them. The object poses the scripted experts steer by travel in
 :attr:`~snapflow.envs.base.Observation.privileged`, which no policy reads. Cameras render only when asked (the steps
-where a policy re-plans) and cheaply: no multisampling, an off-screen buffer of the image's size.
+where a policy re-plans), only those asked for (a policy of one camera is evaluated without the wrist's frames), and
+cheaply: no multisampling, an off-screen buffer of the image's size.
 """
 
 from __future__ import annotations
 
 import functools
 import os
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -94,10 +95,13 @@ class LiberoEnv(Environment):
     """One LIBERO task on ``split``'s variations: LIBERO's fixed initial states (``eval``) or seeded resets
     (``train``)."""
 
-    def __init__(self, task: str, split: str = "train", image_size: int | None = None) -> None:
+    def __init__(
+        self, task: str, split: str = "train", image_size: int | None = None, extra_cameras: Sequence[str] | None = None
+    ) -> None:
         benchmark = Libero()
         benchmark.check_tasks([task])
         benchmark.check_split(split)
+        self._cameras = (benchmark.camera, *benchmark.check_cameras(extra_cameras))
         from libero.libero.envs.env_wrapper import ControlEnv
 
         self.task, self.split, self.image_size = task, split, image_size
@@ -144,10 +148,10 @@ class LiberoEnv(Environment):
             # robosuite renders into whichever GL context is current: with several environments in one process
             # (the evaluator's), another's would receive the frame
             sim._render_context_offscreen.gl_ctx.make_current()
-            for name, camera in CAMERAS.items():
-                frame = sim.render(camera_name=camera, width=self.image_size, height=self.image_size)
+            for name in self._cameras:
+                frame = sim.render(camera_name=CAMERAS[name], width=self.image_size, height=self.image_size)
                 images[name] = np.ascontiguousarray(frame[::-1, ::-1])  # rotated 180 degrees, as LeRobot shows it
-        main, *others = CAMERAS
+        main, *others = self._cameras
         return Observation(
             proprioception(raw),
             self.instruction,
@@ -160,8 +164,12 @@ class LiberoEnv(Environment):
         available = Libero().num_variations(self.split)
         if not 0 <= variation < available:
             raise ValueError(f"variation must be in [0, {available}), got {variation}")
+        # LIBERO's placement samplers draw from NumPy's global generator at every reset: the objects of a training
+        # reset, and in both splits the fixtures (cabinet, stove), which an initial state does not hold, moved by up to
+        # ~6 mm. Seeded by the variation, an episode's scene is the same for every policy run on it (and in every
+        # process), as LeRobot's LiberoEnv seeds it.
+        self._env.seed(variation)
         if self._initial_states is None:
-            self._env.seed(variation)  # LIBERO's placement samplers draw from NumPy's global generator
             self._env.reset()
             if self.image_size:  # the reloaded model came with a render context of its own
                 self._cheap_rendering(self.image_size)
@@ -193,7 +201,8 @@ class Libero(Benchmark):
     action_dim = ACTION_DIM
     max_episode_steps = max(MAX_EPISODE_STEPS.values())  # the longest suite's; each task stops at its suite's
     fps = FPS
-    camera = next(iter(CAMERAS))  # the others' frames travel in Observation.extra_images
+    camera = next(iter(CAMERAS))
+    extra_cameras = tuple(CAMERAS)[1:]  # their frames travel in Observation.extra_images
     max_envs = 16  # ~850 MB an environment with cameras (~400 without): ~14 GB, room for a second process's
 
     @property
@@ -221,8 +230,10 @@ class Libero(Benchmark):
         self.check_split(split)
         return INITIAL_STATES if split == "eval" else TRAINING_RESETS
 
-    def make_env(self, task: str, split: str, image_size: int | None = None) -> LiberoEnv:
-        return LiberoEnv(task, split, image_size)
+    def make_env(
+        self, task: str, split: str, image_size: int | None = None, extra_cameras: Sequence[str] | None = None
+    ) -> LiberoEnv:
+        return LiberoEnv(task, split, image_size, extra_cameras)
 
     def make_expert(self, task: str) -> LiberoExpert:
         """The waypoint controller of ``task``'s goal, or :class:`~snapflow.envs.libero_expert.NoExpertError`

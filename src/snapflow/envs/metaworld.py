@@ -228,7 +228,10 @@ class MetaWorld(Benchmark):
         self.check_split(split)
         return sum(task.env_name == MT10_TASKS[0] for task in _suite(MT10_TASKS[0], SPLIT_SEEDS[split]).train_tasks)
 
-    def make_env(self, task: str, split: str, image_size: int | None = None) -> MetaWorldEnv:
+    def make_env(
+        self, task: str, split: str, image_size: int | None = None, extra_cameras: Sequence[str] | None = None
+    ) -> MetaWorldEnv:
+        self.check_cameras(extra_cameras)  # one camera: none to add
         return MetaWorldEnv(task, split, image_size, self.via_points)
 
     def make_expert(self, task: str) -> ScriptedExpert | ViaPointExpert:

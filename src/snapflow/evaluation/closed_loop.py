@@ -7,7 +7,7 @@ environments made anew for each wave did not hand their memory back."""
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch
@@ -27,6 +27,8 @@ class ClosedLoopEvaluator:
     Each task gets ``max_envs // len(tasks)`` environments (at least one), made at the first run and kept for the
     next ones: episodes run in waves of that many variations per task, every task side by side, the noise drawn
     from one generator across waves. Results depend on ``max_envs`` only when a task has more episodes than that.
+    The environments render ``image_size`` frames from the benchmark's main camera and ``extra_cameras`` alone: the
+    cameras the evaluated policies read, no more.
     """
 
     def __init__(
@@ -36,8 +38,10 @@ class ClosedLoopEvaluator:
         episodes_per_task: int,
         image_size: int | None = None,
         max_envs: int | None = None,
+        extra_cameras: Sequence[str] = (),
     ) -> None:
         benchmark.check_tasks(tasks)
+        self.extra_cameras = benchmark.check_cameras(extra_cameras)
         available = benchmark.num_variations("eval")
         if not 1 <= episodes_per_task <= available:
             raise ValueError(
@@ -63,7 +67,7 @@ class ClosedLoopEvaluator:
     def _environments(self) -> list[Environment]:
         if not self._envs:
             self._envs = [
-                self.benchmark.make_env(task, "eval", self.image_size)
+                self.benchmark.make_env(task, "eval", self.image_size, self.extra_cameras)
                 for task in self.tasks
                 for _ in range(self.envs_per_task)
             ]
@@ -84,6 +88,9 @@ class ClosedLoopEvaluator:
         ``record(slot, observation, action)`` is called before each step (to trace episodes)."""
         if not 1 <= n_act <= processor.chunk_length:
             raise ValueError(f"n_act must be in [1, {processor.chunk_length}] (the policy's chunk length), got {n_act}")
+        unrendered = [name for name in processor.extra_cameras if name not in self.extra_cameras]
+        if unrendered:
+            raise ValueError(f"the policy reads camera(s) {unrendered} that this evaluator does not render")
         policy.eval()
         generator = torch.Generator().manual_seed(seed)
         envs = self._environments()

@@ -23,7 +23,7 @@ from snapflow.data.demonstrations import Demonstrations
 from snapflow.envs.base import Benchmark, Expert, Observation
 from snapflow.envs.factory import make_benchmark
 from snapflow.evaluation.closed_loop import ClosedLoopEvaluator
-from snapflow.evaluation.pipeline import Run, trained_benchmark
+from snapflow.evaluation.pipeline import Run, runs_evaluator, trained_benchmark
 from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, SamplingMode
 from snapflow.flow.solver import sample_actions
 from snapflow.policies.checkpoint import LoadedPolicy
@@ -267,7 +267,7 @@ def diagnose_task(
     phase of the last run, and compare every run's chunks at up to ``states`` of its failed moments."""
     for _, loaded, mode in runs:
         loaded.check_mode(mode)
-    evaluator = ClosedLoopEvaluator(benchmark, [task], episodes, runs[0][1].processor.image_size)
+    evaluator = runs_evaluator(runs, benchmark, [task], episodes)
     expert = benchmark.make_expert(task)
     try:
         traces = [_trace(evaluator, expert, loaded, mode, n_act, seed, progress, episodes) for _, loaded, mode in runs]

@@ -41,6 +41,16 @@ def labelled_runs(policies: Mapping[str, tuple[OpenedPolicy, Sequence[SamplingMo
     ]
 
 
+def runs_evaluator(
+    runs: list[Run], benchmark: Benchmark, tasks: list[str], episodes_per_task: int
+) -> ClosedLoopEvaluator:
+    """The closed-loop evaluator of ``runs``: frames of the first policy's size, from the cameras any of them reads."""
+    cameras = dict.fromkeys(name for _, loaded, _ in runs for name in loaded.processor.extra_cameras)
+    return ClosedLoopEvaluator(
+        benchmark, tasks, episodes_per_task, runs[0][1].processor.image_size, extra_cameras=tuple(cameras)
+    )
+
+
 def _distinct_names(paths: list[str]) -> dict[str, str]:
     """Each path's last parts, as few as tell it from the others (runs/teacher/lerobot_policy and
     runs/student/lerobot_policy: teacher/lerobot_policy, student/lerobot_policy)."""
@@ -69,7 +79,7 @@ def evaluate(
     policy never distilled is refused before anything runs."""
     for _, loaded, mode in runs:
         loaded.check_mode(mode)
-    evaluator = ClosedLoopEvaluator(benchmark, tasks, episodes_per_task, runs[0][1].processor.image_size)
+    evaluator = runs_evaluator(runs, benchmark, tasks, episodes_per_task)
     demonstrations = Demonstrations.load(data) if data is not None else None
     held_out: dict[Path, ChunkData | None] = {}  # per checkpoint: its modes share one set of held-out chunks
     report = EvaluationReport(benchmark.name, list(tasks), episodes_per_task, n_act, {})
@@ -107,4 +117,4 @@ def checkpoint_latency(runs: list[Run], warmup: int = 10, repeats: int = 50) -> 
     return add_speedups(rows)
 
 
-__all__ = ["Run", "evaluate", "checkpoint_latency", "labelled_runs", "trained_benchmark"]
+__all__ = ["Run", "evaluate", "checkpoint_latency", "labelled_runs", "runs_evaluator", "trained_benchmark"]
