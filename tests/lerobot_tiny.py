@@ -11,10 +11,14 @@ from __future__ import annotations
 import contextlib
 import importlib
 from collections.abc import Iterator
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
+import pytest
 import torch
+from packaging.version import Version
 
+from snapflow.adapters.lerobot.pi0 import PI0FlowPolicy
 from snapflow.adapters.lerobot.smolvlm import (
     IMAGE_TOKENS,
     OTHER_SPECIAL_TOKENS,
@@ -22,6 +26,17 @@ from snapflow.adapters.lerobot.smolvlm import (
     write_smolvlm,
 )
 from snapflow.adapters.lerobot_config import SmolVLMSize
+
+try:
+    LEROBOT: Version | None = Version(version("lerobot"))
+except PackageNotFoundError:  # the adapters' tests skip; the built-in policies' still run
+    LEROBOT = None
+# the pi adapters' own minimum, as the registry reads it (0.4.4's pi0 needs a transformers fork)
+PI_SKIP = pytest.mark.skipif(
+    LEROBOT is None or LEROBOT < Version(PI0FlowPolicy.minimum_lerobot),
+    reason=f"LeRobot's pi0 / pi0.5 need lerobot >= {PI0FlowPolicy.minimum_lerobot} (Python >= 3.12, stock "
+    f"transformers); {f'lerobot {LEROBOT} is installed' if LEROBOT else 'lerobot is not installed'}",
+)
 
 IMAGE_SIZE, PATCH_SIZE, SCALE_FACTOR = 64, 16, 2
 # the sizes every tiny LeRobot policy shares: 4-action chunks of 4-D actions, short prompts, CPU, never pushed

@@ -22,14 +22,12 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator
 from dataclasses import dataclass
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
 import pytest
 import torch
-from packaging.version import Version
 from torch import Tensor, nn
 
 from snapflow import NAIVE_1, SNAPFLOW_1, FlowPolicy, SamplingMode, SnapFlowObjective, SnapFlowPolicy, sample_actions
@@ -37,17 +35,8 @@ from snapflow.policies.checkpoint import CheckpointError, load_policy, policy_me
 from snapflow.policies.factory import POLICIES, default_config, make_model, make_processor
 from snapflow.policies.normalization import NormalizationStats
 from snapflow.protocol import index_batch, map_tensors
-from tests.lerobot_tiny import randomise_target_time
+from tests.lerobot_tiny import PI_SKIP, randomise_target_time
 
-try:
-    LEROBOT: Version | None = Version(version("lerobot"))
-except PackageNotFoundError:  # the adapters' tests skip; the built-in policies' still run
-    LEROBOT = None
-PI_SKIP = pytest.mark.skipif(
-    LEROBOT is None or LEROBOT < Version("0.5"),
-    reason=f"LeRobot's pi0 / pi0.5 need lerobot >= 0.5 (Python >= 3.12, stock transformers); "
-    f"{f'lerobot {LEROBOT} is installed' if LEROBOT else 'lerobot is not installed'}",
-)
 TEACHER_10 = SamplingMode(10, jump=False)
 
 

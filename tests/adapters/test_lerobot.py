@@ -4,8 +4,6 @@ checkpointing, and the CLI end to end (distill on a local LeRobotDataset, eval i
 
 from __future__ import annotations
 
-from importlib.metadata import version
-
 import pytest
 import torch
 
@@ -15,12 +13,14 @@ from packaging.version import Version  # noqa: E402
 
 from snapflow import SnapFlowObjective  # noqa: E402
 from snapflow.adapters.lerobot import load_distilled, wrap_policy  # noqa: E402
-from tests.lerobot_tiny import build_tiny_pi, build_tiny_smolvla, randomise_target_time, tiny_batch, tiny_pi_configs  # noqa: E402
-
-LEROBOT = Version(version("lerobot"))
-PI_SKIP = pytest.mark.skipif(
-    LEROBOT < Version("0.5"),
-    reason=f"LeRobot's pi0 / pi0.5 need lerobot >= 0.5 (Python >= 3.12, stock transformers); lerobot {LEROBOT} is installed",
+from tests.lerobot_tiny import (  # noqa: E402
+    LEROBOT,
+    PI_SKIP,
+    build_tiny_pi,
+    build_tiny_smolvla,
+    randomise_target_time,
+    tiny_batch,
+    tiny_pi_configs,
 )
 
 
@@ -30,7 +30,7 @@ def test_unsupported_policies_and_lerobot_versions_are_named():
 
     with pytest.raises(ValueError, match="pi0, pi05, smolvla policies, not 'act'"):
         adapter_class("act")
-    if LEROBOT < Version("0.5"):
+    if LEROBOT < Version(PI05FlowPolicy.minimum_lerobot):
         with pytest.raises(ValueError, match=f"pi05 adapter needs lerobot >= 0.5 .* lerobot {LEROBOT} is installed"):
             adapter_class("pi05")
     else:
