@@ -465,6 +465,18 @@ def test_a_teachers_evaluation_runs_before_its_students_training(tmp_path):
 
 
 @pytest.mark.slow
+def test_a_ready_evaluation_runs_before_a_teacher_that_waits_at_a_lower_depth(tmp_path):
+    """One worker, two teachers and their evaluations: to_run's order trains both teachers first (depth), but once
+    the first is trained its evaluation, ready and needed by nothing, runs before the second teacher starts."""
+    first, second = StageJob(tmp_path / "first", 0), StageJob(tmp_path / "second", 1)
+    first_eval = StageJob(tmp_path / "first-eval", 2, needs=(first,))
+    second_eval = StageJob(tmp_path / "second-eval", 3, needs=(second,))
+    assert to_run([first_eval, second_eval]) == [first, second, first_eval, second_eval]
+    finished = list(run_jobs([first_eval, second_eval], workers=1, progress=False))
+    assert finished == ["log 0", "log 2", "log 1", "log 3"]
+
+
+@pytest.mark.slow
 def test_the_runner_continues_an_interrupted_job_and_restarts_a_stale_one(tmp_path):
     directory = tmp_path / "job"
     with pytest.raises(RuntimeError, match="failed on purpose"):  # a failed job stops the run with its own error

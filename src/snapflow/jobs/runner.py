@@ -205,7 +205,12 @@ def run_jobs(
     jobs: Iterable[Job], workers: int = 1, progress: bool = True, description: str = "jobs"
 ) -> dict[str, float]:
     """Run the jobs of :func:`to_run` on ``workers`` spawned processes, each on cores / workers
-    torch threads, a job once its dependencies have finished; returns each job's wall time (s) by description.
+    torch threads, a job once its dependencies have finished; returns each job's wall time (s) by description, in
+    the order they finished.
+
+    Of the jobs ready when a worker frees, one that no other job needs (an evaluation) goes first, whatever its
+    depth, then :func:`to_run`'s order: a worker freed by a student evaluates it before starting a teacher of hours,
+    so results a session can commit come as early as they can.
 
     A failed job stops the run with its own error (after the jobs already running have finished).
     """
@@ -215,6 +220,7 @@ def run_jobs(
     if not waiting:
         return {}
     unfinished = set(waiting)
+    awaited = {dependency for job in waiting for dependency in job.dependencies}
     threads = max(1, (os.cpu_count() or 1) // workers)
     times: dict[str, float] = {}
     running: dict[Future, Job] = {}
@@ -225,7 +231,10 @@ def run_jobs(
     context = get_context("spawn")
     with ProcessPoolExecutor(max_workers=workers, mp_context=context, max_tasks_per_child=1) as pool:
         while waiting or running:
-            ready = [job for job in waiting if not unfinished.intersection(job.dependencies)]
+            ready = sorted(
+                (job for job in waiting if not unfinished.intersection(job.dependencies)),
+                key=lambda job: job in awaited,
+            )
             for job in ready[: workers - len(running)]:
                 waiting.remove(job)
                 _start(job)

@@ -254,8 +254,9 @@ def plan(config: SweepConfig) -> list[Job]:
 
 
 def run_sweeps(configs: list[SweepConfig], workers: int = 1, progress: bool = True) -> dict[str, float]:
-    """Run every job of the sweeps that is not done on ``workers`` processes, earlier pipeline stages first across
-    the sweeps (their jobs are the longest and unblock the others); returns each job's wall time (s).
+    """Run every job of the sweeps that is not done on ``workers`` processes, a ready evaluation first, then earlier
+    pipeline stages first across the sweeps (their jobs are the longest and unblock the others); returns each job's
+    wall time (s).
 
     Each sweep's output_dir is held from planning to the last job: a second sweep over the same folder is refused at
     once with :class:`~snapflow.reporting.locks.RunLockedError` (the workers hold their jobs' own folders).
