@@ -172,6 +172,11 @@ def _copy_to_ledger(job: Job) -> None:
         write_json(job.ledger_path, read_record(job))
 
 
+def _awaited(jobs: Iterable[Job]) -> set[Job]:
+    """The jobs that one of ``jobs`` depends on: the ones that unblock others, not results of their own."""
+    return {dependency for job in jobs for dependency in job.dependencies}
+
+
 def to_run(jobs: Iterable[Job]) -> list[Job]:
     """The jobs to run, shallowest first (collect before training before evaluation), and at one depth the ones no
     other job needs first (a teacher's evaluation before its students' training): each given job whose result is
@@ -195,7 +200,7 @@ def to_run(jobs: Iterable[Job]) -> list[Job]:
 
     for job in jobs:
         visit(job, False)
-    awaited = {dependency for job in depth for dependency in job.dependencies}
+    awaited = _awaited(depth)
     # within a depth, the jobs nothing waits for (evaluations: results a session can commit, and the first word on
     # a teacher) before the ones that unblock others; a stable sort keeps the given order within each
     return sorted(depth, key=lambda job: (depth[job], job in awaited))
@@ -220,7 +225,7 @@ def run_jobs(
     if not waiting:
         return {}
     unfinished = set(waiting)
-    awaited = {dependency for job in waiting for dependency in job.dependencies}
+    awaited = _awaited(waiting)
     threads = max(1, (os.cpu_count() or 1) // workers)
     times: dict[str, float] = {}
     running: dict[Future, Job] = {}
