@@ -52,6 +52,7 @@ def write_config(
     snapflow_distill: str = "{ target_steps = [2, 4] }",
     snapflow_train: str = TINY_TRAIN,
     meanflow_distill: str = '{ method = "meanflow" }',
+    keep_checkpoints: bool = False,
 ) -> Path:
     path = directory / "tiny.toml"
     path.write_text(f"""
@@ -60,6 +61,7 @@ title = "two tasks, tiny policies"
 seeds = {seeds}
 output_dir = "{(directory / "runs").as_posix()}"
 results_dir = "{(directory / "results").as_posix()}"
+keep_checkpoints = {str(keep_checkpoints).lower()}
 
 [data]
 tasks = ["reach-v3", "push-v3"]
@@ -357,6 +359,7 @@ def test_rebuilding_some_tables_keeps_the_others_results_as_they_are(tmp_path, m
         ),
         ('[data]\ntasks = ["fly-v3"]\n', "unknown metaworld task(s) ['fly-v3']"),
         ('seeds = "all"\n', "seeds must be a non-empty list of integers"),
+        ('keep_checkpoints = "yes"\n', "keep_checkpoints must be true or false, got 'yes'"),
         ("[runs.teacher\n", "not valid TOML"),
         ("runs = 3\n", "[runs]: expected a table"),
         ('[runs.teacher]\n[[tables]]\nname = "t"\nrows = 3\n', "rows must be a list"),
@@ -588,3 +591,71 @@ def test_a_sweep_into_an_output_dir_another_process_holds_is_refused_before_any_
         "wait for it to finish or give the sweep another output_dir"
     ]
     assert [path.name for path in runs.iterdir()] == [".snapflow.lock"], "no job started"
+
+
+@pytest.mark.slow
+def test_a_fresh_machine_evaluates_a_kept_policy_and_continues_a_kept_unfinished_run(tmp_path, monkeypatch, capfd):
+    """keep_checkpoints: a finished run's policy, kept beside its ledger record, comes back on a fresh machine for a
+    new evaluation of it (no training again); a run interrupted there continues from its kept checkpoint and ends
+    with the weights of a run never interrupted."""
+    from snapflow.jobs.runner import _start
+    from snapflow.training import trainer
+    from snapflow.training.stages import train_teacher
+
+    config = load_sweep(write_config(tmp_path, seeds="[0]", keep_checkpoints=True)).only(["headline"])
+    run_sweeps([config], progress=False)
+    kept = tmp_path / "results" / "records" / "teacher" / "seed-0" / "checkpoint"
+    state = json.loads((kept / "kept.json").read_text())
+    assert state["finished"] and state["checkpoint"] == "step_0000012"
+    assert sorted(path.name for path in (kept / "step_0000012").iterdir()) == ["policy.json", "policy.safetensors"]
+    assert [path.name for path in kept.glob("step_*")] == ["step_0000012"], "only the last checkpoint is kept"
+
+    shutil.rmtree(tmp_path / "runs")  # a fresh machine: the ledger and the kept checkpoints committed, nothing else
+    extra = '\n  { label = "teacher 2-NFE", run = "teacher", mode = "teacher-2" },'
+    config = load_sweep(write_config(tmp_path, seeds="[0]", extra_rows=extra, keep_checkpoints=True)).only(["headline"])
+    assert names(plan(config)) == DATA | {("eval", "teacher", 0, "teacher-2")}, "the teacher is not trained again"
+    teacher = train_job(config, "teacher", 0)
+    assert (teacher.directory / "checkpoints" / "step_0000012" / "policy.safetensors").read_bytes() == (
+        kept / "step_0000012" / "policy.safetensors"
+    ).read_bytes()
+    assert set(run_sweeps([config], progress=False)) == {
+        "tiny: collect reach-v3",
+        "tiny: collect push-v3",
+        "tiny: demonstrations of 2 tasks",
+        "tiny: evaluate teacher seed 0 (teacher-2; n_act 4)",
+    }
+
+    # the same teacher with other settings, interrupted after its first checkpoint (step 6 of 12) on one machine
+    more_steps = TINY_TRAIN.replace("steps = 12", "steps = 13")
+    teacher = train_job(
+        load_sweep(write_config(tmp_path, seeds="[0]", teacher_train=more_steps, keep_checkpoints=True)), "teacher", 0
+    )
+    steps = {"taken": 0}
+    step = trainer.train_step
+
+    def interrupted_step(*args, **kwargs):
+        steps["taken"] += 1
+        if steps["taken"] == 8:
+            raise KeyboardInterrupt("the machine went away")
+        return step(*args, **kwargs)
+
+    monkeypatch.setattr(trainer, "train_step", interrupted_step)
+    _start(teacher)
+    with pytest.raises(KeyboardInterrupt):
+        teacher.run()
+    monkeypatch.setattr(trainer, "train_step", step)
+    state = json.loads((kept / "kept.json").read_text())
+    assert (state["finished"], state["checkpoint"]) == (False, "step_0000006")
+    assert (kept / "step_0000006" / "optimizer.safetensors").is_file(), "all that resuming reads is kept"
+    assert not teacher.restore_outputs(), "an unfinished run's checkpoint is not a finished policy"
+
+    shutil.rmtree(teacher.directory)  # on a fresh machine it continues at step 6
+    capfd.readouterr()
+    run_jobs([teacher], progress=False)
+    assert f"resuming {teacher.directory} at step 6" in capfd.readouterr().out
+    history = json.loads((teacher.directory / "history.json").read_text())
+    assert history["step"] == 13 and json.loads((kept / "kept.json").read_text())["finished"]
+    never_interrupted = tmp_path / "never-interrupted"
+    train_teacher(teacher.data.directory, never_interrupted, teacher.policy, teacher.train, progress=False)
+    last = "checkpoints/step_0000013/policy.safetensors"
+    assert (teacher.directory / last).read_bytes() == (never_interrupted / last).read_bytes()

@@ -13,6 +13,11 @@ A job may also keep its record in a *ledger* (``ledger_path``), a copy kept wher
 results (a sweep's, under its results folder). A fresh machine then knows the result without the outputs: a job
 recorded there is not run again unless a job that does run needs its outputs (a student's teacher, the data an
 evaluation reads). So a long sweep's finished evaluations, committed as they arrive, are not repeated.
+
+A job may keep beside its ledger record what a later machine needs to go on without repeating it: its outputs once
+it has finished (a trained policy), which :meth:`Job.restore_outputs` brings back when a job that runs needs them,
+and its progress while it runs (a training checkpoint), which :meth:`Job.restore_progress` brings back when it is
+started again, so that it continues where the other machine stopped.
 """
 
 from __future__ import annotations
@@ -63,6 +68,16 @@ class Job(ABC):
     def ledger_path(self) -> Path | None:
         """Where a copy of the record is kept to be committed (None: nowhere)."""
         return None
+
+    def restore_outputs(self) -> bool:
+        """Rebuild the outputs of this job, recorded in its ledger, from what its run on another machine kept there;
+        False where nothing was kept (the default), and the job then runs again."""
+        return False
+
+    def restore_progress(self) -> bool:
+        """Put the progress that an unfinished run of this job with its current settings kept on another machine into
+        its (empty) outputs, to be continued; False where nothing was kept (the default)."""
+        return False
 
     @abstractmethod
     def run(self) -> dict[str, Any]:
@@ -146,11 +161,22 @@ def _remove(path: Path) -> None:
 
 
 def _start(job: Job) -> None:
-    """Clear what a run with other settings (or an unknown one) left, then note the settings this run has."""
+    """Clear what a run with other settings (or an unknown one) left, bring back the progress a run on another
+    machine kept, then note the settings this run has."""
     if not _matches(_pending_path(job), job):
         for path in (*job.outputs, job.record_path):
             _remove(path)
+        job.restore_progress()
         write_json(_pending_path(job), record(job))
+
+
+def _restored(job: Job) -> bool:
+    """Whether the outputs of ``job``, recorded in its ledger, came back from what it kept there; it is then done
+    here."""
+    if not job.restore_outputs():
+        return False
+    write_json(job.record_path, read_record(job))
+    return True
 
 
 def _finish(job: Job, results: dict[str, Any]) -> None:
@@ -180,8 +206,9 @@ def _awaited(jobs: Iterable[Job]) -> set[Job]:
 def to_run(jobs: Iterable[Job]) -> list[Job]:
     """The jobs to run, shallowest first (collect before training before evaluation), and at one depth the ones no
     other job needs first (a teacher's evaluation before its students' training): each given job whose result is
-    not known (:func:`is_recorded`), and the dependencies not done here of each job that runs. A job done here whose
-    ledger lacks its record gets it."""
+    not known (:func:`is_recorded`), and the dependencies not done here of each job that runs, but those whose
+    outputs come back from their ledger (:meth:`Job.restore_outputs`). A job done here whose ledger lacks its record
+    gets it."""
     depth: dict[Job, int] = {}
     writers: dict[Path, Job] = {}
 
@@ -192,7 +219,7 @@ def to_run(jobs: Iterable[Job]) -> list[Job]:
         if is_done(job):
             _copy_to_ledger(job)
             return -1
-        if not outputs_needed and is_recorded(job):
+        if is_recorded(job) and (not outputs_needed or _restored(job)):
             return -1
         if job not in depth:
             depth[job] = 1 + max((visit(dep, True) for dep in job.dependencies), default=-1)

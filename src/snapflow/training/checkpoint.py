@@ -19,6 +19,7 @@ from torch import nn
 
 from snapflow.policies.checkpoint import (
     LATEST,
+    POLICY_CONFIG,
     POLICY_WEIGHTS,
     CheckpointError,
     load_state_strict,
@@ -100,10 +101,7 @@ def save_checkpoint(
     """Write a checkpoint directory atomically (temporary sibling, then rename); ``training_weights``: the raw
     trained weights by parameter name, where ``policy`` holds their average."""
     directory = Path(directory)
-    temporary = directory.parent / f".{directory.name}.partial-{os.getpid()}"
-    for stale in directory.parent.glob(f".{directory.name}.partial-*"):  # left by a writer that was killed
-        shutil.rmtree(stale, ignore_errors=True)
-    temporary.mkdir(parents=True)
+    temporary = _temporary_sibling(directory)
     write_policy(temporary, policy, metadata)
     if optimizer is not None:
         tensors, optimizer_meta = optimizer_tensors(optimizer)
@@ -111,7 +109,31 @@ def save_checkpoint(
         write_json(temporary / TRAINER_STATE, {**(trainer_state or {}), "optimizer": optimizer_meta})
     if training_weights is not None:
         save_file({k: v.detach().cpu().contiguous() for k, v in training_weights.items()}, temporary / TRAINING_WEIGHTS)
-    if directory.exists():  # re-saving the same name: move the old one aside first, drop it after the swap
+    return _into_place(temporary, directory)
+
+
+def copy_checkpoint(checkpoint: Path, destination: Path, policy_only: bool = False) -> Path:
+    """Copy the checkpoint folder ``checkpoint`` to ``destination`` atomically, replacing what is there; with
+    ``policy_only``, only the policy's files (what evaluation and distillation read), not what resuming reads."""
+    temporary = _temporary_sibling(Path(destination))
+    for file in sorted(Path(checkpoint).iterdir()):
+        if file.is_file() and (not policy_only or file.name in (POLICY_CONFIG, POLICY_WEIGHTS)):
+            shutil.copy2(file, temporary / file.name)
+    return _into_place(temporary, Path(destination))
+
+
+def _temporary_sibling(directory: Path) -> Path:
+    """A new empty folder beside ``directory`` to assemble it in (any left by a writer that was killed removed)."""
+    temporary = directory.parent / f".{directory.name}.partial-{os.getpid()}"
+    for stale in directory.parent.glob(f".{directory.name}.partial-*"):
+        shutil.rmtree(stale, ignore_errors=True)
+    temporary.mkdir(parents=True)
+    return temporary
+
+
+def _into_place(temporary: Path, directory: Path) -> Path:
+    """Rename the assembled ``temporary`` to ``directory``; an existing one is moved aside first, dropped after."""
+    if directory.exists():
         retired = directory.parent / f".{directory.name}.retired-{os.getpid()}"
         os.replace(directory, retired)
         os.replace(temporary, directory)
@@ -135,6 +157,7 @@ __all__ = [
     "TRAINER_STATE",
     "TRAINING_WEIGHTS",
     "save_checkpoint",
+    "copy_checkpoint",
     "mark_latest",
     "restore_training",
 ]

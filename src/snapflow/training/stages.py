@@ -6,6 +6,7 @@ settings are :mod:`snapflow.training.config`'s, the student's the default recipe
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -48,9 +49,10 @@ def train_teacher(
     val_fraction: float = VAL_FRACTION,
     resume: bool = False,
     progress: bool = True,
+    on_checkpoint: Callable[[Path], None] | None = None,
 ) -> dict[str, Any]:
     """Plain flow matching (alpha = 1) of the registered policy ``policy_config`` configures, on the demonstrations;
-    normalisation from the training episodes."""
+    normalisation from the training episodes. ``on_checkpoint``: as :func:`~snapflow.training.trainer.train`'s."""
     if not 0 <= val_fraction < 1:
         raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction}")
     demonstrations = Demonstrations.load(data)
@@ -77,6 +79,7 @@ def train_teacher(
         resume=resume,
         progress=progress,
         holder="snapflow train",
+        on_checkpoint=on_checkpoint,
     )
 
 
@@ -89,10 +92,11 @@ def distill(
     val_fraction: float | None = None,
     resume: bool = False,
     progress: bool = True,
+    on_checkpoint: Callable[[Path], None] | None = None,
 ) -> dict[str, Any]:
     """SnapFlow (or a baseline, see ``DistillSettings``): the student starts as the teacher plus a zero-initialised
     phi_s; prefix frozen by default. ``config`` and ``settings`` default to the default recipe's
-    (:data:`~snapflow.training.recipes.RECIPES`)."""
+    (:data:`~snapflow.training.recipes.RECIPES`). ``on_checkpoint``: as :func:`~snapflow.training.trainer.train`'s."""
     recipe = RECIPES[DEFAULT_RECIPE]
     config, settings = config or recipe.train, settings or recipe.distill
     loaded = load_policy(teacher, target_time=settings.target_time)
@@ -122,6 +126,7 @@ def distill(
         trainable=trainable,
         progress=progress,
         holder="snapflow distill",
+        on_checkpoint=on_checkpoint,
     )
 
 

@@ -8,6 +8,7 @@ Under ``accelerate launch`` each process draws its own batches and Accelerate av
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from contextlib import nullcontext
 from pathlib import Path
 from typing import Any, Protocol
@@ -154,6 +155,7 @@ def train(
     progress: bool = True,
     *,
     holder: str,
+    on_checkpoint: Callable[[Path], None] | None = None,
 ) -> dict[str, Any]:
     """Optimise ``objective`` on ``policy`` (any module implementing FlowPolicy); checkpoints under
     ``run_directory/checkpoints``. The data needs ``len()`` and ``batch(indices) -> (observation, actions)``.
@@ -163,7 +165,8 @@ def train(
     ``metadata`` is the policy description saved beside the weights (see ``policy_metadata``).
     Returns the trainer state (history of losses and validation). Holds the run folder for the whole run: another
     process training into it is refused with :class:`~snapflow.reporting.locks.RunLockedError`, which names
-    ``holder`` (the command that trains, e.g. ``snapflow train``).
+    ``holder`` (the command that trains, e.g. ``snapflow train``). ``on_checkpoint`` is called with each checkpoint
+    once it is whole and marked latest (a sweep keeps a copy of it to commit).
     """
     run_directory = Path(run_directory)
     accelerator = Accelerator(mixed_precision=config.mixed_precision)
@@ -182,6 +185,7 @@ def train(
             resume,
             trainable,
             progress,
+            on_checkpoint,
         )
 
 
@@ -270,11 +274,12 @@ def _save(
     run_directory: Path,
     metadata: dict[str, Any],
     config: TrainConfig,
-) -> None:
+) -> Path | None:
     """Checkpoint the run at ``step`` from the main process (its ``state`` brought to that step, its wall time counted
     from ``started``) and mark it latest, keeping ``config.keep_checkpoints``; every process waits for it. With a
     weight average, the average is saved as the policy (what evaluation reads) and the raw weights beside it (what
-    training resumes from)."""
+    training resumes from). Returns the checkpoint's folder on the main process, None on the others."""
+    path = None
     if accelerator.is_main_process:
         state.update(step=step, wall_time_s=time.perf_counter() - started)
         with average.applied() if average is not None else nullcontext() as raw:
@@ -288,6 +293,7 @@ def _save(
             )
         mark_latest(run_directory, path, config.keep_checkpoints)
     accelerator.wait_for_everyone()
+    return path
 
 
 def _train(
@@ -302,6 +308,7 @@ def _train(
     resume: bool,
     trainable: list[nn.Parameter] | None,
     progress: bool,
+    on_checkpoint: Callable[[Path], None] | None,
 ) -> dict[str, Any]:
     """:func:`train` with the run folder held."""
     optimizer, average = _optimiser(policy, trainable, config)
@@ -356,7 +363,11 @@ def _train(
                 refresh=False,
             )
         if done % config.checkpoint_every == 0 or last:
-            _save(accelerator, module, optimizer, average, state, done, started, run_directory, metadata, config)
+            checkpoint = _save(
+                accelerator, module, optimizer, average, state, done, started, run_directory, metadata, config
+            )
+            if checkpoint is not None and on_checkpoint is not None:
+                on_checkpoint(checkpoint)
     bar.close()
     if accelerator.is_main_process:
         write_json(run_directory / HISTORY, state)

@@ -6,6 +6,8 @@ an interrupted sweep keeps the tasks it finished."""
 
 from __future__ import annotations
 
+import json
+import shutil
 from contextlib import ExitStack
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -17,18 +19,21 @@ from snapflow.envs.factory import make_benchmark
 from snapflow.evaluation.config import OFFLINE_SAMPLES
 from snapflow.evaluation.pipeline import evaluate
 from snapflow.flow.modes import SamplingMode
-from snapflow.jobs.runner import Job, run_jobs, to_run
+from snapflow.jobs.runner import Job, record, run_jobs, to_run
 from snapflow.jobs.sweep.schema import DataSpec, RowSpec, SweepConfig, TableSpec
-from snapflow.policies.checkpoint import load_policy
+from snapflow.policies.checkpoint import load_policy, resolve_checkpoint
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import policy_type_of
+from snapflow.reporting.files import write_json
 from snapflow.reporting.locks import hold_run_lock
 from snapflow.reporting.records import as_record
+from snapflow.training.checkpoint import copy_checkpoint, mark_latest
 from snapflow.training.config import VAL_FRACTION, TrainConfig
 from snapflow.training.recipes import DistillSettings
 from snapflow.training.stages import distill, train_teacher
 
 RECORD = "job.json"  # a collect or train job's record, inside the folder it fills
+KEPT = "kept.json"  # beside a run's kept checkpoint: the run's settings, the checkpoint's name, whether it finished
 
 
 class FolderJob(Job):
@@ -115,6 +120,7 @@ class TrainJob(FolderJob):
     teacher: TrainJob | None = None
     distill: DistillSettings | None = None
     ledger: Path | None = None
+    kept: Path | None = None  # where its checkpoint is kept to be committed (a sweep's ``keep_checkpoints``)
 
     @property
     def seed(self) -> int:
@@ -135,9 +141,17 @@ class TrainJob(FolderJob):
         return (self.data,) if self.teacher is None else (self.data, self.teacher)
 
     def run(self) -> dict[str, Any]:
+        keep = self._keep_progress if self.kept is not None else None
         if self.teacher is None:
             state = train_teacher(
-                self.data.directory, self.directory, self.policy, self.train, VAL_FRACTION, resume=True, progress=False
+                self.data.directory,
+                self.directory,
+                self.policy,
+                self.train,
+                VAL_FRACTION,
+                resume=True,
+                progress=False,
+                on_checkpoint=keep,
             )
         else:
             state = distill(
@@ -148,8 +162,55 @@ class TrainJob(FolderJob):
                 self.distill,
                 resume=True,
                 progress=False,
+                on_checkpoint=keep,
             )
+        if self.kept is not None:
+            self._keep(resolve_checkpoint(self.directory), finished=True)
         return {"step": state["step"], "wall_time_s": state["wall_time_s"]}  # the tables' training cost
+
+    def _keep_progress(self, checkpoint: Path) -> None:
+        self._keep(checkpoint, finished=False)
+
+    def _keep(self, checkpoint: Path, finished: bool) -> None:
+        """Make ``checkpoint`` the one kept in :attr:`kept`: all that resuming reads while the run goes on, the policy
+        alone (what students and evaluations read) once it has finished."""
+        assert self.kept is not None
+        copy_checkpoint(checkpoint, self.kept / checkpoint.name, policy_only=finished)
+        write_json(self.kept / KEPT, {"job": record(self), "checkpoint": checkpoint.name, "finished": finished})
+        for other in self.kept.glob("step_*"):
+            if other.name != checkpoint.name:
+                shutil.rmtree(other)
+
+    def _kept_checkpoint(self, finished: bool) -> Path | None:
+        """The checkpoint kept by a run with the current settings that had (or had not) ``finished``, if any."""
+        try:
+            kept = json.loads((self.kept / KEPT).read_text()) if self.kept is not None else None
+        except (FileNotFoundError, json.JSONDecodeError):
+            return None
+        if kept is None or kept["job"] != record(self) or kept["finished"] != finished:
+            return None
+        checkpoint = self.kept / kept["checkpoint"]
+        return checkpoint if checkpoint.is_dir() else None
+
+    def _install(self, checkpoint: Path) -> None:
+        """Put a kept checkpoint into the run folder as its latest."""
+        installed = copy_checkpoint(checkpoint, self.directory / "checkpoints" / checkpoint.name)
+        mark_latest(self.directory, installed, self.train.keep_checkpoints)
+
+    def restore_outputs(self) -> bool:
+        checkpoint = self._kept_checkpoint(finished=True)
+        if checkpoint is None:
+            return False
+        shutil.rmtree(self.directory, ignore_errors=True)
+        self._install(checkpoint)
+        return True
+
+    def restore_progress(self) -> bool:
+        checkpoint = self._kept_checkpoint(finished=False)
+        if checkpoint is None:
+            return False
+        self._install(checkpoint)
+        return True
 
     def describe(self) -> str:
         return f"{self.sweep}: train {self.run_name} seed {self.seed}"
@@ -226,7 +287,10 @@ def train_job(config: SweepConfig, run: str, seed: int) -> TrainJob:
     train = replace(spec.train, seed=seed)
     directory = config.run_dir(run, seed)
     ledger = config.ledger_path(directory / RECORD)
-    return TrainJob(config.name, run, directory, data_job(config), train, spec.policy, teacher, spec.distill, ledger)
+    kept = ledger.parent / "checkpoint" if config.keep_checkpoints else None
+    return TrainJob(
+        config.name, run, directory, data_job(config), train, spec.policy, teacher, spec.distill, ledger, kept
+    )
 
 
 def eval_job(config: SweepConfig, table: TableSpec, row: RowSpec, seed: int) -> EvalJob:

@@ -81,6 +81,9 @@ class SweepConfig:
     data: DataSpec
     runs: dict[str, RunSpec]
     tables: tuple[TableSpec, ...]
+    # each run's checkpoint kept beside its ledger record, to be committed: the latest while it trains, the policy once
+    # it has finished, so a fresh machine continues a run, or trains and evaluates its students, without repeating it
+    keep_checkpoints: bool = False
 
     def run_dir(self, run: str, seed: int) -> Path:
         return self.output_dir / run / f"seed-{seed}"
@@ -293,7 +296,18 @@ def load_sweep(path: str | Path) -> SweepConfig:
         raw = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as error:
         raise ValueError(f"{path}: not valid TOML: {error}") from None
-    allowed = {"name", "title", "seeds", "output_dir", "results_dir", "data", "runs", "tables", "recipe"}
+    allowed = {
+        "name",
+        "title",
+        "seeds",
+        "output_dir",
+        "results_dir",
+        "data",
+        "runs",
+        "tables",
+        "recipe",
+        "keep_checkpoints",
+    }
     _checked(str(path), raw, allowed, frozenset({"name", "runs", "tables"}))
     name = raw["name"]
     if not isinstance(name, str) or not re.fullmatch(r"[a-z0-9][a-z0-9._-]*", name):
@@ -302,6 +316,9 @@ def load_sweep(path: str | Path) -> SweepConfig:
     data = _data(raw.get("data", {}))
     _recipe(str(path), raw.get("recipe", DEFAULT_RECIPE))
     runs = _runs(raw["runs"], seeds, data, raw.get("recipe", DEFAULT_RECIPE))
+    keep_checkpoints = raw.get("keep_checkpoints", False)
+    if not isinstance(keep_checkpoints, bool):
+        raise ValueError(f"{path}: keep_checkpoints must be true or false, got {keep_checkpoints!r}")
     return SweepConfig(
         name,
         raw.get("title", name),
@@ -311,6 +328,7 @@ def load_sweep(path: str | Path) -> SweepConfig:
         data,
         runs,
         _tables(path, raw["tables"], seeds, runs),
+        keep_checkpoints,
     )
 
 
