@@ -394,6 +394,7 @@ ARGUMENT_MISTAKES = {
     "no workers": (["sweep", "config.toml", "--workers", "0"], "--workers"),
     "mistyped mode": (["eval", "--policy", "run", "--modes", "snapflow-x"], "unknown sampling mode 'snapflow-x'"),
     "mistyped task": (["collect", "--tasks", "reach-v9"], "unknown metaworld task(s) ['reach-v9']"),
+    "unknown camera": (["collect", "--image-size", "32", "--extra-cameras", "wrist"], "has no camera(s) ['wrist']"),
     "mistyped target": (["toy-compare", "--targets", "euler"], "TARGET:STEPS"),
     "objective option without a value": (
         ["distill", "--teacher", "t", "--data", "d", "--objective-option", "adaptive_power"],

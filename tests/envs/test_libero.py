@@ -14,6 +14,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from snapflow.data.demonstrations import Demonstrations
 from snapflow.envs.base import Benchmark
 from snapflow.envs.factory import make_benchmark
 from snapflow.envs.libero import (
@@ -188,6 +189,17 @@ def test_demonstrations_start_from_seeded_resets_never_the_evaluation_states():
             assert not env._env.env.sim._render_context_offscreen.scn.flags[mujoco.mjtRndFlag.mjRND_REFLECTION]
     finally:
         env.close()
+
+
+@pytest.mark.slow
+def test_a_collection_stores_the_cameras_it_is_asked_for_alone(tmp_path):
+    from snapflow.data.collect import collect
+
+    demonstrations = collect(
+        make_benchmark("libero"), ["libero_spatial_0"], 1, tmp_path, image_size=32, progress=False, extra_cameras=()
+    )
+    assert demonstrations.images.shape == (len(demonstrations.states), 32, 32, 3) and demonstrations.images.std() > 10
+    assert demonstrations.extra_images == {} and Demonstrations.load(tmp_path).extra_images == {}
 
 
 @pytest.mark.slow

@@ -14,7 +14,7 @@ from typing import Any, ClassVar
 import pytest
 
 from snapflow.cli import main
-from snapflow.jobs.runner import Job, is_done, read_record, run_jobs, to_run, write_record
+from snapflow.jobs.runner import Job, is_done, is_recorded, read_record, run_jobs, to_run, write_record
 from snapflow.jobs.sweep import (
     CollectJob,
     DataJob,
@@ -360,6 +360,8 @@ def test_rebuilding_some_tables_keeps_the_others_results_as_they_are(tmp_path, m
         ('[data]\ntasks = ["fly-v3"]\n', "unknown metaworld task(s) ['fly-v3']"),
         ('seeds = "all"\n', "seeds must be a non-empty list of integers"),
         ('keep_checkpoints = "yes"\n', "keep_checkpoints must be true or false, got 'yes'"),
+        ('[data]\nextra_cameras = "image2"\n', "[data] extra_cameras must be a list of camera names"),
+        ('[data]\nextra_cameras = ["wrist"]\n', "[data] extra_cameras: metaworld has no camera(s) ['wrist']"),
         ("[runs.teacher\n", "not valid TOML"),
         ("runs = 3\n", "[runs]: expected a table"),
         ('[runs.teacher]\n[[tables]]\nname = "t"\nrows = 3\n', "rows must be a list"),
@@ -659,3 +661,13 @@ def test_a_fresh_machine_evaluates_a_kept_policy_and_continues_a_kept_unfinished
     train_teacher(teacher.data.directory, never_interrupted, teacher.policy, teacher.train, progress=False)
     last = "checkpoints/step_0000013/policy.safetensors"
     assert (teacher.directory / last).read_bytes() == (never_interrupted / last).read_bytes()
+
+
+def test_a_data_section_that_names_its_cameras_changes_its_key_and_one_that_does_not_keeps_the_committed_records():
+    """The LIBERO-Spatial teachers, recorded before [data] could name cameras, are still recorded (their key holds);
+    a sweep that stores fewer cameras is other demonstrations, collected into a folder of their own settings."""
+    config = load_sweep(ROOT / "configs" / "sweeps" / "libero-spatial.toml")
+    assert config.data.extra_cameras is None
+    assert all(is_recorded(train_job(config, "teacher", seed)) for seed in (0, 2))
+    main_camera_only = replace(config, data=replace(config.data, extra_cameras=()))
+    assert train_job(main_camera_only, "teacher", 0).data.key != train_job(config, "teacher", 0).data.key

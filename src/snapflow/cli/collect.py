@@ -27,6 +27,13 @@ def add_parser(subparsers: Any) -> None:
         type=COUNT,
         help="also store camera images of this size (rendered off-screen with MUJOCO_GL=egl or osmesa)",
     )
+    parser.add_argument(
+        "--extra-cameras",
+        type=_camera_names,
+        metavar="NAMES",
+        help="with --image-size, the benchmark's cameras besides the main one to store, comma-separated, '' for none "
+        "(default: all; libero: image2, the wrist camera): each costs its rendering at every step",
+    )
     add_output(parser, None, "demonstrations directory (npz + meta.json)")
     parser.add_argument(
         "--lerobot-dataset",
@@ -41,6 +48,7 @@ def run(args: argparse.Namespace) -> int:
     chosen = tasks(args.env, args.tasks)
     check_writable(args.output)
     benchmark = make_benchmark(args.env)
+    cameras = benchmark.check_cameras(args.extra_cameras)
     if args.lerobot_dataset:  # LeRobot's import and the root are checked before any episode runs
         from snapflow.adapters.lerobot.dataset import check_dataset_root, write_lerobot_dataset
 
@@ -51,9 +59,11 @@ def run(args: argparse.Namespace) -> int:
     collected = args.lerobot_dataset and (Path(args.output) / META_FILE).is_file()
     if collected:  # an export that did not finish, or the same demonstrations wanted as a LeRobotDataset
         demonstrations = Demonstrations.load(args.output)
-        _check_same_collection(demonstrations, args.output, benchmark.name, chosen, args.episodes, args.image_size)
+        _check_same_collection(
+            demonstrations, args.output, benchmark.name, chosen, args.episodes, args.image_size, cameras
+        )
     else:
-        demonstrations = collect(benchmark, chosen, args.episodes, args.output, args.image_size, progress)
+        demonstrations = collect(benchmark, chosen, args.episodes, args.output, args.image_size, progress, cameras)
     if args.lerobot_dataset:
         write_lerobot_dataset(
             demonstrations, args.lerobot_dataset, args.repo_id, benchmark.fps, benchmark.camera, progress
@@ -79,17 +89,24 @@ def _check_same_collection(
     tasks: list[str],
     episodes: int,
     image_size: int | None,
+    extra_cameras: tuple[str, ...],
 ) -> None:
     """Refuse demonstrations in ``output`` that another collection made: writing them would not give what the
     command asks for."""
     size = demonstrations.images.shape[1] if demonstrations.images is not None else None
     per_task = {task: sum(e.task == task for e in demonstrations.episodes) for task in demonstrations.tasks}
-    found = (demonstrations.env, demonstrations.tasks, set(per_task.values()), size)
-    if found != (env, tasks, {episodes}, image_size):
+    cameras = tuple(demonstrations.extra_images)
+    found = (demonstrations.env, demonstrations.tasks, set(per_task.values()), size, cameras)
+    if found != (env, tasks, {episodes}, image_size, extra_cameras if image_size else ()):
         raise FileExistsError(
             f"{output} already holds other demonstrations ({demonstrations.env}, {len(per_task)} tasks, "
-            f"{sorted(set(per_task.values()))} episodes a task, images {size or 'none'}); choose another --output"
+            f"{sorted(set(per_task.values()))} episodes a task, images {size or 'none'}, other cameras "
+            f"{list(cameras) or 'none'}); choose another --output"
         )
+
+
+def _camera_names(value: str) -> tuple[str, ...]:
+    return tuple(name.strip() for name in value.split(",") if name.strip())
 
 
 def _interrupted(args: argparse.Namespace) -> str:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -62,13 +63,15 @@ def collect_demonstrations(
     episodes_per_task: int,
     image_size: int | None = None,
     progress: bool = True,
+    extra_cameras: Sequence[str] | None = None,
 ) -> Demonstrations:
-    """Run each task's expert on successive training variations until ``episodes_per_task`` succeed."""
+    """Run each task's expert on successive training variations until ``episodes_per_task`` succeed; with
+    ``image_size``, the frames of the main camera and of the benchmark's ``extra_cameras`` (None: all of them) too."""
     available = check_collection(benchmark, tasks, episodes_per_task)
     states, actions, images, extra_images, episodes = [], [], [], {}, []
     bar = tqdm(total=len(tasks) * episodes_per_task, desc="collecting expert demonstrations", disable=not progress)
     for task in tasks:
-        env, expert = benchmark.make_env(task, "train", image_size), benchmark.make_expert(task)
+        env, expert = benchmark.make_env(task, "train", image_size, extra_cameras), benchmark.make_expert(task)
         kept = 0
         for variation in range(available):
             if kept == episodes_per_task:
@@ -108,15 +111,19 @@ def collect(
     output: str | Path = "outputs/data",
     image_size: int | None = None,
     progress: bool = True,
+    extra_cameras: Sequence[str] | None = None,
 ) -> Demonstrations:
     """:func:`collect_demonstrations`, saved to ``output`` (never over earlier demonstrations), which is held from the first
     episode to the last file: another process collecting into it is refused with
     :class:`~snapflow.reporting.locks.RunLockedError`."""
     check_collection(benchmark, tasks, episodes_per_task)  # before the output folder is created
+    benchmark.check_cameras(extra_cameras)
     with hold_run_lock(output, "snapflow collect"):
         if (Path(output) / META_FILE).is_file():
             raise FileExistsError(f"{output} already holds demonstrations; choose another --output")
-        demonstrations = collect_demonstrations(benchmark, tasks, episodes_per_task, image_size, progress)
+        demonstrations = collect_demonstrations(
+            benchmark, tasks, episodes_per_task, image_size, progress, extra_cameras
+        )
         demonstrations.save(output)
     return demonstrations
 

@@ -71,6 +71,7 @@ class CollectJob(FolderJob):
             self.directory,
             data.image_size,
             progress=False,
+            extra_cameras=data.extra_cameras,
         )
         return {}
 

@@ -16,6 +16,7 @@ from snapflow.flow.modes import SamplingMode
 from snapflow.jobs.demo import EVAL_EPISODES
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import default_config, policy_type
+from snapflow.reporting.records import added_option
 from snapflow.training.config import TEACHER_TRAINING, TrainConfig
 from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES, DistillSettings, Recipe
 
@@ -30,6 +31,8 @@ class DataSpec:
     tasks: tuple[str, ...] = ()
     episodes_per_task: int = EPISODES_PER_TASK
     image_size: int | None = None
+    # the benchmark's cameras beside the main one whose frames are stored (None: all; a camera costs its rendering)
+    extra_cameras: tuple[str, ...] | None = added_option(None)
 
 
 @dataclass(frozen=True)
@@ -174,6 +177,14 @@ def _data(raw: Any) -> DataSpec:
     for name in ("episodes_per_task", "image_size"):
         if entry.get(name) is not None:
             _count("[data]", name, entry[name])
+    if "extra_cameras" in entry:
+        cameras = entry["extra_cameras"]
+        if not isinstance(cameras, list) or not all(isinstance(name, str) for name in cameras):
+            raise ValueError(f"[data] extra_cameras must be a list of camera names, got {cameras!r}")
+        try:
+            entry["extra_cameras"] = benchmark.check_cameras(cameras)
+        except ValueError as error:
+            raise ValueError(f"[data] extra_cameras: {error}") from None
     return _dataclass_from("[data]", DataSpec(), entry)
 
 
