@@ -52,7 +52,7 @@ def write_config(
     snapflow_distill: str = "{ target_steps = [2, 4] }",
     snapflow_train: str = TINY_TRAIN,
     meanflow_distill: str = '{ method = "meanflow" }',
-    keep_checkpoints: bool = False,
+    commit_checkpoint: bool = False,
 ) -> Path:
     path = directory / "tiny.toml"
     path.write_text(f"""
@@ -61,7 +61,6 @@ title = "two tasks, tiny policies"
 seeds = {seeds}
 output_dir = "{(directory / "runs").as_posix()}"
 results_dir = "{(directory / "results").as_posix()}"
-keep_checkpoints = {str(keep_checkpoints).lower()}
 
 [data]
 tasks = ["reach-v3", "push-v3"]
@@ -70,6 +69,7 @@ episodes_per_task = 3
 [runs.teacher]
 policy = {teacher_policy}
 train = {teacher_train}
+commit_checkpoint = {str(commit_checkpoint).lower()}
 [runs.snapflow]
 teacher = "teacher"
 distill = {snapflow_distill}
@@ -359,7 +359,7 @@ def test_rebuilding_some_tables_keeps_the_others_results_as_they_are(tmp_path, m
         ),
         ('[data]\ntasks = ["fly-v3"]\n', "unknown metaworld task(s) ['fly-v3']"),
         ('seeds = "all"\n', "seeds must be a non-empty list of integers"),
-        ('keep_checkpoints = "yes"\n', "keep_checkpoints must be true or false, got 'yes'"),
+        ('[runs.teacher]\ncommit_checkpoint = "yes"\n', "[runs.teacher]: commit_checkpoint must be true or false"),
         ('[data]\nextra_cameras = "image2"\n', "[data] extra_cameras must be a list of camera names"),
         ('[data]\nextra_cameras = ["wrist"]\n', "[data] extra_cameras: metaworld has no camera(s) ['wrist']"),
         ("[runs.teacher\n", "not valid TOML"),
@@ -597,24 +597,27 @@ def test_a_sweep_into_an_output_dir_another_process_holds_is_refused_before_any_
 
 @pytest.mark.slow
 def test_a_fresh_machine_evaluates_a_kept_policy_and_continues_a_kept_unfinished_run(tmp_path, monkeypatch, capfd):
-    """keep_checkpoints: a finished run's policy, kept beside its ledger record, comes back on a fresh machine for a
+    """commit_checkpoint: a finished run's policy, kept beside its ledger record, comes back on a fresh machine for a
     new evaluation of it (no training again); a run interrupted there continues from its kept checkpoint and ends
     with the weights of a run never interrupted."""
     from snapflow.jobs.runner import _start
     from snapflow.training import trainer
     from snapflow.training.stages import train_teacher
 
-    config = load_sweep(write_config(tmp_path, seeds="[0]", keep_checkpoints=True)).only(["headline"])
+    config = load_sweep(write_config(tmp_path, seeds="[0]", commit_checkpoint=True)).only(["headline"])
     run_sweeps([config], progress=False)
     kept = tmp_path / "results" / "records" / "teacher" / "seed-0" / "checkpoint"
     state = json.loads((kept / "kept.json").read_text())
     assert state["finished"] and state["checkpoint"] == "step_0000012"
     assert sorted(path.name for path in (kept / "step_0000012").iterdir()) == ["policy.json", "policy.safetensors"]
     assert [path.name for path in kept.glob("step_*")] == ["step_0000012"], "only the last checkpoint is kept"
+    assert not (tmp_path / "results" / "records" / "snapflow" / "seed-0" / "checkpoint").exists(), "the teacher's alone"
 
     shutil.rmtree(tmp_path / "runs")  # a fresh machine: the ledger and the kept checkpoints committed, nothing else
     extra = '\n  { label = "teacher 2-NFE", run = "teacher", mode = "teacher-2" },'
-    config = load_sweep(write_config(tmp_path, seeds="[0]", extra_rows=extra, keep_checkpoints=True)).only(["headline"])
+    config = load_sweep(write_config(tmp_path, seeds="[0]", extra_rows=extra, commit_checkpoint=True)).only(
+        ["headline"]
+    )
     assert names(plan(config)) == DATA | {("eval", "teacher", 0, "teacher-2")}, "the teacher is not trained again"
     teacher = train_job(config, "teacher", 0)
     assert (teacher.directory / "checkpoints" / "step_0000012" / "policy.safetensors").read_bytes() == (
@@ -630,7 +633,7 @@ def test_a_fresh_machine_evaluates_a_kept_policy_and_continues_a_kept_unfinished
     # the same teacher with other settings, interrupted after its first checkpoint (step 6 of 12) on one machine
     more_steps = TINY_TRAIN.replace("steps = 12", "steps = 13")
     teacher = train_job(
-        load_sweep(write_config(tmp_path, seeds="[0]", teacher_train=more_steps, keep_checkpoints=True)), "teacher", 0
+        load_sweep(write_config(tmp_path, seeds="[0]", teacher_train=more_steps, commit_checkpoint=True)), "teacher", 0
     )
     steps = {"taken": 0}
     step = trainer.train_step

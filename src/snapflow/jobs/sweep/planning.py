@@ -121,7 +121,7 @@ class TrainJob(FolderJob):
     teacher: TrainJob | None = None
     distill: DistillSettings | None = None
     ledger: Path | None = None
-    kept: Path | None = None  # where its checkpoint is kept to be committed (a sweep's ``keep_checkpoints``)
+    kept: Path | None = None  # where its checkpoint is kept to be committed (its run's ``commit_checkpoint``)
 
     @property
     def seed(self) -> int:
@@ -288,7 +288,7 @@ def train_job(config: SweepConfig, run: str, seed: int) -> TrainJob:
     train = replace(spec.train, seed=seed)
     directory = config.run_dir(run, seed)
     ledger = config.ledger_path(directory / RECORD)
-    kept = ledger.parent / "checkpoint" if config.keep_checkpoints else None
+    kept = ledger.parent / "checkpoint" if spec.commit_checkpoint else None
     return TrainJob(
         config.name, run, directory, data_job(config), train, spec.policy, teacher, spec.distill, ledger, kept
     )

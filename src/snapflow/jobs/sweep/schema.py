@@ -46,6 +46,9 @@ class RunSpec:
     policy: PolicyConfig | None = None
     teacher: str | None = None
     distill: DistillSettings | None = None
+    # its checkpoint kept beside its ledger record, to be committed: the latest while it trains, the policy once it
+    # has finished, so a fresh machine continues the run, or distils and evaluates it, instead of training it again
+    commit_checkpoint: bool = False
 
 
 @dataclass(frozen=True)
@@ -84,9 +87,6 @@ class SweepConfig:
     data: DataSpec
     runs: dict[str, RunSpec]
     tables: tuple[TableSpec, ...]
-    # each run's checkpoint kept beside its ledger record, to be committed: the latest while it trains, the policy once
-    # it has finished, so a fresh machine continues a run, or trains and evaluates its students, without repeating it
-    keep_checkpoints: bool = False
 
     def run_dir(self, run: str, seed: int) -> Path:
         return self.output_dir / run / f"seed-{seed}"
@@ -222,20 +222,26 @@ def _runs(raw: Any, seeds: tuple[int, ...], data: DataSpec, recipe: str) -> dict
     runs: dict[str, RunSpec] = {}
     for name, entry in raw.items():
         section = f"[runs.{name}]"
-        _checked(section, entry, {"teacher", "policy", "train", "distill", "seeds", "recipe"})
+        _checked(section, entry, {"teacher", "policy", "train", "distill", "seeds", "recipe", "commit_checkpoint"})
         run_seeds = _seeds(section, entry.get("seeds", list(seeds)))
+        commit_checkpoint = entry.get("commit_checkpoint", False)
+        if not isinstance(commit_checkpoint, bool):
+            raise ValueError(f"{section}: commit_checkpoint must be true or false, got {commit_checkpoint!r}")
         if "teacher" in entry:
             if "policy" in entry:
                 raise ValueError(f"{section}: a student takes its policy from its teacher; remove 'policy'")
             base = _recipe(section, entry.get("recipe", recipe))
             train = _dataclass_from(f"{section} train", base.train, entry.get("train", {}))
             settings = _dataclass_from(f"{section} distill", base.distill, entry.get("distill", {}))
-            runs[name] = RunSpec(name, run_seeds, train, teacher=entry["teacher"], distill=settings)
+            runs[name] = RunSpec(
+                name, run_seeds, train, teacher=entry["teacher"], distill=settings, commit_checkpoint=commit_checkpoint
+            )
         else:
             if "distill" in entry or "recipe" in entry:
                 raise ValueError(f"{section}: 'distill' and 'recipe' need a 'teacher' to distill from")
             train = _dataclass_from(f"{section} train", TEACHER_TRAINING, entry.get("train", {}))
-            runs[name] = RunSpec(name, run_seeds, train, _policy(f"{section} policy", entry.get("policy", {}), data))
+            policy = _policy(f"{section} policy", entry.get("policy", {}), data)
+            runs[name] = RunSpec(name, run_seeds, train, policy, commit_checkpoint=commit_checkpoint)
     for run in runs.values():
         if run.teacher is not None:
             teacher = runs.get(run.teacher)
@@ -307,18 +313,7 @@ def load_sweep(path: str | Path) -> SweepConfig:
         raw = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as error:
         raise ValueError(f"{path}: not valid TOML: {error}") from None
-    allowed = {
-        "name",
-        "title",
-        "seeds",
-        "output_dir",
-        "results_dir",
-        "data",
-        "runs",
-        "tables",
-        "recipe",
-        "keep_checkpoints",
-    }
+    allowed = {"name", "title", "seeds", "output_dir", "results_dir", "data", "runs", "tables", "recipe"}
     _checked(str(path), raw, allowed, frozenset({"name", "runs", "tables"}))
     name = raw["name"]
     if not isinstance(name, str) or not re.fullmatch(r"[a-z0-9][a-z0-9._-]*", name):
@@ -327,9 +322,6 @@ def load_sweep(path: str | Path) -> SweepConfig:
     data = _data(raw.get("data", {}))
     _recipe(str(path), raw.get("recipe", DEFAULT_RECIPE))
     runs = _runs(raw["runs"], seeds, data, raw.get("recipe", DEFAULT_RECIPE))
-    keep_checkpoints = raw.get("keep_checkpoints", False)
-    if not isinstance(keep_checkpoints, bool):
-        raise ValueError(f"{path}: keep_checkpoints must be true or false, got {keep_checkpoints!r}")
     return SweepConfig(
         name,
         raw.get("title", name),
@@ -339,7 +331,6 @@ def load_sweep(path: str | Path) -> SweepConfig:
         data,
         runs,
         _tables(path, raw["tables"], seeds, runs),
-        keep_checkpoints,
     )
 
 
