@@ -184,11 +184,13 @@ class TrainJob(FolderJob):
 
     def _kept_checkpoint(self, finished: bool) -> Path | None:
         """The checkpoint kept by a run with the current settings that had (or had not) ``finished``, if any."""
+        if self.kept is None:
+            return None
         try:
-            kept = json.loads((self.kept / KEPT).read_text()) if self.kept is not None else None
+            kept = json.loads((self.kept / KEPT).read_text())
         except (FileNotFoundError, json.JSONDecodeError):
             return None
-        if kept is None or kept["job"] != record(self) or kept["finished"] != finished:
+        if kept["job"] != record(self) or kept["finished"] != finished:
             return None
         checkpoint = self.kept / kept["checkpoint"]
         return checkpoint if checkpoint.is_dir() else None
