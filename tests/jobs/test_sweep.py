@@ -668,7 +668,7 @@ def test_a_fresh_machine_evaluates_a_kept_policy_and_continues_a_kept_unfinished
 
 def test_a_data_section_that_names_its_cameras_changes_its_key_and_one_that_does_not_keeps_the_committed_records():
     """The LIBERO-Spatial teachers, recorded before [data] could name cameras, are still recorded (their key holds);
-    a sweep that stores fewer cameras is other demonstrations, collected into a folder of their own settings."""
+    a sweep that stores fewer cameras is other demonstrations (another key: collected again, its runs trained again)."""
     config = load_sweep(ROOT / "configs" / "sweeps" / "libero-spatial.toml")
     assert config.data.extra_cameras is None
     assert all(is_recorded(train_job(config, "teacher", seed)) for seed in (0, 2))
