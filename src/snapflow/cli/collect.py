@@ -98,10 +98,11 @@ def _check_same_collection(
     cameras = tuple(demonstrations.extra_images)
     found = (demonstrations.env, demonstrations.tasks, set(per_task.values()), size, cameras)
     if found != (env, tasks, {episodes}, image_size, extra_cameras if image_size else ()):
+        other_cameras = f", other cameras {list(cameras)}" if cameras else ""
         raise FileExistsError(
             f"{output} already holds other demonstrations ({demonstrations.env}, {len(per_task)} tasks, "
-            f"{sorted(set(per_task.values()))} episodes a task, images {size or 'none'}, other cameras "
-            f"{list(cameras) or 'none'}); choose another --output"
+            f"{sorted(set(per_task.values()))} episodes a task, images {size or 'none'}{other_cameras}); "
+            "choose another --output"
         )
 
 
