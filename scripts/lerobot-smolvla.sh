@@ -14,6 +14,9 @@
 #                                                         # (a sweep's data folder): written as the dataset, not collected
 #   SHORT=1 bash scripts/lerobot-smolvla.sh OUTPUT        # one or two tasks, a tiny SmolVLA, a few steps: the chain only
 #   THREADS=1 ...                                         # torch threads, where other jobs share the cores
+#   KEEP=DIR ...                                          # keep the teacher's and the student's latest checkpoints
+#                                                         # in DIR/teacher and DIR/student (to commit): another
+#                                                         # machine's run continues from them
 #
 # Run it again after an interruption: finished stages are kept, training resumes from its last checkpoint.
 set -euo pipefail
@@ -49,10 +52,10 @@ data="${DATA:-$out/data}"
 }
 [ -f "$out/teacher/lerobot_policy/snapflow.json" ] ||
     snapflow train --policy-type smolvla --smolvlm "$size" --image-size "$seen" --dataset "$out/lerobot" \
-        --output "$out/teacher" --resume "${teacher[@]}" "${options[@]}"
+        --output "$out/teacher" --resume ${KEEP:+--keep-progress "$KEEP/teacher"} "${teacher[@]}" "${options[@]}"
 [ -f "$out/student/lerobot_policy/snapflow.json" ] ||
     snapflow distill --policy "$out/teacher/lerobot_policy" --dataset "$out/lerobot" --recipe snapflow \
-        --output "$out/student" --resume "${student[@]}" "${options[@]}"
+        --output "$out/student" --resume ${KEEP:+--keep-progress "$KEEP/student"} "${student[@]}" "${options[@]}"
 [ -f "$out/eval/report.json" ] ||
     snapflow eval --policy "$out/teacher/lerobot_policy=teacher-10,naive" "$out/student/lerobot_policy=snapflow-1" \
         --env "$env" --tasks "$tasks" --episodes "$episodes" --data "$data" --output "$out/eval" "${options[@]}"

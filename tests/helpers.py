@@ -80,7 +80,8 @@ class RecordingPolicy(nn.Module):
 
 def run_short_lerobot_chain(folder: Path, bench: str) -> Path:
     """The README's LeRobot SmolVLA chain in its short form (``SHORT=1 BENCH=<bench> scripts/lerobot-smolvla.sh``)
-    into ``folder``, which it returns; the chain's stderr tail is the failure message."""
+    into ``folder``, which it returns, keeping its checkpoints in ``folder/kept``; the chain's stderr tail is the
+    failure message."""
     finished = subprocess.run(
         ["bash", str(Path(__file__).resolve().parents[1] / "scripts" / "lerobot-smolvla.sh"), str(folder)],
         # the chain's python and snapflow are this interpreter's, whichever environment is first on PATH
@@ -88,6 +89,7 @@ def run_short_lerobot_chain(folder: Path, bench: str) -> Path:
             **os.environ,
             "SHORT": "1",
             "BENCH": bench,
+            "KEEP": str(folder / "kept"),
             "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}",
         },
         capture_output=True,

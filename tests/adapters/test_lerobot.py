@@ -94,7 +94,8 @@ def test_cli_distills_a_saved_smolvla_on_a_local_lerobot_dataset(vlm_directory, 
     dataset = write_tiny_dataset(tmp_path / "dataset")
     build_tiny_smolvla(vlm_directory).save_pretrained(tmp_path / "teacher")
     arguments = _distill_arguments(tmp_path, dataset)
-    assert main(arguments) == 0
+    kept = ["--keep-progress", str(tmp_path / "kept")]
+    assert main(arguments + kept) == 0
     assert (tmp_path / "run" / "checkpoints" / "step_0000003" / "policy.safetensors").is_file()
     distilled = load_distilled(tmp_path / "run" / "lerobot_policy")
     assert distilled.target_time_embedding.linear_out.weight.abs().sum() > 0, "phi_s must have trained"
@@ -122,6 +123,15 @@ def test_cli_distills_a_saved_smolvla_on_a_local_lerobot_dataset(vlm_directory, 
     assert actions.shape == (1, 4, 4) and torch.isfinite(actions).all()
 
     assert main(arguments + ["--resume"]) == 0  # already at its last step: resumes and stops cleanly
+    # on a machine with only the kept checkpoint, the finished run is continued at its last step: exported as it was
+    moved = [str(tmp_path / "moved") if argument == str(tmp_path / "run") else argument for argument in arguments]
+    capsys.readouterr()
+    assert main(moved + kept + ["--resume"]) == 0
+    out = capsys.readouterr().out
+    assert "continuing from the one kept in" in out and "moved at step 3" in out, "no step trained again"
+    again = load_distilled(tmp_path / "moved" / "lerobot_policy").state_dict()
+    assert again.keys() == distilled.state_dict().keys()
+    assert all(torch.equal(again[name], value) for name, value in distilled.state_dict().items())
     assert main(["distill", "--policy", "x", "--data", "y", "--output", str(tmp_path / "bad"), "--no-progress"]) == 2
     assert "either --teacher and --data" in capsys.readouterr().err
     # a policy whose state is shorter than the dataset's is named before any step (LeRobot would pad silently)

@@ -4,6 +4,7 @@ and evaluated closed loop by snapflow's evaluator through LeRobot's processors (
 
 from __future__ import annotations
 
+import filecmp
 import json
 import subprocess
 import sys
@@ -116,3 +117,12 @@ def test_the_chain_trains_distills_and_evaluates_a_lerobot_smolvla(collected):
         assert row["offline"]["samples"] > 0
     assert set(report["latency"]) == set(rows)
     assert (collected / "eval" / "report.md").is_file() and list((collected / "eval").glob("*.png"))
+    # KEEP: each stage's final checkpoint, kept to commit (the short chain's teacher runs 4 steps, its student 2)
+    for stage, last in (("teacher", "step_0000004"), ("student", "step_0000002")):
+        kept = collected / "kept" / stage
+        assert sorted(path.name for path in kept.iterdir()) == ["kept.json", last]
+        assert filecmp.cmp(
+            kept / last / "policy.safetensors",
+            collected / stage / "checkpoints" / last / "policy.safetensors",
+            shallow=False,
+        )

@@ -14,6 +14,7 @@ from safetensors.torch import load_file
 from snapflow.cli import main
 from snapflow.policies.checkpoint import CheckpointError, load_policy
 from snapflow.policies.factory import default_config
+from snapflow.training.checkpoint import keep_checkpoint
 from snapflow.training.recipes import DistillSettings
 from snapflow.training.stages import distill, train_teacher
 from tests.training.fixtures import SYNTHETIC_TASKS, TASK, TINY, synthetic_demonstrations, train_config
@@ -189,6 +190,33 @@ def test_a_command_into_a_run_another_holds_is_refused_and_the_run_resumes_once_
     assert f"resuming {run} at step 500" in resumed.stdout and "teacher trained to step 700" in resumed.stdout
     assert json.loads((run / "latest.json").read_text()) == {"checkpoint": "checkpoints/step_0000700"}
     assert json.loads((run / "history.json").read_text())["step"] == 700
+
+
+def test_a_run_continues_on_another_machine_from_the_checkpoint_it_kept(demonstrations, tmp_path, capsys):
+    """--keep-progress: the latest checkpoint is copied to a folder to commit; on a machine with that folder alone,
+    --resume continues from it and ends with the weights of a run never interrupted."""
+    kept = tmp_path / "kept"
+    common = ["--data", str(demonstrations), "--steps", "4", "--batch-size", "8", "--checkpoint-every", "2"]
+    common += ["--no-progress", "--keep-progress", str(kept)]
+    first = tmp_path / "first"
+    assert main(["train", *common, "--output", str(first)]) == 0
+    assert sorted(path.name for path in kept.iterdir()) == ["kept.json", "step_0000004"], "the latest alone"
+    assert _same_weights(_weights(first, 4), load_file(kept / "step_0000004" / "policy.safetensors"))
+    # the first machine was lost after its step-2 checkpoint: that is what it had kept
+    keep_checkpoint(first / "checkpoints" / "step_0000002", kept, {})
+    # marked, to tell a continuation from a fresh start (which, with the same seed, would end with the same weights)
+    state_file = kept / "step_0000002" / "trainer_state.json"
+    state_file.write_text(json.dumps({**json.loads(state_file.read_text()), "wall_time_s": 1000.0}))
+    second = tmp_path / "second"
+    assert main(["train", *common, "--output", str(second), "--resume"]) == 0
+    assert "continuing from the one kept in" in capsys.readouterr().out
+    assert json.loads((second / "history.json").read_text())["wall_time_s"] > 1000, "the kept trainer state"
+    assert _same_weights(_weights(first, 4), _weights(second, 4))
+    assert sorted(path.name for path in kept.iterdir()) == ["kept.json", "step_0000004"]
+    # without --resume a kept checkpoint is never read: a fresh output starts over
+    assert main(["train", *common, "--output", str(tmp_path / "third")]) == 0
+    assert "continuing from" not in capsys.readouterr().out
+    assert json.loads((tmp_path / "third" / "history.json").read_text())["wall_time_s"] < 1000
 
 
 def test_resume_refuses_changed_settings_and_fresh_runs_refuse_to_overwrite(demonstrations, tmp_path):

@@ -182,7 +182,7 @@ def add_output(parser: argparse.ArgumentParser, default: str | None, help: str) 
 
 def add_training_options(parser: argparse.ArgumentParser, base: TrainConfig | None, data_required: bool = True) -> None:
     """``--data``, ``--output``, the TrainConfig fields of ``TRAINING_OPTIONS`` (defaults from ``base``; None: the
-    command picks its base once it knows the policy) and ``--resume``."""
+    command picks its base once it knows the policy), ``--resume`` and ``--keep-progress``."""
     parser.add_argument("--data", required=data_required, help="demonstrations directory written by `snapflow collect`")
     add_output(parser, None, "run directory for checkpoints")
     for name, help in TRAINING_OPTIONS.items():
@@ -201,6 +201,12 @@ def add_training_options(parser: argparse.ArgumentParser, base: TrainConfig | No
         "checkpoint's policy; the raw weights are kept beside it for --resume (default: off)",
     )
     parser.add_argument("--resume", action="store_true", help="continue from the run's latest checkpoint")
+    parser.add_argument(
+        "--keep-progress",
+        metavar="DIR",
+        help="also keep a copy of the latest checkpoint (all that --resume reads) in DIR, a folder to commit or carry "
+        "to another machine; with --resume, an --output without a checkpoint continues from the one kept there",
+    )
 
 
 def _default(cls: type, name: str) -> Any:

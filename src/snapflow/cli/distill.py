@@ -104,7 +104,14 @@ def run(args: argparse.Namespace) -> int:
 
     train, settings = _student_settings(args, lerobot=False)
     state = distill(
-        args.teacher, args.data, args.output, train, settings, resume=args.resume, progress=not args.no_progress
+        args.teacher,
+        args.data,
+        args.output,
+        train,
+        settings,
+        resume=args.resume,
+        progress=not args.no_progress,
+        keep_progress=args.keep_progress,
     )
     print(
         f"SnapFlow student trained to step {state['step']} in {state['wall_time_s']:.0f} s; checkpoints in {args.output}"
@@ -120,7 +127,15 @@ def _distill_lerobot(args: argparse.Namespace) -> int:
     from snapflow.training.lerobot import EXPORT_DIRECTORY, distill_lerobot
 
     state = distill_lerobot(
-        args.policy, dataset_root, repo_id, args.output, train, settings, args.resume, not args.no_progress
+        args.policy,
+        dataset_root,
+        repo_id,
+        args.output,
+        train,
+        settings,
+        args.resume,
+        not args.no_progress,
+        keep_progress=args.keep_progress,
     )
     print(f"SnapFlow student trained to step {state['step']}; LeRobot policy in {Path(args.output) / EXPORT_DIRECTORY}")
     return 0
@@ -129,6 +144,8 @@ def _distill_lerobot(args: argparse.Namespace) -> int:
 def _write_student(args: argparse.Namespace) -> int:
     if not args.policy or args.dataset or args.teacher or args.data:
         raise ValueError("--lerobot-train takes --policy and no dataset: lerobot-train reads the dataset")
+    if args.keep_progress:
+        raise ValueError("--lerobot-train writes no training run, so it keeps no progress: lerobot-train checkpoints")
     if given(training_overrides(args)):
         raise ValueError(
             f"--lerobot-train writes no training run: give {', '.join(given(training_overrides(args)))} to "

@@ -110,7 +110,16 @@ def run(args: argparse.Namespace) -> int:
         {"chunk_length": args.chunk_length, "image_size": args.image_size, "use_image": args.use_image or None}
     )
     policy = policy_config_for(args.policy_type, Demonstrations.load(args.data), args.state_dim, **overrides)
-    state = train_teacher(args.data, args.output, policy, config, args.val_fraction, args.resume, not args.no_progress)
+    state = train_teacher(
+        args.data,
+        args.output,
+        policy,
+        config,
+        args.val_fraction,
+        args.resume,
+        not args.no_progress,
+        keep_progress=args.keep_progress,
+    )
     print(f"teacher trained to step {state['step']} in {state['wall_time_s']:.0f} s; checkpoints in {args.output}")
     return 0
 
@@ -134,6 +143,7 @@ def _train_lerobot(args: argparse.Namespace, config: TrainConfig) -> int:
         val_fraction=args.val_fraction,
         resume=args.resume,
         progress=not args.no_progress,
+        keep_progress=args.keep_progress,
         **given({"chunk_size": args.chunk_length}),
     )
     print(

@@ -8,6 +8,7 @@ switched only after that, so a kill at any moment leaves the last good checkpoin
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 from pathlib import Path
@@ -32,6 +33,7 @@ from snapflow.reporting.files import write_json
 
 OPTIMIZER_STATE, TRAINER_STATE = "optimizer.safetensors", "trainer_state.json"
 TRAINING_WEIGHTS = "training_weights.safetensors"
+KEPT = "kept.json"  # beside a kept checkpoint: its name and what its keeper noted of it
 
 
 def optimizer_tensors(optimizer: torch.optim.Optimizer) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
@@ -143,6 +145,36 @@ def _into_place(temporary: Path, directory: Path) -> Path:
     return directory
 
 
+def keep_checkpoint(checkpoint: Path, directory: Path, note: dict[str, Any], policy_only: bool = False) -> Path:
+    """Make a copy of ``checkpoint`` the one checkpoint kept in ``directory`` (a folder to commit or carry to another
+    machine), with ``note`` recorded beside it (:func:`read_kept` returns both); the previous one is removed only
+    once the copy and its note are whole, so a kill at any moment leaves a checkpoint that the note names."""
+    kept = copy_checkpoint(checkpoint, Path(directory) / Path(checkpoint).name, policy_only)
+    write_json(Path(directory) / KEPT, {"checkpoint": kept.name, **note})
+    for other in Path(directory).glob("step_*"):
+        if other != kept:
+            shutil.rmtree(other)
+    return kept
+
+
+def read_kept(directory: Path) -> tuple[Path, dict[str, Any]] | None:
+    """The checkpoint kept in ``directory`` by :func:`keep_checkpoint` and its note, or None where none is."""
+    try:
+        note = json.loads((Path(directory) / KEPT).read_text())
+    except (FileNotFoundError, json.JSONDecodeError):
+        return None
+    checkpoint = Path(directory) / note.pop("checkpoint")
+    return (checkpoint, note) if checkpoint.is_dir() else None
+
+
+def install_checkpoint(checkpoint: Path, run_directory: Path, keep: int) -> Path:
+    """Copy a checkpoint kept elsewhere into ``run_directory`` as its latest, which training resumes from (``keep``:
+    the step checkpoints a run keeps)."""
+    installed = copy_checkpoint(checkpoint, Path(run_directory) / "checkpoints" / Path(checkpoint).name)
+    mark_latest(Path(run_directory), installed, keep)
+    return installed
+
+
 def mark_latest(run_directory: Path, checkpoint: Path, keep: int) -> None:
     """Point ``latest.json`` at ``checkpoint``, then delete all but the ``keep`` newest step checkpoints."""
     write_json(run_directory / LATEST, {"checkpoint": str(checkpoint.relative_to(run_directory))})
@@ -158,6 +190,9 @@ __all__ = [
     "TRAINING_WEIGHTS",
     "save_checkpoint",
     "copy_checkpoint",
+    "keep_checkpoint",
+    "read_kept",
+    "install_checkpoint",
     "mark_latest",
     "restore_training",
 ]

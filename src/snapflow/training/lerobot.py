@@ -126,11 +126,13 @@ def distill_lerobot(
     progress: bool = True,
     preprocessor_overrides: dict[str, Any] | None = None,
     val_fraction: float | None = None,
+    keep_progress: str | Path | None = None,
 ) -> dict[str, Any]:
     """Distill a LeRobot pi0, pi0.5 or SmolVLA (hub id or local pretrained directory) on the LeRobotDataset
     ``repo_id`` at ``dataset_root`` (None: LeRobot's cache, fetched from the hub if missing);
     ``preprocessor_overrides`` reach LeRobot's processor loader (e.g. a local tokenizer). ``val_fraction`` of each
-    task's episodes is held out (default: what a teacher snapflow trained held out, else none).
+    task's episodes is held out (default: what a teacher snapflow trained held out, else none). ``keep_progress``: as
+    :func:`~snapflow.training.trainer.train`'s.
 
     ``output`` is held from loading to export: another process writing it is refused at once with
     :class:`~snapflow.reporting.locks.RunLockedError`."""
@@ -158,6 +160,7 @@ def distill_lerobot(
             progress,
             preprocessor_overrides,
             val_fraction,
+            keep_progress,
         )
 
 
@@ -185,12 +188,14 @@ def train_smolvla_teacher(
     val_fraction: float = VAL_FRACTION,
     resume: bool = False,
     progress: bool = True,
+    keep_progress: str | Path | None = None,
 ) -> dict[str, Any]:
     """LeRobot's ``SmolVLAPolicy`` over a SmolVLM of ``size`` (default: the tiny one; config and word tokenizer of the dataset's tasks
     written to ``output/smolvlm``; random weights), every part trained by flow matching (alpha = 1, LeRobot's
     Beta(1.5, 1) times) on the dataset's state, images and actions, through the adapter, so the loss is LeRobot's
     own velocity on LeRobot's own pre-processed batches. Exported as a plain SmolVLA (no phi_s) with its
-    processors in ``output/lerobot_policy``, ready for ``snapflow distill --policy``."""
+    processors in ``output/lerobot_policy``, ready for ``snapflow distill --policy``. ``keep_progress``: as
+    :func:`~snapflow.training.trainer.train`'s."""
     size = size or SmolVLMSize()
     check_dataset(dataset_root, repo_id)
     with hold_run_lock(output, TEACHER_HOLDER) if PartialState().is_main_process else nullcontext():
@@ -239,6 +244,7 @@ def train_smolvla_teacher(
             run_metadata,
             resume,
             progress,
+            keep_progress,
             lambda folder: save_teacher(adapter, folder, val_fraction),
         )
 
@@ -255,6 +261,7 @@ def _train_and_export(
     run_metadata: dict[str, Any],
     resume: bool,
     progress: bool,
+    keep_progress: str | Path | None,
     save: Callable[[Path], Path],
 ) -> dict[str, Any]:
     """The one trainer on LeRobot's pre-processed batches of ``dataset`` (``holder``: the command holding
@@ -272,6 +279,7 @@ def _train_and_export(
         trainable=trainable,
         progress=progress,
         holder=holder,
+        keep_progress=keep_progress,
     )
     export = save(Path(output) / EXPORT_DIRECTORY)
     preprocessor.save_pretrained(export)
@@ -290,6 +298,7 @@ def _distill_lerobot(
     progress: bool,
     preprocessor_overrides: dict[str, Any] | None,
     val_fraction: float | None,
+    keep_progress: str | Path | None,
 ) -> dict[str, Any]:
     """:func:`distill_lerobot` with the output held."""
     from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
@@ -328,6 +337,7 @@ def _distill_lerobot(
         run_metadata,
         resume,
         progress,
+        keep_progress,
         lambda folder: save_distilled(adapter, folder, val_fraction),
     )
 

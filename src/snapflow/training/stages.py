@@ -50,9 +50,10 @@ def train_teacher(
     resume: bool = False,
     progress: bool = True,
     on_checkpoint: Callable[[Path], None] | None = None,
+    keep_progress: str | Path | None = None,
 ) -> dict[str, Any]:
     """Plain flow matching (alpha = 1) of the registered policy ``policy_config`` configures, on the demonstrations;
-    normalisation from the training episodes. ``on_checkpoint``: as :func:`~snapflow.training.trainer.train`'s."""
+    normalisation from the training episodes. ``on_checkpoint``, ``keep_progress``: as :func:`~snapflow.training.trainer.train`'s."""
     if not 0 <= val_fraction < 1:
         raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction}")
     demonstrations = Demonstrations.load(data)
@@ -80,6 +81,7 @@ def train_teacher(
         progress=progress,
         holder="snapflow train",
         on_checkpoint=on_checkpoint,
+        keep_progress=keep_progress,
     )
 
 
@@ -93,10 +95,11 @@ def distill(
     resume: bool = False,
     progress: bool = True,
     on_checkpoint: Callable[[Path], None] | None = None,
+    keep_progress: str | Path | None = None,
 ) -> dict[str, Any]:
     """SnapFlow (or a baseline, see ``DistillSettings``): the student starts as the teacher plus a zero-initialised
     phi_s; prefix frozen by default. ``config`` and ``settings`` default to the default recipe's
-    (:data:`~snapflow.training.recipes.RECIPES`). ``on_checkpoint``: as :func:`~snapflow.training.trainer.train`'s."""
+    (:data:`~snapflow.training.recipes.RECIPES`). ``on_checkpoint``, ``keep_progress``: as :func:`~snapflow.training.trainer.train`'s."""
     recipe = RECIPES[DEFAULT_RECIPE]
     config, settings = config or recipe.train, settings or recipe.distill
     loaded = load_policy(teacher, target_time=settings.target_time)
@@ -127,6 +130,7 @@ def distill(
         progress=progress,
         holder="snapflow distill",
         on_checkpoint=on_checkpoint,
+        keep_progress=keep_progress,
     )
 
 

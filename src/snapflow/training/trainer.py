@@ -25,7 +25,14 @@ from snapflow.protocol import map_tensors
 from snapflow.reporting.files import write_json
 from snapflow.reporting.locks import hold_run_lock
 from snapflow.reporting.records import as_record
-from snapflow.training.checkpoint import mark_latest, restore_training, save_checkpoint
+from snapflow.training.checkpoint import (
+    install_checkpoint,
+    keep_checkpoint,
+    mark_latest,
+    read_kept,
+    restore_training,
+    save_checkpoint,
+)
 from snapflow.training.config import TrainConfig
 from snapflow.training.ema import WeightAverage
 
@@ -156,6 +163,7 @@ def train(
     *,
     holder: str,
     on_checkpoint: Callable[[Path], None] | None = None,
+    keep_progress: str | Path | None = None,
 ) -> dict[str, Any]:
     """Optimise ``objective`` on ``policy`` (any module implementing FlowPolicy); checkpoints under
     ``run_directory/checkpoints``. The data needs ``len()`` and ``batch(indices) -> (observation, actions)``.
@@ -167,12 +175,20 @@ def train(
     process training into it is refused with :class:`~snapflow.reporting.locks.RunLockedError`, which names
     ``holder`` (the command that trains, e.g. ``snapflow train``). ``on_checkpoint`` is called with each checkpoint
     once it is whole and marked latest (a sweep keeps a copy of it to commit).
+    ``keep_progress``: a folder that holds a copy of the latest checkpoint, all that resuming reads (the previous copy
+    removed), to commit or carry to another machine; with ``resume``, a run folder without a checkpoint of its own
+    continues from the one kept there.
     """
     run_directory = Path(run_directory)
     accelerator = Accelerator(mixed_precision=config.mixed_precision)
     # only the main process writes the run, so only it holds the folder (the processes of one launch would otherwise
     # refuse each other)
     with hold_run_lock(run_directory, holder) if accelerator.is_main_process else nullcontext():
+        if keep_progress is not None:
+            if resume and accelerator.is_main_process:
+                _continue_kept(accelerator, run_directory, Path(keep_progress), config)
+            accelerator.wait_for_everyone()
+            on_checkpoint = _keeping(Path(keep_progress), on_checkpoint)
         return _train(
             accelerator,
             policy,
@@ -187,6 +203,28 @@ def train(
             progress,
             on_checkpoint,
         )
+
+
+def _continue_kept(accelerator: Accelerator, run_directory: Path, kept_in: Path, config: TrainConfig) -> None:
+    """Install the checkpoint kept in ``kept_in`` as the latest of a run folder that has none."""
+    kept = read_kept(kept_in)
+    if kept is None or (run_directory / LATEST).is_file():
+        return
+    install_checkpoint(kept[0], run_directory, config.keep_checkpoints)
+    accelerator.print(
+        f"{run_directory} holds no checkpoint: continuing from the one kept in {kept_in} ({kept[0].name})"
+    )
+
+
+def _keeping(kept_in: Path, then: Callable[[Path], None] | None) -> Callable[[Path], None]:
+    """An ``on_checkpoint`` that keeps a copy of each checkpoint in ``kept_in``, then calls ``then``."""
+
+    def on_checkpoint(checkpoint: Path) -> None:
+        keep_checkpoint(checkpoint, kept_in, {})
+        if then is not None:
+            then(checkpoint)
+
+    return on_checkpoint
 
 
 def _optimiser(

@@ -6,7 +6,6 @@ an interrupted sweep keeps the tasks it finished."""
 
 from __future__ import annotations
 
-import json
 import shutil
 from contextlib import ExitStack
 from dataclasses import dataclass, replace
@@ -24,16 +23,14 @@ from snapflow.jobs.sweep.schema import DataSpec, RowSpec, SweepConfig, TableSpec
 from snapflow.policies.checkpoint import load_policy, resolve_checkpoint
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import policy_type_of
-from snapflow.reporting.files import write_json
 from snapflow.reporting.locks import hold_run_lock
 from snapflow.reporting.records import as_record
-from snapflow.training.checkpoint import copy_checkpoint, mark_latest
+from snapflow.training.checkpoint import install_checkpoint, keep_checkpoint, read_kept
 from snapflow.training.config import VAL_FRACTION, TrainConfig
 from snapflow.training.recipes import DistillSettings
 from snapflow.training.stages import distill, train_teacher
 
 RECORD = "job.json"  # a collect or train job's record, inside the folder it fills
-KEPT = "kept.json"  # beside a run's kept checkpoint: the run's settings, the checkpoint's name, whether it finished
 
 
 class FolderJob(Job):
@@ -176,29 +173,18 @@ class TrainJob(FolderJob):
         """Make ``checkpoint`` the one kept in :attr:`kept`: all that resuming reads while the run goes on, the policy
         alone (what students and evaluations read) once it has finished."""
         assert self.kept is not None
-        copy_checkpoint(checkpoint, self.kept / checkpoint.name, policy_only=finished)
-        write_json(self.kept / KEPT, {"job": record(self), "checkpoint": checkpoint.name, "finished": finished})
-        for other in self.kept.glob("step_*"):
-            if other.name != checkpoint.name:
-                shutil.rmtree(other)
+        keep_checkpoint(checkpoint, self.kept, {"job": record(self), "finished": finished}, policy_only=finished)
 
     def _kept_checkpoint(self, finished: bool) -> Path | None:
         """The checkpoint kept by a run with the current settings that had (or had not) ``finished``, if any."""
-        if self.kept is None:
+        kept = read_kept(self.kept) if self.kept is not None else None
+        if kept is None or kept[1] != {"job": record(self), "finished": finished}:
             return None
-        try:
-            kept = json.loads((self.kept / KEPT).read_text())
-        except (FileNotFoundError, json.JSONDecodeError):
-            return None
-        if kept["job"] != record(self) or kept["finished"] != finished:
-            return None
-        checkpoint = self.kept / kept["checkpoint"]
-        return checkpoint if checkpoint.is_dir() else None
+        return kept[0]
 
     def _install(self, checkpoint: Path) -> None:
         """Put a kept checkpoint into the run folder as its latest."""
-        installed = copy_checkpoint(checkpoint, self.directory / "checkpoints" / checkpoint.name)
-        mark_latest(self.directory, installed, self.train.keep_checkpoints)
+        install_checkpoint(checkpoint, self.directory, self.train.keep_checkpoints)
 
     def restore_outputs(self) -> bool:
         checkpoint = self._kept_checkpoint(finished=True)
