@@ -4,6 +4,7 @@ failing phase, and every row's chunks at the failed moments against the nearest 
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -53,6 +54,7 @@ def test_the_diagnosis_scores_episodes_against_the_expert_and_compares_chunks(ru
     assert len(diagnosis.comparisons) == EPISODES  # one moment per failed episode, at most `states`
     for comparison in diagnosis.comparisons:
         assert diagnosis.failing_phase * PHASE_STEPS <= comparison.step < (diagnosis.failing_phase + 1) * PHASE_STEPS
+        assert comparison.step % 4 == 0, "a moment where the student sampled a chunk (n_act 4)"
         assert all(-1 <= value <= 1 for value in comparison.expert_action), "the action the environment applies"
         for label, chunks in comparison.chunks.items():
             chunks = np.asarray(chunks)
@@ -101,3 +103,22 @@ def test_the_command_writes_the_report_and_its_figures(runs, tmp_path):
     assert [row["label"] for row in report["rows"]] == ["teacher 10-NFE", "naive 1-NFE", "SnapFlow 1-NFE"]
     assert (output / "phases.png").stat().st_size > 0 and (output / "chunks-0.png").stat().st_size > 0
     assert "Failing phase of SnapFlow 1-NFE" in (output / "diagnosis.md").read_text()
+
+
+def test_a_camera_policy_is_compared_where_its_frames_were_rendered(tmp_path_factory, tmp_path):
+    """The evaluator renders a frame only where a chunk is sampled (every n_act-th step), so the failed moments whose
+    chunks are compared are those: a camera policy's diagnosis reads a frame at each."""
+    task = "pick-place-v3"  # out of reach of three training steps, so there is a failed moment to compare at
+    data = collected(tmp_path_factory, (task,), episodes_per_task=2, image_size=32)
+    config = replace(TINY, use_image=True, image_size=32, patch_size=16)
+    train_teacher(data, tmp_path / "teacher", config, train_config(3), progress=False)
+    distill(tmp_path / "teacher", data, tmp_path / "student", train_config(3), DistillSettings(), progress=False)
+    rows = [
+        ("teacher 10-NFE", load_policy(tmp_path / "teacher"), SamplingMode.parse("teacher-10")),
+        ("SnapFlow 1-NFE", load_policy(tmp_path / "student"), SamplingMode.parse("snapflow-1")),
+    ]
+    diagnosis = diagnose_task(rows, make_benchmark("metaworld"), task, 1, Demonstrations.load(data), 4, progress=False)
+    assert diagnosis.rows[-1].successes == 0 and len(diagnosis.comparisons) == 1
+    (comparison,) = diagnosis.comparisons
+    assert comparison.step % 4 == 0
+    assert np.asarray(comparison.chunks["SnapFlow 1-NFE"]).shape == (8, TINY.chunk_length, 4)

@@ -168,14 +168,17 @@ def _failing_phase(reference: RowTrace, student: RowTrace) -> int:
     return max(excess)[1]
 
 
-def _failed_moments(traces: _EpisodeTraces, phase: int, states: int) -> list[tuple[int, int]]:
-    """(slot, step) of up to ``states`` failed episodes at the moment each strays furthest within ``phase``,
-    furthest first."""
+def _failed_moments(traces: _EpisodeTraces, phase: int, states: int, n_act: int) -> list[tuple[int, int]]:
+    """(slot, step) of up to ``states`` failed episodes at the re-planning moment (every ``n_act``-th step, where a
+    chunk was sampled and the cameras rendered) where each strays furthest within ``phase``, furthest first."""
     moments = []
     for slot in traces.failed:
-        window = traces.deviations[slot][phase * PHASE_STEPS : (phase + 1) * PHASE_STEPS]
-        if len(window):
-            moments.append((float(window.max()), slot, phase * PHASE_STEPS + int(window.argmax())))
+        deviations = traces.deviations[slot]
+        steps = np.arange(phase * PHASE_STEPS, min((phase + 1) * PHASE_STEPS, len(deviations)))
+        steps = steps[steps % n_act == 0]
+        if len(steps):
+            step = int(steps[deviations[steps].argmax()])
+            moments.append((float(deviations[step]), slot, step))
     return [(slot, step) for _, slot, step in sorted(moments, reverse=True)[:states]]
 
 
@@ -280,7 +283,7 @@ def diagnose_task(
         return diagnosis
     diagnosis.failing_phase = _failing_phase(rows[0], rows[-1])
     generator = torch.Generator().manual_seed(seed)
-    for slot, step in _failed_moments(student, diagnosis.failing_phase, states):
+    for slot, step in _failed_moments(student, diagnosis.failing_phase, states, n_act):
         observation, expert_action = student.visited[slot][step], student.expert_actions[slot][step]
         diagnosis.comparisons.append(
             _compare_chunks(runs, observation, expert_action, slot, step, demonstrations, task, draws, generator)
