@@ -18,7 +18,8 @@
 #                                                         # in DIR/teacher and DIR/student (to commit): another
 #                                                         # machine's run continues from them
 #
-# Run it again after an interruption: finished stages are kept, training resumes from its last checkpoint.
+# Run it again after an interruption: finished stages are kept, training resumes from its last checkpoint and the
+# evaluation from its last finished wave of episodes.
 set -euo pipefail
 bench="${BENCH:-mt10}"
 out="${1:-outputs/lerobot-smolvla-$bench}"
@@ -58,7 +59,7 @@ data="${DATA:-$out/data}"
         --output "$out/student" --resume ${KEEP:+--keep-progress "$KEEP/student"} "${student[@]}" "${options[@]}"
 [ -f "$out/eval/report.json" ] ||
     snapflow eval --policy "$out/teacher/lerobot_policy=teacher-10,naive" "$out/student/lerobot_policy=snapflow-1" \
-        --env "$env" --tasks "$tasks" --episodes "$episodes" --data "$data" --output "$out/eval" "${options[@]}"
+        --env "$env" --tasks "$tasks" --episodes "$episodes" --data "$data" --output "$out/eval" --resume "${options[@]}"
 if [ "$bench" = libero ]; then
     # the student again, in LeRobot's own LIBERO environment, on the same initial states: one environment per
     # episode (LeRobot's environment k starts from initial state k, and moves on by itself after a success), one

@@ -393,6 +393,10 @@ ARGUMENT_MISTAKES = {
     "no timed calls": (["bench", "--architecture", "mlp", "--repeats", "0"], "--repeats"),
     "no workers": (["sweep", "config.toml", "--workers", "0"], "--workers"),
     "mistyped mode": (["eval", "--policy", "run", "--modes", "snapflow-x"], "unknown sampling mode 'snapflow-x'"),
+    "resume in LeRobot's environment": (
+        ["eval", "--policy", "run", "--lerobot-env", "pusht", "--resume"],
+        "--resume continues snapflow's own evaluator",
+    ),
     "mistyped task": (["collect", "--tasks", "reach-v9"], "unknown metaworld task(s) ['reach-v9']"),
     "unknown camera": (["collect", "--image-size", "32", "--extra-cameras", "wrist"], "has no camera(s) ['wrist']"),
     "mistyped target": (["toy-compare", "--targets", "euler"], "TARGET:STEPS"),

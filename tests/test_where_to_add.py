@@ -165,6 +165,14 @@ def test_an_environment_and_a_built_in_policy_added_as_documented_run_every_comm
     assert set(success) == {*GOALS, "mean"}, "evaluated on the new environment's tasks"
     rate = success["mean"]["success_rate"]
     assert rate >= 0.5, f"the new policy learnt the new environment's expert ({rate:.0%} of 6 episodes)"
+    # the same command with --resume reads every row's episodes back from the logs it wrote
+    assert sorted(path.name for path in (report / "episodes").iterdir()) == [
+        "00-teacher-10.jsonl",
+        "01-snapflow-1.jsonl",
+    ]
+    assert main([*arguments, "--data", str(data), "--output", str(report), "--resume", *common]) == 0
+    resumed = json.loads((report / "report.json").read_text())["rows"]
+    assert [row["success"] for row in resumed.values()] == [row["success"] for row in rows.values()]
     assert (
         main(
             [

@@ -16,6 +16,7 @@ from snapflow.data.demonstrations import Demonstrations
 from snapflow.envs import factory
 from snapflow.envs.base import Benchmark, Environment, Observation
 from snapflow.evaluation.closed_loop import ClosedLoopEvaluator
+from snapflow.evaluation.episode_log import EpisodeLog
 from snapflow.evaluation.offline import offline_metrics
 from snapflow.evaluation.pipeline import evaluate, runs_evaluator
 from snapflow.evaluation.report import markdown_report, write_report
@@ -356,3 +357,84 @@ def test_a_report_without_data_or_timing_leaves_those_sections_out(scripted, run
     )
     assert (tmp_path / "success.png").is_file()
     assert SamplingMode.parse(written["rows"]["naive"]["mode"]) == NAIVE_1
+
+
+def test_an_interrupted_run_resumes_from_its_episode_log_as_if_never_interrupted(scripted, runs, tmp_path):
+    _, teacher, _ = runs
+    policy, processor = teacher.policy, teacher.processor
+    # two tasks, one environment each: three waves, variation v of both tasks in wave v
+    evaluator = ClosedLoopEvaluator(scripted, list(SYNTHETIC_TASKS), 3, image_size=None, max_envs=2)
+    whole: dict[int, list[np.ndarray]] = {}
+    uninterrupted = evaluator.run(
+        policy, processor, TEACHER_10, 4, 3, False, record=lambda slot, _, a: whole.setdefault(slot, []).append(a)
+    )
+
+    def stop_in_wave_two(slot: int, observation: Observation, action: np.ndarray) -> None:
+        if slot % 3 == 1:  # slots are task-major: variation 1 of either task
+            raise KeyboardInterrupt
+
+    identity = {"label": "teacher", "seed": 3}
+    path = tmp_path / "episodes" / "00-teacher.jsonl"
+    with pytest.raises(KeyboardInterrupt):
+        evaluator.run(policy, processor, TEACHER_10, 4, 3, False, stop_in_wave_two, EpisodeLog(path, identity, False))
+    log = EpisodeLog(path, identity, resume=True)
+    assert len(log.finished) == 1 and log.finished[0].episodes == [uninterrupted[0], uninterrupted[3]]
+    assert log.finished[0].seconds > 0
+
+    rerun: dict[int, list[np.ndarray]] = {}
+    resumed = evaluator.run(
+        policy, processor, TEACHER_10, 4, 3, False, lambda slot, _, a: rerun.setdefault(slot, []).append(a), log
+    )
+    evaluator.close()
+    assert resumed == uninterrupted
+    assert sorted(rerun) == [1, 2, 4, 5], "wave one is read back, not run again"
+    for slot, actions in rerun.items():  # the same noise as the uninterrupted run's: the generator's state restored
+        assert np.array_equal(np.stack(actions), np.stack(whole[slot]))
+    assert len(path.read_text().splitlines()) == 4, "the identity and three waves"
+
+    with pytest.raises(ValueError, match="another evaluation \\(it differs in seed\\)"):
+        EpisodeLog(path, {**identity, "seed": 4}, resume=True)
+    with path.open("a") as file:  # a line cut short by an interruption is dropped on reading, and from the file
+        file.write('{"episodes": [{"task"')
+    assert [wave.episodes for wave in EpisodeLog(path, identity, resume=True).finished] == [
+        [uninterrupted[v], uninterrupted[3 + v]] for v in range(3)
+    ]
+    assert len(path.read_text().splitlines()) == 4
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join([lines[0], "garbage", *lines[2:]]) + "\n")
+    with pytest.raises(ValueError, match="corrupt at line 2"):
+        EpisodeLog(path, identity, resume=True)
+    assert EpisodeLog(path, identity, resume=False).finished == [] and len(path.read_text().splitlines()) == 1
+
+
+def test_evaluate_with_episode_logs_resumes_a_finished_row_without_running_an_episode(scripted, runs, tmp_path):
+    _, teacher, student = runs
+    labelled = [("teacher 10-NFE", teacher, TEACHER_10), ("SnapFlow 1-NFE", student, SNAPFLOW_1)]
+
+    def logged_evaluation(labelled_runs, episodes_per_task: int, resume: bool) -> EvaluationReport:
+        tasks = list(SYNTHETIC_TASKS)
+        return evaluate(
+            labelled_runs,
+            scripted,
+            tasks,
+            episodes_per_task,
+            progress=False,
+            timing=False,
+            episode_logs=tmp_path,
+            resume=resume,
+        )
+
+    first = logged_evaluation(labelled, 2, resume=False)
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["00-teacher_10-NFE.jsonl", "01-SnapFlow_1-NFE.jsonl"]
+    environments = len(scripted.envs)
+    again = logged_evaluation(labelled, 2, resume=True)
+    assert len(scripted.envs) == environments, "every wave read back: no environment made"
+    for (label, _, _), path in zip(labelled, sorted(tmp_path.iterdir()), strict=True):
+        assert again.rows[label].success == first.rows[label].success
+        # the time a row took counts its logged waves' time, not only that of reading them back
+        logged = sum(json.loads(line)["seconds"] for line in path.read_text().splitlines()[1:])
+        assert again.rows[label].closed_loop_s >= logged > 0
+    with pytest.raises(ValueError, match="differs in envs_per_task, episodes_per_task"):
+        logged_evaluation(labelled, 1, resume=True)
+    with pytest.raises(ValueError, match="differs in policy, weights"):  # the same label, other weights
+        logged_evaluation([("teacher 10-NFE", student, TEACHER_10)], 2, resume=True)

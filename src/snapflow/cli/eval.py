@@ -4,6 +4,7 @@ LeRobot policy's success in LeRobot's own environments."""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import Any
 
 from snapflow.cli.common import (
@@ -23,6 +24,8 @@ from snapflow.envs.factory import BENCHMARKS, DEFAULT_BENCHMARK, make_benchmark
 from snapflow.evaluation.config import N_ACT
 from snapflow.flow.modes import SamplingMode
 
+EPISODES = "episodes"  # each row's episode log, in the output folder
+
 _modes = argument_type(lambda text: [SamplingMode.parse(name) for name in text.split(",")])
 
 
@@ -33,7 +36,7 @@ def add_parser(subparsers: Any) -> None:
         "closed-loop success, offline metrics and latency on a benchmark, "
         "or success of a distilled LeRobot policy in LeRobot's environments",
         run,
-        nothing_written,
+        _interrupted,
     )
     parser.add_argument(
         "--policy",
@@ -76,7 +79,17 @@ def add_parser(subparsers: Any) -> None:
     parser.add_argument(
         "--max-episode-steps", type=COUNT, help="with --lerobot-env: cut episodes short of the environment's limit"
     )
-    add_output(parser, "outputs/eval", "where report.json, report.md and the plots go")
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help=f"continue an interrupted evaluation in --output: the episodes already logged in OUTPUT/{EPISODES} by "
+        "the same evaluation are read back, not run again (results as if never interrupted)",
+    )
+    add_output(
+        parser,
+        "outputs/eval",
+        f"where report.json, report.md and the plots go, and each row's episodes as they finish (OUTPUT/{EPISODES})",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -104,12 +117,23 @@ def run(args: argparse.Namespace) -> int:
         args.episodes,
         data=args.data,
         progress=not args.no_progress,
+        episode_logs=Path(args.output) / EPISODES,
+        resume=args.resume,
         **given({"n_act": args.n_act, "seed": args.seed}),
     )
     write_report(report, args.output)
     print(markdown_report(report))
     print(f"wrote report.json, report.md and PNG plots to {args.output}")
     return 0
+
+
+def _interrupted(args: argparse.Namespace) -> str:
+    if args.lerobot_env:
+        return nothing_written(args)
+    return (
+        f"interrupted; the episodes finished so far are kept in {Path(args.output) / EPISODES}: run the same command "
+        "with --resume to continue"
+    )
 
 
 def _policy_modes(entry: str, default: list[SamplingMode]) -> tuple[str, list[SamplingMode]]:
@@ -123,6 +147,8 @@ def _policy_modes(entry: str, default: list[SamplingMode]) -> tuple[str, list[Sa
 def _eval_in_lerobot_env(args: argparse.Namespace) -> int:
     if len(args.policy) != 1:
         raise ValueError("--lerobot-env evaluates one distilled LeRobot policy directory at a time")
+    if args.resume:
+        raise ValueError("--resume continues snapflow's own evaluator; a --lerobot-env evaluation runs whole")
     check_writable(args.output)
     from snapflow.evaluation.lerobot_env import evaluate_in_lerobot_env, lerobot_eval_table, write_lerobot_eval
 

@@ -6,6 +6,7 @@ environments made anew for each wave did not hand their memory back."""
 
 from __future__ import annotations
 
+import time
 from collections import deque
 from collections.abc import Callable, Sequence
 
@@ -14,6 +15,7 @@ import torch
 from tqdm.auto import tqdm
 
 from snapflow.envs.base import Benchmark, Environment, Observation
+from snapflow.evaluation.episode_log import EpisodeLog, FinishedWave
 from snapflow.evaluation.results import EpisodeResult
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.solver import sample_actions
@@ -83,9 +85,12 @@ class ClosedLoopEvaluator:
         seed: int = 0,
         progress: bool = True,
         record: Callable[[int, Observation, np.ndarray], None] | None = None,
+        log: EpisodeLog | None = None,
     ) -> list[EpisodeResult]:
         """Roll out every slot to success or the step limit, re-planning a chunk every ``n_act`` actions;
-        ``record(slot, observation, action)`` is called before each step (to trace episodes)."""
+        ``record(slot, observation, action)`` is called before each step (to trace episodes). With ``log``, each
+        finished wave is appended to it, and the waves it already holds are taken from it, not run again (nor
+        recorded): the run goes on from the noise generator's state after the last of them."""
         if not 1 <= n_act <= processor.chunk_length:
             raise ValueError(f"n_act must be in [1, {processor.chunk_length}] (the policy's chunk length), got {n_act}")
         unrendered = [name for name in processor.extra_cameras if name not in self.extra_cameras]
@@ -93,14 +98,31 @@ class ClosedLoopEvaluator:
             raise ValueError(f"the policy reads camera(s) {unrendered} that this evaluator does not render")
         policy.eval()
         generator = torch.Generator().manual_seed(seed)
-        envs = self._environments()
         results: dict[int, EpisodeResult] = {}
+        logged = log.finished if log is not None else []
         with tqdm(total=len(self.slots), desc=f"closed loop {mode.name}", disable=not progress, leave=False) as bar:
-            for wave in self.waves:
+            for index, wave in enumerate(self.waves):
                 slots = [slot for slot, _ in wave]
-                finished = self._run_wave(
-                    [envs[env] for _, env in wave], slots, policy, processor, mode, n_act, generator, bar.update, record
-                )
+                if index < len(logged):
+                    finished = logged[index].episodes
+                    generator.set_state(logged[index].generator_state)
+                    bar.update(len(finished))
+                else:
+                    started = time.perf_counter()
+                    envs = self._environments()  # made at the first wave that runs: none for a finished log
+                    finished = self._run_wave(
+                        [envs[env] for _, env in wave],
+                        slots,
+                        policy,
+                        processor,
+                        mode,
+                        n_act,
+                        generator,
+                        bar.update,
+                        record,
+                    )
+                    if log is not None:
+                        log.append(FinishedWave(finished, time.perf_counter() - started, generator.get_state()))
                 results.update(zip(slots, finished, strict=True))
         return [results[slot] for slot in range(len(self.slots))]
 

@@ -4,9 +4,14 @@ held-out demonstrations, and batch-1 latency, per (label, policy, sampling mode)
 
 from __future__ import annotations
 
+import hashlib
+import re
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
+
+import torch
 
 from snapflow.benchmark.latency import LatencyRow, add_speedups, measure_latency
 from snapflow.benchmark.subjects import opened_subject
@@ -16,6 +21,7 @@ from snapflow.envs.base import Benchmark
 from snapflow.envs.factory import DEFAULT_BENCHMARK
 from snapflow.evaluation.closed_loop import ClosedLoopEvaluator
 from snapflow.evaluation.config import N_ACT, OFFLINE_SAMPLES
+from snapflow.evaluation.episode_log import EpisodeLog
 from snapflow.evaluation.offline import offline_metrics
 from snapflow.evaluation.results import EvaluationReport, EvaluationRow, success_by_task
 from snapflow.flow.modes import SamplingMode
@@ -73,10 +79,14 @@ def evaluate(
     seed: int = 0,
     progress: bool = True,
     timing: bool = True,
+    episode_logs: str | Path | None = None,
+    resume: bool = False,
 ) -> EvaluationReport:
     """Closed-loop success, offline metrics (when ``data`` is given) and, with ``timing``, batch-1 latency for each
     (label, policy, mode); latency speedups are relative to the first entry. A jump mode (``snapflow-N``) on a
-    policy never distilled is refused before anything runs."""
+    policy never distilled is refused before anything runs. With ``episode_logs``, each run's finished waves of
+    episodes are appended to a file there as they end (:class:`EpisodeLog`); with ``resume`` too, the waves already
+    logged by the same evaluation are read back, not run again."""
     for _, loaded, mode in runs:
         loaded.check_mode(mode)
     evaluator = runs_evaluator(runs, benchmark, tasks, episodes_per_task)
@@ -84,11 +94,22 @@ def evaluate(
     held_out: dict[Path, ChunkData | None] = {}  # per checkpoint: its modes share one set of held-out chunks
     report = EvaluationReport(benchmark.name, list(tasks), episodes_per_task, n_act, {})
     try:
-        for label, loaded, mode in runs:
+        for index, (label, loaded, mode) in enumerate(runs):
+            log = None
+            if episode_logs is not None:
+                identity = _run_identity(
+                    label, loaded, mode, tasks, episodes_per_task, evaluator.envs_per_task, n_act, seed
+                )
+                log = EpisodeLog(Path(episode_logs) / _log_name(index, label), identity, resume)
+            earlier = sum(wave.seconds for wave in log.finished) if log is not None else 0.0
             started = time.perf_counter()
-            episodes = evaluator.run(loaded.policy, loaded.processor, mode, n_act, seed, progress)
+            episodes = evaluator.run(loaded.policy, loaded.processor, mode, n_act, seed, progress, log=log)
             row = EvaluationRow(
-                str(loaded.path), mode.name, mode.num_steps, success_by_task(episodes), time.perf_counter() - started
+                str(loaded.path),
+                mode.name,
+                mode.num_steps,
+                success_by_task(episodes),
+                earlier + time.perf_counter() - started,
             )
             if demonstrations is not None:
                 if loaded.path not in held_out:
@@ -104,6 +125,40 @@ def evaluate(
     if timing:
         report.latency = checkpoint_latency(runs)
     return report
+
+
+def _log_name(index: int, label: str) -> str:
+    """The episode log's file name of the ``index``-th run: its label made safe for a file name."""
+    return f"{index:02d}-{re.sub(r'[^A-Za-z0-9._-]+', '_', label)}.jsonl"
+
+
+def _run_identity(
+    label: str,
+    loaded: OpenedPolicy,
+    mode: SamplingMode,
+    tasks: list[str],
+    episodes_per_task: int,
+    envs_per_task: int,
+    n_act: int,
+    seed: int,
+) -> dict[str, Any]:
+    """What a run's episodes depend on, its weights by a digest of each tensor's sum: a log is resumed only by the
+    same run."""
+    digest = hashlib.sha256()
+    with torch.no_grad():
+        for name, tensor in loaded.policy.state_dict().items():
+            digest.update(f"{name}:{tensor.double().sum().item():.17g};".encode())
+    return {
+        "label": label,
+        "policy": str(loaded.path),
+        "weights": digest.hexdigest(),
+        "mode": mode.name,
+        "tasks": tasks,
+        "episodes_per_task": episodes_per_task,
+        "envs_per_task": envs_per_task,
+        "n_act": n_act,
+        "seed": seed,
+    }
 
 
 def checkpoint_latency(runs: list[Run], warmup: int = 10, repeats: int = 50) -> dict[str, LatencyRow]:
