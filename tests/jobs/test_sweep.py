@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import pytest
+import torch
 
 from snapflow.cli import main
 from snapflow.jobs.runner import Job, is_done, is_recorded, read_record, run_jobs, to_run, write_record
@@ -444,7 +445,8 @@ class LogJob(Job):
             log.write(f"{self.value}\n")
         if self.fail:
             raise RuntimeError("the job failed on purpose")
-        return {"lines": len((self.directory / "log.txt").read_text().splitlines()), "process": os.getpid()}
+        lines = len((self.directory / "log.txt").read_text().splitlines())
+        return {"lines": lines, "process": os.getpid(), "threads": torch.get_num_threads()}
 
     def describe(self) -> str:
         return f"log {self.value}"
@@ -502,6 +504,14 @@ def test_every_job_runs_in_a_fresh_process_so_its_memory_goes_with_it(tmp_path):
     run_jobs(jobs, workers=1, progress=False)
     processes = {read_record(job)["process"] for job in jobs}
     assert len(processes) == 3 and os.getpid() not in processes
+    assert {read_record(job)["threads"] for job in jobs} == {os.cpu_count()}, "one worker: every core's thread"
+
+
+@pytest.mark.slow
+def test_a_job_runs_on_the_threads_asked_for_where_other_programs_share_the_cores(tmp_path):
+    job = LogJob(tmp_path / "job", 0)
+    run_jobs([job], workers=1, progress=False, threads=1)
+    assert read_record(job)["threads"] == 1
 
 
 @pytest.mark.slow

@@ -14,7 +14,10 @@ def add_parser(subparsers: Any) -> None:
     )
     parser.add_argument("configs", nargs="+", help="sweep TOML files, e.g. configs/sweeps/mt10-state.toml")
     parser.add_argument(
-        "--workers", type=COUNT, default=1, help="jobs run side by side, each on cores / workers threads"
+        "--workers",
+        type=COUNT,
+        default=1,
+        help="jobs run side by side, each on --threads torch threads (default: cores / workers)",
     )
     parser.add_argument(
         "--document", help="also write the tables between their markers in this Markdown file (e.g. docs/RESULTS.md)"
@@ -35,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     for config in configs:
         config.table_names(args.tables)  # a mistyped table is refused before anything runs
     if not args.report_only:
-        run_sweeps([config.only(args.tables) for config in configs], args.workers, not args.no_progress)
+        run_sweeps([config.only(args.tables) for config in configs], args.workers, not args.no_progress, args.threads)
     for config in configs:
         write_results(config, args.document, args.tables)
         print(f"{config.name}: wrote results.json, tables.md and PNG plots to {config.results_dir}")

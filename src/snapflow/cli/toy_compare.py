@@ -28,7 +28,12 @@ def add_parser(subparsers: Any) -> None:
     parser.add_argument("--seeds", nargs="+", type=NON_NEGATIVE_COUNT, default=[0, 1, 2], help="seeds of every run")
     add_step_options(parser)
     add_consistency_weight(parser, ToyConfig.consistency_weight)
-    parser.add_argument("--workers", type=COUNT, default=1, help="runs in parallel, each on cores / workers threads")
+    parser.add_argument(
+        "--workers",
+        type=COUNT,
+        default=1,
+        help="runs in parallel, each on --threads torch threads (default: cores / workers)",
+    )
     add_output(parser, "outputs/toy-compare", "where runs, JSON, table and PNG go (finished runs are reused)")
 
 
@@ -40,7 +45,9 @@ def run(args: argparse.Namespace) -> int:
         teacher_steps=args.teacher_steps, distill_steps=args.distill_steps, consistency_weight=args.consistency_weight
     )
     started = time.perf_counter()
-    summary = compare_targets(args.targets, args.seeds, base, args.output, args.workers, not args.no_progress)
+    summary = compare_targets(
+        args.targets, args.seeds, base, args.output, args.workers, not args.no_progress, args.threads
+    )
     print(markdown_comparison(summary))
     print(
         f"\ndone in {(time.perf_counter() - started) / 60:.1f} min; wrote comparison.json, comparison.md and comparison.png to {args.output}"

@@ -234,11 +234,15 @@ def to_run(jobs: Iterable[Job]) -> list[Job]:
 
 
 def run_jobs(
-    jobs: Iterable[Job], workers: int = 1, progress: bool = True, description: str = "jobs"
+    jobs: Iterable[Job],
+    workers: int = 1,
+    progress: bool = True,
+    description: str = "jobs",
+    threads: int | None = None,
 ) -> dict[str, float]:
-    """Run the jobs of :func:`to_run` on ``workers`` spawned processes, each on cores / workers
-    torch threads, a job once its dependencies have finished; returns each job's wall time (s) by description, in
-    the order they finished.
+    """Run the jobs of :func:`to_run` on ``workers`` spawned processes, each on ``threads`` torch threads (default:
+    cores / workers; fewer where other programs share the cores), a job once its dependencies have finished; returns
+    each job's wall time (s) by description, in the order they finished.
 
     Of the jobs ready when a worker frees, one that no other job needs (an evaluation) goes first, whatever its
     depth, then :func:`to_run`'s order: a worker freed by a student evaluates it before starting a teacher of hours,
@@ -253,7 +257,8 @@ def run_jobs(
         return {}
     unfinished = set(waiting)
     awaited = _awaited(waiting)
-    threads = max(1, (os.cpu_count() or 1) // workers)
+    if threads is None:
+        threads = max(1, (os.cpu_count() or 1) // workers)
     times: dict[str, float] = {}
     running: dict[Future, Job] = {}
     bar = tqdm(total=len(waiting), desc=description, disable=not progress, dynamic_ncols=True)

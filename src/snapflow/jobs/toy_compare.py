@@ -57,8 +57,10 @@ def compare_targets(
     output_dir: str | Path,
     workers: int = 1,
     progress: bool = True,
+    threads: int | None = None,
 ) -> dict[str, Any]:
-    """Run what is not done, then write ``comparison.json``, ``comparison.md`` and ``comparison.png``."""
+    """Run what is not done (on ``workers`` processes of ``threads`` torch threads, by default cores / workers),
+    then write ``comparison.json``, ``comparison.md`` and ``comparison.png``."""
     if not options or not seeds:
         raise ValueError("compare at least one target option on at least one seed")
     output_dir = Path(output_dir)
@@ -71,7 +73,7 @@ def compare_targets(
         for option in options
         for seed in seeds
     }
-    run_jobs(jobs.values(), workers, progress, description="toy runs")
+    run_jobs(jobs.values(), workers, progress, description="toy runs", threads=threads)
     runs = {key: read_record(job) for key, job in jobs.items()}
 
     def per_seed(option: TargetOption, name: str) -> list[float]:

@@ -306,8 +306,11 @@ def plan(config: SweepConfig) -> list[Job]:
     return to_run(job for job in jobs(config) if isinstance(job, (TrainJob, EvalJob)))
 
 
-def run_sweeps(configs: list[SweepConfig], workers: int = 1, progress: bool = True) -> dict[str, float]:
-    """Run every job of the sweeps that is not done on ``workers`` processes, a ready evaluation first, then earlier
+def run_sweeps(
+    configs: list[SweepConfig], workers: int = 1, progress: bool = True, threads: int | None = None
+) -> dict[str, float]:
+    """Run every job of the sweeps that is not done on ``workers`` processes (each on ``threads`` torch threads,
+    by default cores / workers), a ready evaluation first, then earlier
     pipeline stages first across the sweeps (their jobs are the longest and unblock the others); returns each job's
     wall time (s).
 
@@ -321,7 +324,9 @@ def run_sweeps(configs: list[SweepConfig], workers: int = 1, progress: bool = Tr
                     config.output_dir, "snapflow sweep", "wait for it to finish or give the sweep another output_dir"
                 )
             )
-        return run_jobs([job for config in configs for job in plan(config)], workers, progress, description="sweep")
+        return run_jobs(
+            [job for config in configs for job in plan(config)], workers, progress, description="sweep", threads=threads
+        )
 
 
 __all__ = [
