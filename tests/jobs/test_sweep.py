@@ -555,6 +555,18 @@ def test_a_sweep_runs_caches_reruns_a_changed_student_and_writes_its_tables_into
             (tmp_path / "runs" / "evals" / "teacher" / f"seed-{seed}" / "teacher-10_nact4_eps2.json").read_text()
         )
         assert headline[0]["success_per_seed"][seed] == pytest.approx(100 * cached["success"]["mean"]["success_rate"])
+        # its episodes, logged as they finished (what an interrupted evaluation goes on from)
+        log = (
+            tmp_path
+            / "runs"
+            / "evals"
+            / "teacher"
+            / f"seed-{seed}"
+            / "teacher-10_nact4_eps2.episodes"
+            / "00-teacher-10.jsonl"
+        )
+        waves = [json.loads(line)["episodes"] for line in log.read_text().splitlines()[1:]]
+        assert sum(episode["success"] for wave in waves for episode in wave) == cached["success"]["mean"]["successes"]
     for name in ("headline.png", "nfe.png", "tables.md"):
         assert (tmp_path / "results" / name).stat().st_size > 0
 

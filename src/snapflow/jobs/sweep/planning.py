@@ -239,9 +239,19 @@ class EvalJob(Job):
     def ledger_path(self) -> Path | None:
         return self.ledger
 
+    @property
+    def episodes_dir(self) -> Path:
+        """Where its episodes are logged as they finish: an interrupted evaluation goes on from them."""
+        return self.path.with_name(f"{self.path.stem}.episodes")
+
+    @property
+    def outputs(self) -> tuple[Path, ...]:
+        return (self.episodes_dir,)
+
     def run(self) -> dict[str, Any]:
         collected = self.policy.data
         loaded = load_policy(self.policy.directory)
+        # the runner clears the log of a run with other settings, so what is left is this evaluation's to resume
         report = evaluate(
             [(self.mode.name, loaded, self.mode)],
             make_benchmark(collected.data.env),
@@ -252,6 +262,8 @@ class EvalJob(Job):
             seed=self.policy.seed,
             progress=False,
             timing=False,
+            episode_logs=self.episodes_dir,
+            resume=True,
         )
         return report.rows[self.mode.name].to_dict()
 
