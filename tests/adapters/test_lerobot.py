@@ -64,6 +64,23 @@ def test_gradient_checkpointing_gives_the_same_gradients(policy_type):
         assert torch.allclose(gradient, gradients[1][name], atol=1e-6), name
 
 
+def test_a_saved_teacher_opens_with_the_same_weights_each_time(vlm_directory, tmp_path):
+    """A LeRobot teacher folder holds no phi_s: each opening adds one, the same whatever the global random state, so
+    an evaluation's episode log is resumed by a later opening of that teacher (and by no other policy)."""
+    from snapflow.adapters.lerobot.checkpoint import save_teacher
+    from snapflow.evaluation.pipeline import weights_digest
+    from snapflow.sources import open_policy
+
+    teacher = save_teacher(wrap_policy(build_tiny_smolvla(vlm_directory)), tmp_path / "teacher", 0.0)
+    digests = []
+    for seed in (1, 2):
+        torch.manual_seed(seed)
+        digests.append(weights_digest(open_policy(teacher).policy))
+    assert digests[0] == digests[1]
+    other = save_teacher(wrap_policy(build_tiny_smolvla(vlm_directory, seed=1)), tmp_path / "other", 0.0)
+    assert weights_digest(open_policy(other).policy) != digests[0]
+
+
 def _distill_arguments(tmp_path, dataset) -> list[str]:
     """``snapflow distill`` of the teacher saved at tmp_path/teacher on ``dataset``: three tiny steps into tmp_path/run."""
     return [

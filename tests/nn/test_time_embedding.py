@@ -42,6 +42,22 @@ def test_only_the_output_layer_starts_at_zero():
     assert torch.equal(embedding(torch.rand(5)), torch.zeros(5, 16))
 
 
+def test_the_input_layer_is_the_same_at_every_wrapping_and_leaves_the_global_random_stream_alone():
+    """phi_s's input layer comes from its own seeded generator: a teacher wrapped twice gets the same weights (an
+    opened LeRobot teacher digests the same), and the draws of whatever is built after it do not shift."""
+    torch.manual_seed(1)
+    first = TargetTimeEmbedding(16)
+    after_first = torch.rand(3)
+    torch.manual_seed(2)
+    second = TargetTimeEmbedding(16)
+    torch.manual_seed(1)
+    assert torch.equal(torch.rand(3), after_first), "the global stream did not move"
+    for name, value in first.state_dict().items():
+        assert torch.equal(value, second.state_dict()[name]), name
+    bound = 1 / math.sqrt(first.sinusoid_dim)  # nn.Linear's own init range
+    assert first.linear_in.weight.abs().max() <= bound and first.linear_in.weight.std() > bound / 3
+
+
 def test_wrapping_changes_no_output_bit_at_init():
     """A freshly wrapped student is the teacher bit for bit, whatever target time it is asked for."""
     model = make_model()

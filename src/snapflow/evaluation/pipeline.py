@@ -9,7 +9,6 @@ import re
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
 
 import torch
 
@@ -92,14 +91,25 @@ def evaluate(
     evaluator = runs_evaluator(runs, benchmark, tasks, episodes_per_task)
     demonstrations = Demonstrations.load(data) if data is not None else None
     held_out: dict[Path, ChunkData | None] = {}  # per checkpoint: its modes share one set of held-out chunks
+    digests: dict[Path, str] = {}  # per checkpoint: its modes' logs share one digest of its weights
     report = EvaluationReport(benchmark.name, list(tasks), episodes_per_task, n_act, {})
     try:
         for index, (label, loaded, mode) in enumerate(runs):
             log = None
             if episode_logs is not None:
-                identity = _run_identity(
-                    label, loaded, mode, tasks, episodes_per_task, evaluator.envs_per_task, n_act, seed
-                )
+                if loaded.path not in digests:
+                    digests[loaded.path] = weights_digest(loaded.policy)
+                identity = {  # what the run's episodes depend on: its log is resumed only by the same run
+                    "label": label,
+                    "policy": str(loaded.path),
+                    "weights": digests[loaded.path],
+                    "mode": mode.name,
+                    "tasks": tasks,
+                    "episodes_per_task": episodes_per_task,
+                    "envs_per_task": evaluator.envs_per_task,
+                    "n_act": n_act,
+                    "seed": seed,
+                }
                 log = EpisodeLog(Path(episode_logs) / _log_name(index, label), identity, resume)
             earlier = sum(wave.seconds for wave in log.finished) if log is not None else 0.0
             started = time.perf_counter()
@@ -132,35 +142,14 @@ def _log_name(index: int, label: str) -> str:
     return f"{index:02d}-{re.sub(r'[^A-Za-z0-9._-]+', '_', label)}.jsonl"
 
 
-def _run_identity(
-    label: str,
-    loaded: OpenedPolicy,
-    mode: SamplingMode,
-    tasks: list[str],
-    episodes_per_task: int,
-    envs_per_task: int,
-    n_act: int,
-    seed: int,
-) -> dict[str, Any]:
-    """What a run's episodes depend on, its weights by a digest of each tensor's sum: a log is resumed only by the
-    same run."""
+def weights_digest(policy: torch.nn.Module) -> str:
+    """A digest of each tensor of ``policy``'s state by name and sum: what an episode log's identity names its
+    weights by, so that a log is resumed only by the same policy (cheap beside an evaluation, even for a VLA)."""
     digest = hashlib.sha256()
     with torch.no_grad():
-        for name, tensor in loaded.policy.state_dict().items():
-            if not loaded.distilled and "target_time_embedding" in name:
-                continue  # a teacher's target-time embedding is made anew at each opening, its output zero: not its weights
+        for name, tensor in policy.state_dict().items():
             digest.update(f"{name}:{tensor.double().sum().item():.17g};".encode())
-    return {
-        "label": label,
-        "policy": str(loaded.path),
-        "weights": digest.hexdigest(),
-        "mode": mode.name,
-        "tasks": tasks,
-        "episodes_per_task": episodes_per_task,
-        "envs_per_task": envs_per_task,
-        "n_act": n_act,
-        "seed": seed,
-    }
+    return digest.hexdigest()
 
 
 def checkpoint_latency(runs: list[Run], warmup: int = 10, repeats: int = 50) -> dict[str, LatencyRow]:

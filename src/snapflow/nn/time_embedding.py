@@ -46,7 +46,10 @@ class TargetTimeEmbedding(nn.Module):
 
     Only Linear2 starts at zero (weights and bias), so the wrapped policy is bit-for-bit the teacher at
     step 0 while Linear1 keeps a normal init: were both zero, SiLU(0) = 0 would leave only Linear2's bias
-    with a gradient and phi_s would collapse to a constant that ignores s.
+    with a gradient and phi_s would collapse to a constant that ignores s. Linear1's init is drawn from a fixed
+    seed, the global random state restored after: a teacher wrapped twice (each opening of a LeRobot teacher
+    folder, which has no phi_s) gets the same weights, so whatever digests them (an evaluation's log identity)
+    sees the same policy, and wrapping leaves the global random stream where it was.
     """
 
     def __init__(
@@ -61,8 +64,10 @@ class TargetTimeEmbedding(nn.Module):
         self.sinusoid_dim = sinusoid_dim or output_dim + output_dim % 2
         self.min_period = min_period
         self.max_period = max_period
-        self.linear_in = nn.Linear(self.sinusoid_dim, hidden_dim or output_dim)
-        self.linear_out = nn.Linear(hidden_dim or output_dim, output_dim)
+        with torch.random.fork_rng(devices=[]):  # nn.Linear's own init, seeded; the global stream restored
+            torch.manual_seed(0)
+            self.linear_in = nn.Linear(self.sinusoid_dim, hidden_dim or output_dim)
+            self.linear_out = nn.Linear(hidden_dim or output_dim, output_dim)
         nn.init.zeros_(self.linear_out.weight)
         nn.init.zeros_(self.linear_out.bias)
 
