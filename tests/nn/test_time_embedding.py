@@ -43,8 +43,8 @@ def test_only_the_output_layer_starts_at_zero():
 
 
 def test_the_input_layer_is_the_same_at_every_wrapping_and_leaves_the_global_random_stream_alone():
-    """phi_s's input layer comes from its own seeded generator: a teacher wrapped twice gets the same weights (an
-    opened LeRobot teacher digests the same), and the draws of whatever is built after it do not shift."""
+    """phi_s's input layer is drawn from a fixed seed with the global random state restored after: a teacher wrapped
+    twice gets the same weights (an opened LeRobot teacher digests the same), and later global draws do not shift."""
     torch.manual_seed(1)
     first = TargetTimeEmbedding(16)
     after_first = torch.rand(3)
