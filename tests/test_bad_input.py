@@ -375,6 +375,7 @@ def _assert_refused(result: subprocess.CompletedProcess, *words: str) -> str:
 
 ARGUMENT_MISTAKES = {
     "zero episodes": (["collect", "--episodes", "0"], "--episodes", "at least 1"),
+    "negative collection noise": (["collect", "--action-noise", "-0.1"], "--action-noise", "at least 0"),
     "zero actions per chunk": (["eval", "--policy", "run", "--n-act", "0"], "--n-act", "at least 1"),
     "negative episodes": (["eval", "--policy", "run", "--episodes", "-3"], "--episodes"),
     "zero steps": (["train", "--data", "d", "--steps", "0"], "--steps", "at least 1"),

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from snapflow.data import DemonstrationError, Demonstrations, Episode
-from snapflow.data.collect import collect_demonstrations
+from snapflow.data.collect import collect_demonstrations, noise_generator
 from snapflow.envs.metaworld import STATE_DIM, MetaWorld
 
 
@@ -30,6 +30,35 @@ def test_stored_demonstration_replays_to_success(tmp_path):
     assert loaded.instructions == {"button-press-topdown-v3": "press the button from the top"}
     stats = loaded.stats()
     assert len(stats.state_mean) == STATE_DIM and min(stats.state_std) > 0
+
+
+def test_a_noisy_collection_executes_the_experts_action_plus_its_noise_and_records_the_experts_own():
+    """DART: replayed with the noise of its (task, variation), each recorded step is the state the simulator reached
+    and the expert's action there; the noise took the arm off the noise-free path, and the expert still succeeded."""
+    benchmark, task = MetaWorld(), "reach-v3"
+    noisy = collect_demonstrations(benchmark, [task], 1, progress=False, action_noise=0.3)
+    clean = collect_demonstrations(benchmark, [task], 1, progress=False)
+    episode = noisy.episodes[0]
+    env, expert = benchmark.make_env(task, "train"), benchmark.make_expert(task)
+    observation, noise = env.reset(episode.variation, render=False), noise_generator(task, episode.variation)
+    expert.reset(observation)
+    success = False
+    for row in noisy.rows([0]):
+        assert np.allclose(observation.state, noisy.states[row], atol=1e-5)
+        assert np.allclose(expert.act(observation), noisy.actions[row], atol=1e-6)
+        observation, success, _ = env.step(noisy.actions[row] + noise.normal(0.0, 0.3, noisy.actions[row].shape))
+    assert success
+    steps = min(len(noisy.states), len(clean.states))
+    assert np.abs(noisy.states[1:steps, :3] - clean.states[1:steps, :3]).max() > 1e-3, "the noise moved the hand"
+
+
+@pytest.mark.parametrize("noise", [-0.1, float("nan")])
+def test_negative_or_undefined_collection_noise_is_refused_before_the_output_folder_exists(tmp_path, noise):
+    from snapflow.data.collect import collect
+
+    with pytest.raises(ValueError, match="action_noise must be at least 0"):
+        collect(MetaWorld(), ["reach-v3"], 1, tmp_path / "data", progress=False, action_noise=noise)
+    assert not (tmp_path / "data").exists()
 
 
 def _demonstrations(**changes) -> Demonstrations:

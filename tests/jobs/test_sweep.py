@@ -363,6 +363,8 @@ def test_rebuilding_some_tables_keeps_the_others_results_as_they_are(tmp_path, m
         ('[runs.teacher]\ncommit_checkpoint = "yes"\n', "[runs.teacher]: commit_checkpoint must be true or false"),
         ('[data]\nextra_cameras = "image2"\n', "[data] extra_cameras must be a list of camera names"),
         ('[data]\nextra_cameras = ["wrist"]\n', "[data] extra_cameras: metaworld has no camera(s) ['wrist']"),
+        ('[data]\naction_noise = "some"\n', "[data] action_noise must be a number of at least 0, got 'some'"),
+        ("[data]\naction_noise = -0.2\n", "[data] action_noise must be a number of at least 0, got -0.2"),
         ("[runs.teacher\n", "not valid TOML"),
         ("runs = 3\n", "[runs]: expected a table"),
         ('[runs.teacher]\n[[tables]]\nname = "t"\nrows = 3\n', "rows must be a list"),
@@ -696,3 +698,22 @@ def test_a_data_section_that_names_its_cameras_changes_its_key_and_one_that_does
     assert all(is_recorded(train_job(config, "teacher", seed)) for seed in (0, 2))
     main_camera_only = replace(config, data=replace(config.data, extra_cameras=()))
     assert train_job(main_camera_only, "teacher", 0).data.key != train_job(config, "teacher", 0).data.key
+
+
+def test_collection_noise_in_the_data_section_is_other_demonstrations_and_its_absence_keeps_the_committed_records(
+    tmp_path,
+):
+    """``action_noise`` came after the LIBERO records: left at 0 it leaves their key alone; set, it is other data,
+    every task's collection job carries it."""
+    config = load_sweep(ROOT / "configs" / "sweeps" / "libero-spatial.toml")
+    assert config.data.action_noise == 0.0 and is_recorded(train_job(config, "teacher", 0))
+    path = tmp_path / "noisy.toml"
+    path.write_text(
+        'name = "noisy"\n[data]\ntasks = ["reach-v3"]\naction_noise = 0.25\n[runs.teacher]\n'
+        '[[tables]]\nname = "t"\nrows = []\n'
+    )
+    noisy = load_sweep(path)
+    plain = replace(noisy, data=replace(noisy.data, action_noise=0.0))
+    assert noisy.data.action_noise == 0.25
+    assert train_job(noisy, "teacher", 0).data.key != train_job(plain, "teacher", 0).data.key
+    assert [part.data.action_noise for part in train_job(noisy, "teacher", 0).data.parts] == [0.25]

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from snapflow.cli.common import COUNT, TASKS_HELP, add_command, add_output, check_writable, tasks
+from snapflow.cli.common import COUNT, TASKS_HELP, add_command, add_output, check_writable, number, tasks
 from snapflow.data.collect import EPISODES_PER_TASK
 from snapflow.data.demonstrations import META_FILE, Demonstrations
 from snapflow.envs.factory import BENCHMARKS, DEFAULT_BENCHMARK, make_benchmark
@@ -33,6 +33,14 @@ def add_parser(subparsers: Any) -> None:
         metavar="NAMES",
         help="with --image-size, the benchmark's cameras besides the main one to store, comma-separated, '' for none "
         "(default: all; libero: image2, the wrist camera): each costs its rendering at every step",
+    )
+    parser.add_argument(
+        "--action-noise",
+        type=number(float, 0),
+        default=0.0,
+        metavar="STD",
+        help="execute each expert action plus Gaussian noise of this standard deviation, recording the expert's own "
+        "(DART): demonstrations of the way back to the expert's path",
     )
     add_output(parser, None, "demonstrations directory (npz + meta.json)")
     parser.add_argument(
@@ -63,7 +71,9 @@ def run(args: argparse.Namespace) -> int:
             demonstrations, args.output, benchmark.name, chosen, args.episodes, args.image_size, cameras
         )
     else:
-        demonstrations = collect(benchmark, chosen, args.episodes, args.output, args.image_size, progress, cameras)
+        demonstrations = collect(
+            benchmark, chosen, args.episodes, args.output, args.image_size, progress, cameras, args.action_noise
+        )
     if args.lerobot_dataset:
         write_lerobot_dataset(
             demonstrations, args.lerobot_dataset, args.repo_id, benchmark.fps, benchmark.camera, progress

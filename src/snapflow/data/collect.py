@@ -1,7 +1,14 @@
-"""Demonstrations from a benchmark's scripted experts: successful episodes only."""
+"""Demonstrations from a benchmark's scripted experts: successful episodes only.
+
+With ``action_noise`` the environment executes the expert's action plus Gaussian noise while the demonstration keeps
+the expert's own action: DART (Laskey et al., 2017). A policy trained on noise-free demonstrations meets, in closed
+loop, states a little off the experts' paths that no demonstration shows, and its errors compound there; noise at
+collection puts such states in the data, each labelled with how the expert steers back from it.
+"""
 
 from __future__ import annotations
 
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,9 +23,11 @@ from snapflow.reporting.locks import hold_run_lock
 EPISODES_PER_TASK = 30  # successful expert episodes per task (Meta-World has 50 training variations a task)
 
 
-def check_collection(benchmark: Benchmark, tasks: list[str], episodes_per_task: int) -> int:
-    """Refuse unknown tasks and more episodes than the benchmark has training variations (loading the simulator, so
-    a missing one is found here); returns that number of variations."""
+def check_collection(benchmark: Benchmark, tasks: list[str], episodes_per_task: int, action_noise: float = 0.0) -> int:
+    """Refuse unknown tasks, more episodes than the benchmark has training variations (loading the simulator, so
+    a missing one is found here) and negative noise; returns that number of variations."""
+    if not action_noise >= 0:  # NaN too
+        raise ValueError(f"action_noise must be at least 0, got {action_noise}")
     benchmark.check_tasks(tasks)
     available = benchmark.num_variations("train")
     if not 1 <= episodes_per_task <= available:
@@ -40,8 +49,13 @@ class ExpertEpisode:
     success: bool = False
 
 
-def expert_episode(env: Environment, expert: Expert, variation: int) -> ExpertEpisode:
-    """One episode of ``expert`` on ``variation``, to its end."""
+def expert_episode(
+    env: Environment, expert: Expert, variation: int, action_noise: float = 0.0, rng: np.random.Generator | None = None
+) -> ExpertEpisode:
+    """One episode of ``expert`` on ``variation``, to its end; with ``action_noise``, each executed action is the
+    expert's plus Gaussian noise of that standard deviation (drawn from ``rng``), and the recorded one the expert's."""
+    if action_noise and rng is None:
+        raise ValueError("action_noise needs an rng to draw the noise from")
     observation = env.reset(variation, render=True)
     expert.reset(observation)
     episode, done = ExpertEpisode(), False
@@ -53,8 +67,15 @@ def expert_episode(env: Environment, expert: Expert, variation: int) -> ExpertEp
             episode.images.append(observation.image)
         for name, image in observation.extra_images.items():
             episode.extra_images.setdefault(name, []).append(image)
-        observation, episode.success, done = env.step(action, render=observation.image is not None)
+        executed = action + rng.normal(0.0, action_noise, np.shape(action)) if action_noise else action
+        observation, episode.success, done = env.step(executed, render=observation.image is not None)
     return episode
+
+
+def noise_generator(task: str, variation: int) -> np.random.Generator:
+    """The collection noise of one (task, variation): the same in any collection of that task, whichever tasks are
+    collected beside it and in whichever order."""
+    return np.random.default_rng([zlib.crc32(task.encode()), variation])
 
 
 def collect_demonstrations(
@@ -64,10 +85,12 @@ def collect_demonstrations(
     image_size: int | None = None,
     progress: bool = True,
     extra_cameras: Sequence[str] | None = None,
+    action_noise: float = 0.0,
 ) -> Demonstrations:
     """Run each task's expert on successive training variations until ``episodes_per_task`` succeed; with
-    ``image_size``, the frames of the main camera and of the benchmark's ``extra_cameras`` (None: all of them) too."""
-    available = check_collection(benchmark, tasks, episodes_per_task)
+    ``image_size``, the frames of the main camera and of the benchmark's ``extra_cameras`` (None: all of them) too;
+    with ``action_noise``, the executed actions perturbed (see the module's docstring)."""
+    available = check_collection(benchmark, tasks, episodes_per_task, action_noise)
     states, actions, images, extra_images, episodes = [], [], [], {}, []
     bar = tqdm(total=len(tasks) * episodes_per_task, desc="collecting expert demonstrations", disable=not progress)
     for task in tasks:
@@ -76,7 +99,7 @@ def collect_demonstrations(
         for variation in range(available):
             if kept == episodes_per_task:
                 break
-            episode = expert_episode(env, expert, variation)
+            episode = expert_episode(env, expert, variation, action_noise, noise_generator(task, variation))
             if episode.success:
                 start = sum(kept_episode.length for kept_episode in episodes)
                 episodes.append(Episode(task, variation, start, len(episode.actions)))
@@ -112,17 +135,18 @@ def collect(
     image_size: int | None = None,
     progress: bool = True,
     extra_cameras: Sequence[str] | None = None,
+    action_noise: float = 0.0,
 ) -> Demonstrations:
     """:func:`collect_demonstrations`, saved to ``output`` (never over earlier demonstrations), which is held from the first
     episode to the last file: another process collecting into it is refused with
     :class:`~snapflow.reporting.locks.RunLockedError`."""
-    check_collection(benchmark, tasks, episodes_per_task)  # before the output folder is created
+    check_collection(benchmark, tasks, episodes_per_task, action_noise)  # before the output folder is created
     benchmark.check_cameras(extra_cameras)
     with hold_run_lock(output, "snapflow collect"):
         if (Path(output) / META_FILE).is_file():
             raise FileExistsError(f"{output} already holds demonstrations; choose another --output")
         demonstrations = collect_demonstrations(
-            benchmark, tasks, episodes_per_task, image_size, progress, extra_cameras
+            benchmark, tasks, episodes_per_task, image_size, progress, extra_cameras, action_noise
         )
         demonstrations.save(output)
     return demonstrations
@@ -133,6 +157,7 @@ __all__ = [
     "ExpertEpisode",
     "check_collection",
     "expert_episode",
+    "noise_generator",
     "collect_demonstrations",
     "collect",
 ]

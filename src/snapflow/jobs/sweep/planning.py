@@ -69,6 +69,7 @@ class CollectJob(FolderJob):
             data.image_size,
             progress=False,
             extra_cameras=data.extra_cameras,
+            action_noise=data.action_noise,
         )
         return {}
 

@@ -33,6 +33,9 @@ class DataSpec:
     image_size: int | None = None
     # the benchmark's cameras beside the main one whose frames are stored (None: all; a camera costs its rendering)
     extra_cameras: tuple[str, ...] | None = added_option(None)
+    # the standard deviation of the noise added to the experts' executed actions (DART; the recorded actions are the
+    # experts' own): states off the experts' paths in the data, labelled with the way back
+    action_noise: float = added_option(0.0)
 
 
 @dataclass(frozen=True)
@@ -185,6 +188,11 @@ def _data(raw: Any) -> DataSpec:
             entry["extra_cameras"] = benchmark.check_cameras(cameras)
         except ValueError as error:
             raise ValueError(f"[data] extra_cameras: {error}") from None
+    if "action_noise" in entry:
+        noise = entry["action_noise"]
+        if isinstance(noise, bool) or not isinstance(noise, int | float) or not noise >= 0:
+            raise ValueError(f"[data] action_noise must be a number of at least 0, got {noise!r}")
+        entry["action_noise"] = float(noise)
     return _dataclass_from("[data]", DataSpec(), entry)
 
 
