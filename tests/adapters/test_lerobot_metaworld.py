@@ -86,6 +86,11 @@ def test_demonstrations_already_in_the_output_are_written_as_a_dataset_not_colle
     assert other.returncode == 2
     assert "already holds other demonstrations (metaworld, 2 tasks, [2] episodes a task, images 32)" in other.stderr
     assert not (tmp_path / "other").exists()
+    noisy = subprocess.run(
+        [*command, str(tmp_path / "noisy"), "--episodes", "2", "--action-noise", "0.1"], capture_output=True, text=True
+    )
+    assert noisy.returncode == 2 and "already holds other demonstrations" in noisy.stderr, "collected without noise"
+    assert not (tmp_path / "noisy").exists()
 
     same = subprocess.run([*command, str(tmp_path / "lerobot"), "--episodes", "2"], capture_output=True, text=True)
     assert same.returncode == 0, same.stderr

@@ -47,7 +47,7 @@ def test_a_noisy_collection_executes_the_experts_action_plus_its_noise_and_recor
         assert np.allclose(observation.state, noisy.states[row], atol=1e-5)
         assert np.allclose(expert.act(observation), noisy.actions[row], atol=1e-6)
         observation, success, _ = env.step(noisy.actions[row] + noise.normal(0.0, 0.3, noisy.actions[row].shape))
-    assert success
+    assert success and noisy.action_noise == 0.3 and clean.action_noise == 0.0
     steps = min(len(noisy.states), len(clean.states))
     assert np.abs(noisy.states[1:steps, :3] - clean.states[1:steps, :3]).max() > 1e-3, "the noise moved the hand"
 
@@ -99,6 +99,23 @@ def test_the_benchmark_name_travels_with_the_demonstrations(tmp_path):
     (tmp_path / "meta.json").write_text(meta.replace('"env": "metaworld-via-points"', '"env": 3'))
     with pytest.raises(DemonstrationError, match="'env' must name a benchmark, got 3"):
         Demonstrations.load(tmp_path)
+
+
+def test_the_collection_noise_travels_with_the_demonstrations_and_parts_of_different_noise_are_not_joined(tmp_path):
+    """Saved and loaded with its noise; a set saved before the field existed loads as noise-free; a bad value and
+    parts collected with different noise are refused."""
+    noisy = _demonstrations(action_noise=0.1)
+    assert Demonstrations.load(noisy.save(tmp_path / "noisy")).action_noise == 0.1
+    meta = tmp_path / "noisy" / "meta.json"
+    meta.write_text(meta.read_text().replace('"action_noise": 0.1', '"action_noise": -1'))
+    with pytest.raises(DemonstrationError, match="'action_noise' must be a number of at least 0, got -1"):
+        Demonstrations.load(tmp_path / "noisy")
+    older = _demonstrations().save(tmp_path / "older") / "meta.json"
+    older.write_text(older.read_text().replace('"action_noise": 0.0,', ""))
+    assert "action_noise" not in older.read_text() and Demonstrations.load(tmp_path / "older").action_noise == 0.0
+    assert Demonstrations.concatenate([noisy, _demonstrations(action_noise=0.1)]).action_noise == 0.1
+    with pytest.raises(DemonstrationError, match="different action noise: 0.1 and 0.0"):
+        Demonstrations.concatenate([noisy, _demonstrations()])
 
 
 def test_loading_a_missing_or_foreign_directory_is_explained(tmp_path):

@@ -68,7 +68,14 @@ def run(args: argparse.Namespace) -> int:
     if collected:  # an export that did not finish, or the same demonstrations wanted as a LeRobotDataset
         demonstrations = Demonstrations.load(args.output)
         _check_same_collection(
-            demonstrations, args.output, benchmark.name, chosen, args.episodes, args.image_size, cameras
+            demonstrations,
+            args.output,
+            benchmark.name,
+            chosen,
+            args.episodes,
+            args.image_size,
+            cameras,
+            args.action_noise,
         )
     else:
         demonstrations = collect(
@@ -100,18 +107,27 @@ def _check_same_collection(
     episodes: int,
     image_size: int | None,
     extra_cameras: tuple[str, ...],
+    action_noise: float,
 ) -> None:
     """Refuse demonstrations in ``output`` that another collection made: writing them would not give what the
     command asks for."""
     size = demonstrations.images.shape[1] if demonstrations.images is not None else None
     per_task = {task: sum(e.task == task for e in demonstrations.episodes) for task in demonstrations.tasks}
     cameras = tuple(demonstrations.extra_images)
-    found = (demonstrations.env, demonstrations.tasks, set(per_task.values()), size, cameras)
-    if found != (env, tasks, {episodes}, image_size, extra_cameras if image_size else ()):
+    found = (
+        demonstrations.env,
+        demonstrations.tasks,
+        set(per_task.values()),
+        size,
+        cameras,
+        demonstrations.action_noise,
+    )
+    if found != (env, tasks, {episodes}, image_size, extra_cameras if image_size else (), action_noise):
         other_cameras = f", other cameras {list(cameras)}" if cameras else ""
+        noise = f", action noise {demonstrations.action_noise}" if demonstrations.action_noise else ""
         raise FileExistsError(
             f"{output} already holds other demonstrations ({demonstrations.env}, {len(per_task)} tasks, "
-            f"{sorted(set(per_task.values()))} episodes a task, images {size or 'none'}{other_cameras}); "
+            f"{sorted(set(per_task.values()))} episodes a task, images {size or 'none'}{other_cameras}{noise}); "
             "choose another --output"
         )
 

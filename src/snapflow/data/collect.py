@@ -124,6 +124,7 @@ def collect_demonstrations(
         np.stack(images) if images else None,
         benchmark.name,
         {name: np.stack(frames) for name, frames in extra_images.items()},
+        action_noise,
     )
 
 

@@ -59,6 +59,8 @@ class Demonstrations:
     images: np.ndarray | None = None
     env: str = DEFAULT_BENCHMARK
     extra_images: dict[str, np.ndarray] = field(default_factory=dict)  # other cameras' frames, by camera name
+    # the noise on the executed actions they were collected with (DART; the actions held are the experts' own)
+    action_noise: float = 0.0
 
     def __post_init__(self) -> None:
         self.validate()
@@ -134,6 +136,7 @@ class Demonstrations:
                 "num_steps": int(len(self.states)),
                 "has_images": self.images is not None,
                 "extra_cameras": list(self.extra_images),
+                "action_noise": self.action_noise,
                 "instructions": self.instructions,
                 "episodes": [asdict(e) for e in self.episodes],
                 "stats": asdict(self.stats()),
@@ -155,6 +158,10 @@ class Demonstrations:
                 )
             if (part.images is None) != (first.images is None):
                 raise DemonstrationError("some parts hold camera frames and others do not")
+            if part.action_noise != first.action_noise:
+                raise DemonstrationError(
+                    f"parts were collected with different action noise: {first.action_noise} and {part.action_noise}"
+                )
         episodes, offset = [], 0
         for part in parts:
             episodes += [replace(episode, start=episode.start + offset) for episode in part.episodes]
@@ -169,6 +176,7 @@ class Demonstrations:
             np.concatenate([part.images for part in parts]) if first.images is not None else None,
             first.env,
             {name: np.concatenate([part.extra_images[name] for part in parts]) for name in first.extra_images},
+            first.action_noise,
         )
 
     @classmethod
@@ -211,6 +219,7 @@ class Demonstrations:
             loaded.get(IMAGES),
             _env(meta.get("env", DEFAULT_BENCHMARK), meta_path),
             {key.removeprefix(f"{IMAGES}."): array for key, array in loaded.items() if key.startswith(f"{IMAGES}.")},
+            _action_noise(meta.get("action_noise", 0.0), meta_path),  # absent: collected before noise existed
         )
 
 
@@ -253,6 +262,12 @@ def _env(name: Any, source: Path) -> str:
     if not isinstance(name, str):
         raise DemonstrationError(f"{source}: 'env' must name a benchmark, got {name!r}")
     return name
+
+
+def _action_noise(value: Any, source: Path) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0:
+        raise DemonstrationError(f"{source}: 'action_noise' must be a number of at least 0, got {value!r}")
+    return float(value)
 
 
 def _instructions(instructions: Any, source: Path) -> dict[str, str]:
