@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from snapflow.data.demonstrations import META_FILE, Demonstrations, Episode
+from snapflow.data.demonstrations import META_FILE, Demonstrations, Episode, check_action_noise
 from snapflow.envs.base import Benchmark, Environment, Expert
 from snapflow.reporting.locks import hold_run_lock
 
@@ -26,8 +26,7 @@ EPISODES_PER_TASK = 30  # successful expert episodes per task (Meta-World has 50
 def check_collection(benchmark: Benchmark, tasks: list[str], episodes_per_task: int, action_noise: float = 0.0) -> int:
     """Refuse unknown tasks, more episodes than the benchmark has training variations (loading the simulator, so
     a missing one is found here) and negative noise; returns that number of variations."""
-    if not action_noise >= 0:  # NaN too
-        raise ValueError(f"action_noise must be at least 0, got {action_noise}")
+    check_action_noise(action_noise)
     benchmark.check_tasks(tasks)
     available = benchmark.num_variations("train")
     if not 1 <= episodes_per_task <= available:

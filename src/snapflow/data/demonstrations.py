@@ -264,10 +264,19 @@ def _env(name: Any, source: Path) -> str:
     return name
 
 
-def _action_noise(value: Any, source: Path) -> float:
+def check_action_noise(value: Any) -> float:
+    """A collection's action noise (the standard deviation added to the executed actions) as a float: a number of at
+    least 0, never a bool or NaN; a ``ValueError`` otherwise."""
     if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0:
-        raise DemonstrationError(f"{source}: 'action_noise' must be a number of at least 0, got {value!r}")
+        raise ValueError(f"action_noise must be a number of at least 0, got {value!r}")
     return float(value)
+
+
+def _action_noise(value: Any, source: Path) -> float:
+    try:
+        return check_action_noise(value)
+    except ValueError as error:
+        raise DemonstrationError(f"{source}: {error}") from None
 
 
 def _instructions(instructions: Any, source: Path) -> dict[str, str]:
@@ -283,6 +292,7 @@ __all__ = [
     "DemonstrationError",
     "Episode",
     "split_episodes",
+    "check_action_noise",
     "FORMAT",
     "VERSION",
     "ARRAYS_FILE",

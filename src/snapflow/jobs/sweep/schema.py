@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from snapflow.data.collect import EPISODES_PER_TASK
+from snapflow.data.demonstrations import check_action_noise
 from snapflow.envs.factory import DEFAULT_BENCHMARK, make_benchmark
 from snapflow.evaluation.config import N_ACT
 from snapflow.flow.modes import SamplingMode
@@ -189,10 +190,10 @@ def _data(raw: Any) -> DataSpec:
         except ValueError as error:
             raise ValueError(f"[data] extra_cameras: {error}") from None
     if "action_noise" in entry:
-        noise = entry["action_noise"]
-        if isinstance(noise, bool) or not isinstance(noise, int | float) or not noise >= 0:
-            raise ValueError(f"[data] action_noise must be a number of at least 0, got {noise!r}")
-        entry["action_noise"] = float(noise)
+        try:
+            entry["action_noise"] = check_action_noise(entry["action_noise"])
+        except ValueError as error:
+            raise ValueError(f"[data] {error}") from None
     return _dataclass_from("[data]", DataSpec(), entry)
 
 
