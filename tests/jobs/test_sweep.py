@@ -397,6 +397,69 @@ def test_a_bad_sweep_config_is_refused_with_its_section_named(tmp_path, capsys, 
     assert message in error and "Traceback" not in error
 
 
+def _reader(directory: Path, rows: str, data: str = 'env = "libero"\ntasks = "libero_object"\n') -> Path:
+    """A sweep whose table's rows are given, in ``directory`` beside its outputs."""
+    path = directory / "reader.toml"
+    path.write_text(
+        f'name = "reader"\noutput_dir = "{(directory / "runs").as_posix()}"\n'
+        f'results_dir = "{(directory / "results").as_posix()}"\n[data]\n{data}[runs.teacher]\n'
+        f'[[tables]]\nname = "t"\nper_task = true\nepisodes_per_task = 10\nrows = [{rows}]\n'
+    )
+    return path
+
+
+def test_a_row_reads_another_sweeps_evaluation_on_the_same_tasks_paired_and_never_runs_it(tmp_path, monkeypatch):
+    """Two rows read from LIBERO-Object's committed records give that sweep's own rows (successes, per task, the
+    paired difference), say where they came from, and plan no job of that sweep."""
+    monkeypatch.chdir(ROOT)
+    other = (ROOT / "configs" / "sweeps" / "libero-object.toml").as_posix()
+    config = load_sweep(
+        _reader(
+            tmp_path,
+            f'{{ label = "teacher", sweep = "{other}", run = "teacher", mode = "teacher-10" }}, '
+            f'{{ label = "naive", sweep = "{other}", run = "teacher", mode = "naive" }}',
+        )
+    )
+    assert plan(config) == [] and not [job for job in jobs(config) if isinstance(job, (TrainJob, EvalJob))]
+    rows = write_results(config)["tables"]["t"]["rows"]
+    committed = json.loads((ROOT / "docs/results/sweeps/libero-object/results.json").read_text())["tables"]["headline"]
+    expected = {row["label"]: row for row in committed["rows"]}
+    for row, label in zip(rows, ["teacher 10-NFE", "naive 1-NFE"], strict=True):
+        assert row["sweep"] == "libero-object" and row["run"] == "teacher"
+        for key in ("successes", "episodes", "per_task", "success_interval", "training_s", "offline"):
+            assert row[key] == expected[label][key], key
+    assert rows[1]["difference"]["mean"] == expected["naive 1-NFE"]["difference"]["mean"] == -2.0
+    assert "naive (sweep libero-object, run teacher)" in (tmp_path / "results" / "tables.md").read_text()
+
+
+def test_a_row_that_reads_another_sweep_is_refused_on_other_tasks_an_unknown_run_or_a_cycle(tmp_path, capsys):
+    other = tmp_path / "other"
+    other.mkdir()
+    _reader(other, '{ label = "x", sweep = "../reader.toml", run = "teacher", mode = "naive" }')
+    for rows, data, message in [
+        ('{ label = "x", sweep = "nowhere.toml", run = "teacher", mode = "naive" }', None, "no sweep config at"),
+        ('{ label = "x", sweep = "reader.toml", run = "teacher", mode = "naive" }', None, "cannot read each other"),
+        ('{ label = "x", sweep = "other/reader.toml", run = "teacher", mode = "naive" }', None, "cannot read each"),
+        ('{ label = "x", sweep = 3, run = "teacher", mode = "naive" }', None, "sweep must be the path of a sweep"),
+        (
+            f'{{ label = "x", sweep = "{(ROOT / "configs/sweeps/libero-object.toml").as_posix()}", run = "ghost", '
+            'mode = "naive" }',
+            None,
+            "unknown run 'ghost' of sweep 'libero-object'",
+        ),
+        (
+            f'{{ label = "x", sweep = "{(ROOT / "configs/sweeps/libero-object.toml").as_posix()}", run = "teacher", '
+            'mode = "naive" }',
+            'env = "libero"\ntasks = "libero_spatial"\n',
+            "a row pairs with the table's only on the same benchmark and tasks",
+        ),
+    ]:
+        path = _reader(tmp_path, rows, *([data] if data else []))
+        assert main(["sweep", str(path), "--report-only", "--no-progress"]) == 2
+        error = capsys.readouterr().err
+        assert message in error and "Traceback" not in error, (message, error)
+
+
 def test_replace_block_appends_a_missing_block_and_replaces_an_existing_one():
     document = "# R\n\ntext\n"
     once = replace_block(document, "a/b", "first")

@@ -23,6 +23,8 @@ Config layout (see ``configs/sweeps/*.toml``)::
     [[tables]]                          # name, title, episodes_per_task, n_act, seeds, per_task, x_label,
                                         # reference (the row the others are compared with, paired)
     rows = [{label = "...", run = "snapflow", mode = "snapflow-1", n_act = 4, series = "...", x = 1}]
+                                        # sweep = "other.toml": the row reads that sweep's run and evaluations
+                                        # (same env and tasks, so its cells pair), never runs them
 
 Unless a run says otherwise, teachers train with ``TEACHER_TRAINING`` and students with the sweep's recipe (default:
 ``DEFAULT_RECIPE``), see :mod:`snapflow.training.recipes`.

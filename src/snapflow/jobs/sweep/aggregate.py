@@ -66,11 +66,13 @@ class SweepRow:
     offline: OfflineSummary | None = None
     success_interval: tuple[float, float] | None = None  # 95% Wilson interval of the pooled episodes, percent
     difference: Difference | None = None  # against the table's reference row (None for the reference itself)
+    sweep: str | None = None  # the sweep whose run the row evaluates, when not the table's own
 
     def to_dict(self) -> dict[str, Any]:
-        """As results.json holds it (the interval a list), so that ``from_dict(d).to_dict() == d``."""
+        """As results.json holds it (the interval a list; what a row lacks left out), so that
+        ``from_dict(d).to_dict() == d``."""
         row = asdict(self)
-        for optional in ("offline", "success_interval", "difference"):
+        for optional in ("offline", "success_interval", "difference", "sweep"):
             if row[optional] is None:
                 del row[optional]
         if "success_interval" in row:
@@ -110,9 +112,10 @@ def _evaluation(config: SweepConfig, table: TableSpec, row: RowSpec, seed: int) 
     """The cached evaluation of one cell; a FileNotFoundError if it is missing or was made with other settings."""
     job = eval_job(config, table, row, seed)
     if not is_recorded(job):
+        owner = row.owner(config)
         raise FileNotFoundError(
             f"{config.name}: table {table.name!r} is incomplete ({job.path} is missing or was made with other settings); "
-            "run the sweep first"
+            f"run the sweep {owner.source} first"
         )
     return EvaluationRow.from_dict(read_record(job))
 
@@ -184,11 +187,12 @@ def table_results(config: SweepConfig, table: TableSpec) -> TableResult:
                     for task in config.data.tasks
                 },
                 evaluation_s=sum(e.closed_loop_s for e in evals),
-                training_s=[_training_seconds(config, row.run, seed) for seed in table.seeds],
-                step_s=[_step_seconds(config, row.run, seed) for seed in table.seeds],
+                training_s=[_training_seconds(row.owner(config), row.run, seed) for seed in table.seeds],
+                step_s=[_step_seconds(row.owner(config), row.run, seed) for seed in table.seeds],
                 offline=offline,
                 success_interval=(100 * low, 100 * high),
                 difference=difference,
+                sweep=None if row.sweep is None else row.sweep.name,
             )
         )
     return TableResult(table.name, table.title, table.episodes_per_task, list(table.seeds), table.x_label, rows)

@@ -82,6 +82,13 @@ def markdown_rows(config: SweepConfig, result: TableResult, command: str) -> str
             f"({difference.reference}) in points, averaged over the {difference.cells} (seed, task) cells both rows ran "
             "on the same variations, with a 95% bootstrap interval over those cells.",
         ]
+    if borrowed := [row for row in rows if row.sweep is not None]:
+        lines += [
+            "",
+            "Read from another sweep's records (the same benchmark, tasks and evaluation variations): "
+            + "; ".join(f"{row.label} (sweep {row.sweep}, run {row.run})" for row in borrowed)
+            + ".",
+        ]
     lines += [
         "",
         "s / training step: median over seeds of the run's own training wall time per step (the teacher's for "

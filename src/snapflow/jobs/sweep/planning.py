@@ -296,17 +296,24 @@ def train_job(config: SweepConfig, run: str, seed: int) -> TrainJob:
 
 
 def eval_job(config: SweepConfig, table: TableSpec, row: RowSpec, seed: int) -> EvalJob:
-    """The evaluation behind one cell (row, seed) of a table."""
-    path = config.eval_path(row.run, seed, row.mode, row.n_act, table.episodes_per_task)
-    policy = train_job(config, row.run, seed)
-    return EvalJob(policy, row.mode, row.n_act, table.episodes_per_task, path, config.ledger_path(path))
+    """The evaluation behind one cell (row, seed) of a table of ``config``: the row's own sweep's, where it reads
+    another's."""
+    owner = row.owner(config)
+    path = owner.eval_path(row.run, seed, row.mode, row.n_act, table.episodes_per_task)
+    policy = train_job(owner, row.run, seed)
+    return EvalJob(policy, row.mode, row.n_act, table.episodes_per_task, path, owner.ledger_path(path))
 
 
 def jobs(config: SweepConfig) -> list[Job]:
-    """Every job the sweep's tables need, done or not: collect, the runs (each teacher before its students), evals."""
+    """Every job the sweep's tables need, done or not: collect, the runs (each teacher before its students), evals.
+    A row that reads another sweep is that sweep's to run (under its own lock), so none of its jobs is here."""
     data = data_job(config)
     evals = [
-        eval_job(config, table, row, seed) for table in config.tables for row in table.rows for seed in table.seeds
+        eval_job(config, table, row, seed)
+        for table in config.tables
+        for row in table.rows
+        if row.sweep is None
+        for seed in table.seeds
     ]
     trains = [train for job in evals for train in (job.policy.teacher, job.policy) if train is not None]
     return list(dict.fromkeys([*data.parts, data, *trains, *evals]))

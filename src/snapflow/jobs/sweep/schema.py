@@ -63,6 +63,13 @@ class RowSpec:
     n_act: int
     series: str | None = None
     x: float | None = None
+    # the sweep whose run the row evaluates, when not the table's own (same benchmark and tasks, so its cells pair
+    # with the table's on the same initial states): read from that sweep's records, never run from this one
+    sweep: SweepConfig | None = None
+
+    def owner(self, config: SweepConfig) -> SweepConfig:
+        """The sweep whose run and evaluations the row reads, in a table of ``config``."""
+        return self.sweep if self.sweep is not None else config
 
 
 @dataclass(frozen=True)
@@ -261,7 +268,28 @@ def _runs(raw: Any, seeds: tuple[int, ...], data: DataSpec, recipe: str) -> dict
     return runs
 
 
-def _tables(path: Path, raw: Any, seeds: tuple[int, ...], runs: dict[str, RunSpec]) -> tuple[TableSpec, ...]:
+def _other_sweep(section: str, path: Path, name: Any, data: DataSpec, loading: tuple[Path, ...]) -> SweepConfig:
+    """The sweep config ``name`` (relative to ``path``'s folder) that a row reads, on the same benchmark and tasks."""
+    if not isinstance(name, str):
+        raise ValueError(f"{section}: sweep must be the path of a sweep config, got {name!r}")
+    other_path = path.parent / name
+    if other_path.resolve() in loading:
+        raise ValueError(f"{section}: sweep {name!r} reads back a sweep that reads it; sweeps cannot read each other")
+    try:
+        other = load_sweep(other_path, loading)
+    except FileNotFoundError as error:
+        raise ValueError(f"{section}: {error}") from None
+    if (other.data.env, other.data.tasks) != (data.env, data.tasks):
+        raise ValueError(
+            f"{section}: sweep {name!r} runs on {other.data.env} {list(other.data.tasks)}, this one on {data.env} "
+            f"{list(data.tasks)}: a row pairs with the table's only on the same benchmark and tasks"
+        )
+    return other
+
+
+def _tables(
+    path: Path, raw: Any, seeds: tuple[int, ...], runs: dict[str, RunSpec], data: DataSpec, loading: tuple[Path, ...]
+) -> tuple[TableSpec, ...]:
     if not isinstance(raw, list):
         raise ValueError(f"{path}: tables must be a list of [[tables]] entries")
     tables = []
@@ -277,13 +305,18 @@ def _tables(path: Path, raw: Any, seeds: tuple[int, ...], runs: dict[str, RunSpe
             _checked(
                 f"{section} row",
                 row,
-                {"label", "run", "mode", "n_act", "series", "x"},
+                {"label", "run", "mode", "n_act", "series", "x", "sweep"},
                 frozenset({"label", "run", "mode"}),
             )
-            run = runs.get(row["run"])
+            other = None
+            if "sweep" in row:
+                other = _other_sweep(f"{section}: row {row['label']!r}", path, row["sweep"], data, loading)
+            row_runs = runs if other is None else other.runs
+            run = row_runs.get(row["run"])
             if run is None:
+                where = "" if other is None else f" of sweep {other.name!r}"
                 raise ValueError(
-                    f"{section}: row {row['label']!r} names unknown run {row['run']!r}; runs: {sorted(runs)}"
+                    f"{section}: row {row['label']!r} names unknown run {row['run']!r}{where}; runs: {sorted(row_runs)}"
                 )
             if missing := sorted(set(table_seeds) - set(run.seeds)):
                 raise ValueError(
@@ -294,7 +327,7 @@ def _tables(path: Path, raw: Any, seeds: tuple[int, ...], runs: dict[str, RunSpe
             except ValueError as error:
                 raise ValueError(f"{section}: row {row['label']!r}: {error}") from None
             n_act = _count(f"{section}: row {row['label']!r}", "n_act", row.get("n_act", entry.get("n_act", N_ACT)))
-            rows.append(RowSpec(row["label"], row["run"], mode, n_act, row.get("series"), row.get("x")))
+            rows.append(RowSpec(row["label"], row["run"], mode, n_act, row.get("series"), row.get("x"), other))
         reference = entry.get("reference")
         if reference is not None and reference not in [row.label for row in rows]:
             raise ValueError(f"{section}: reference {reference!r} is not one of its rows {[row.label for row in rows]}")
@@ -313,8 +346,10 @@ def _tables(path: Path, raw: Any, seeds: tuple[int, ...], runs: dict[str, RunSpe
     return tuple(tables)
 
 
-def load_sweep(path: str | Path) -> SweepConfig:
-    """Read and check a sweep config; every mistake is a ValueError naming its section and key."""
+def load_sweep(path: str | Path, loading: tuple[Path, ...] = ()) -> SweepConfig:
+    """Read and check a sweep config; every mistake is a ValueError naming its section and key.
+
+    ``loading``: the configs whose rows read this one (a cycle among them is refused)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no sweep config at {path}")
@@ -339,7 +374,7 @@ def load_sweep(path: str | Path) -> SweepConfig:
         Path(raw.get("results_dir", f"docs/results/sweeps/{name}")),
         data,
         runs,
-        _tables(path, raw["tables"], seeds, runs),
+        _tables(path, raw["tables"], seeds, runs, data, (*loading, path.resolve())),
     )
 
 
