@@ -422,8 +422,8 @@ def test_a_row_reads_another_sweeps_evaluation_on_the_same_tasks_paired_and_neve
     )
     assert plan(config) == [] and not [job for job in jobs(config) if isinstance(job, (TrainJob, EvalJob))]
     rows = write_results(config)["tables"]["t"]["rows"]
-    committed = json.loads((ROOT / "docs/results/sweeps/libero-object/results.json").read_text())["tables"]["noise-free"]
-    expected = {row["label"]: row for row in committed["rows"]}
+    committed = json.loads((ROOT / "docs/results/sweeps/libero-object/results.json").read_text())["tables"]
+    expected = {row["label"]: row for row in committed["noise-free"]["rows"]}
     for row, label in zip(rows, ["teacher 10-NFE", "naive 1-NFE"], strict=True):
         assert row["sweep"] == "libero-object" and row["run"] == "teacher"
         for key in ("successes", "episodes", "per_task", "success_interval", "training_s", "offline"):
