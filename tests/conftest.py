@@ -6,6 +6,7 @@ import atexit
 import os
 import shutil
 import tempfile
+from pathlib import Path
 
 # Nothing may come from a hub, and no test may read or write the user's Hugging Face cache: point it at a fresh
 # folder before anything imports huggingface_hub (which reads these variables once, at import)
@@ -19,6 +20,15 @@ from torch import Tensor  # noqa: E402
 
 from snapflow.nn import SnapFlowPolicy  # noqa: E402
 from tests.helpers import ACTION_DIM, CHUNK, OBSERVATION_DIM, make_model, randomise_target_time  # noqa: E402
+
+ADAPTER_TESTS = Path(__file__).parent / "adapters"
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Marks every test under tests/adapters `lerobot` (they all run LeRobot), so `-m lerobot` selects them."""
+    for item in items:
+        if ADAPTER_TESTS in item.path.parents:
+            item.add_marker(pytest.mark.lerobot)
 
 
 @pytest.fixture

@@ -85,6 +85,7 @@ def test_train_sets_any_field_of_a_built_in_policy_s_configuration_by_policy_opt
         assert not (output / "checkpoints").exists()
 
 
+@pytest.mark.lerobot
 def test_serve_names_the_lerobot_it_needs_in_one_line_where_lerobot_is_older(capsys):
     pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test command")
     if lerobot_loads_plugins():

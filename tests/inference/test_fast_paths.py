@@ -85,6 +85,7 @@ def test_a_registered_fast_path_is_what_snapflow_eval_runs(tmp_path, counting, m
     assert counting["velocity"] > 0 and counting["velocity"] % 2 == 0, "two passes a chunk, all through the fast path"
 
 
+@pytest.mark.lerobot
 def test_a_registered_fast_path_is_what_a_lerobot_adapters_sampling_runs(tmp_path, counting):
     pytest.importorskip(
         "lerobot", reason="LeRobot is installed by the README's test command; this environment lacks it"
@@ -103,6 +104,7 @@ def test_a_registered_fast_path_is_what_a_lerobot_adapters_sampling_runs(tmp_pat
 
 
 @pytest.mark.slow
+@pytest.mark.lerobot
 def test_a_registered_fast_path_is_what_eval_in_lerobots_environment_runs(tmp_path, counting):
     pytest.importorskip(
         "lerobot", reason="LeRobot is installed by the README's test command; this environment lacks it"
