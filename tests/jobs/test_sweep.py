@@ -268,7 +268,10 @@ def test_the_via_point_sweep_collects_on_its_own_benchmark():
     assert config.data.env == "metaworld-via-points" and len(config.data.tasks) == 10
 
 
-@pytest.mark.parametrize("name", ["mt10-state", "mt10-camera", "mt10-via-points", "mt10-levers", "mt50-state"])
+@pytest.mark.parametrize(
+    "name",
+    ["mt10-state", "mt10-camera", "mt10-via-points", "mt10-levers", "mt50-state", "libero-spatial", "libero-object"],
+)
 def test_the_committed_results_render_to_the_committed_markdown_byte_for_byte(monkeypatch, name):
     monkeypatch.chdir(ROOT)  # the command and links in the Markdown are the repository-relative paths
     config = load_sweep(f"configs/sweeps/{name}.toml")
