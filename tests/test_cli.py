@@ -24,7 +24,7 @@ def test_each_sub_command_is_one_module_that_declares_its_flags_and_runs_them():
     commands = _commands()
     assert list(commands) == [
         *("toy", "toy-compare", "collect", "experts", "train", "distill", "eval", "diagnose"),
-        *("bench", "export", "serve", "bench-targets", "sweep", "demo"),
+        *("bench", "export", "serve", "bench-targets", "sweep", "checkpoints", "demo"),
     ]
     for module, (name, parser) in zip(COMMANDS, commands.items(), strict=True):
         assert module.__name__ == f"snapflow.cli.{name.replace('-', '_')}"

@@ -20,6 +20,7 @@ from snapflow import __version__
 from snapflow.cli import (
     bench,
     bench_targets,
+    checkpoints,
     collect,
     demo,
     diagnose,
@@ -50,6 +51,7 @@ COMMANDS = (
     serve,
     bench_targets,
     sweep,
+    checkpoints,
     demo,
 )
 

@@ -24,6 +24,7 @@ from snapflow.policies.factory import make_model, make_processor, policy_type, p
 from snapflow.policies.loaded import CheckpointError, OpenedPolicy
 from snapflow.policies.normalization import NormalizationStats
 from snapflow.policies.processor import Processor
+from snapflow.reporting.archive import archived_hint
 from snapflow.reporting.files import write_json
 
 POLICY_WEIGHTS, POLICY_CONFIG = "policy.safetensors", "policy.json"
@@ -120,7 +121,7 @@ def read_json(path: Path) -> dict[str, Any]:
 
 def read_tensors(path: Path) -> dict[str, torch.Tensor]:
     if not path.is_file():
-        raise CheckpointError(f"{path} not found")
+        raise CheckpointError(f"{path} not found{archived_hint(path)}")
     try:
         return load_file(path)
     except (SafetensorError, OSError, ValueError, RuntimeError) as error:

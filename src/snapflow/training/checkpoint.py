@@ -29,6 +29,7 @@ from snapflow.policies.checkpoint import (
     resolve_checkpoint,
     write_policy,
 )
+from snapflow.reporting.archive import archived_hint
 from snapflow.reporting.files import write_json
 
 OPTIMIZER_STATE, TRAINER_STATE = "optimizer.safetensors", "trainer_state.json"
@@ -164,6 +165,10 @@ def read_kept(directory: Path) -> tuple[Path, dict[str, Any]] | None:
     except (FileNotFoundError, json.JSONDecodeError):
         return None
     checkpoint = Path(directory) / note.pop("checkpoint")
+    weights = checkpoint / POLICY_WEIGHTS
+    if checkpoint.is_dir() and not weights.is_file() and archived_hint(weights):
+        # never train again what history keeps: hours of work, where one command brings the weights back
+        raise FileNotFoundError(f"the kept checkpoint {checkpoint} lacks its weights{archived_hint(weights)}")
     return (checkpoint, note) if checkpoint.is_dir() else None
 
 
