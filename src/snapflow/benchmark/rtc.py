@@ -20,6 +20,7 @@ import torch
 from torch import Tensor
 
 from snapflow.adapters.lerobot.rtc import padded_prefix, prefix_weights
+from snapflow.flow.modes import SNAPFLOW_1, TEACHER_10
 from snapflow.protocol import index_batch
 from snapflow.reporting.files import write_json, write_text
 from snapflow.reporting.tables import markdown_table
@@ -41,12 +42,17 @@ class BoundaryRow:
 # (name, sampling mode, RTC, NFE): what a user can run, then two jumps the policy does not offer: LeRobot's guidance
 # applied to the jump as it is, and a second jump from the noise moved by the prefix gap
 ROWS = (
-    ("teacher 10-NFE", "teacher-10", "off", 10),
-    ("teacher 10-NFE + RTC", "teacher-10", "guided", 10),
-    ("SnapFlow 1-NFE", "snapflow-1", "off", 1),
-    ("SnapFlow 1-NFE + RTC (inpainted prefix)", "snapflow-1", "inpaint", 1),
-    ("SnapFlow 1-NFE + LeRobot's guidance as is (w = 10; not offered)", "snapflow-1", "guided-jump", 1),
-    ("SnapFlow 2-NFE: jump again from the noise moved by the gap, inpainted (not offered)", "snapflow-1", "re-jump", 2),
+    ("teacher 10-NFE", TEACHER_10.name, "off", 10),
+    ("teacher 10-NFE + RTC", TEACHER_10.name, "guided", 10),
+    ("SnapFlow 1-NFE", SNAPFLOW_1.name, "off", 1),
+    ("SnapFlow 1-NFE + RTC (inpainted prefix)", SNAPFLOW_1.name, "inpaint", 1),
+    ("SnapFlow 1-NFE + LeRobot's guidance as is (w = 10; not offered)", SNAPFLOW_1.name, "guided-jump", 1),
+    (
+        "SnapFlow 2-NFE: jump again from the noise moved by the gap, inpainted (not offered)",
+        SNAPFLOW_1.name,
+        "re-jump",
+        2,
+    ),
 )
 
 
@@ -106,7 +112,7 @@ def boundary_jumps(
     noise = torch.randn(frames, chunk, dims, generator=torch.Generator().manual_seed(seed))
     student.config.rtc_config = None
     student.init_rtc_processor()
-    student.config.sampling_mode = "teacher-10"
+    student.config.sampling_mode = TEACHER_10.name
     planned = student.predict_action_chunk(
         dict(batch), noise=torch.randn(noise.shape, generator=torch.Generator().manual_seed(seed + 1))
     )

@@ -20,7 +20,7 @@ from snapflow.data.chunks import split_chunk_data
 from snapflow.data.demonstrations import Demonstrations
 from snapflow.flow.time_sampling import TimeSampler
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
-from snapflow.objective.options import target_stages
+from snapflow.objective.options import PAPER_TARGET_STEPS, target_stages
 from snapflow.policies.checkpoint import load_policy
 from snapflow.protocol import map_tensors
 from snapflow.reporting.files import write_json, write_text
@@ -146,7 +146,7 @@ def distillation_step_cost(
         actions = torch.randn(size, *noise.shape[1:], device=device, dtype=noise.dtype)
         if device.type == "cuda":
             torch.cuda.reset_peak_memory_stats(device)
-        paper_target = [TargetOption.parse("euler:2")]
+        paper_target = [TargetOption("euler", PAPER_TARGET_STEPS)]
         timed = time_training_steps(
             student, batch, actions, paper_target, time_sampler, warmup=warmup, repeats=repeats, copy_student=False
         )

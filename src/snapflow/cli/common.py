@@ -21,6 +21,7 @@ from typing import Any, NoReturn
 from snapflow import install_command
 from snapflow.envs.factory import make_benchmark
 from snapflow.inference.fast_paths import FAST_PATHS
+from snapflow.objective.options import PAPER_TARGET_STEPS
 from snapflow.objective.registry import methods, targets
 from snapflow.training.config import TEACHER_TRAINING, TrainConfig
 from snapflow.training.recipes import RECIPES, TargetOption, parse_target_steps
@@ -269,8 +270,8 @@ def add_objective_options(parser: argparse.ArgumentParser, cls: type | None) -> 
         "--target-steps",
         type=_target_steps,
         default=_default(cls, "target_steps") if cls else None,
-        help="Euler steps the target spans (2: the paper); a schedule such as 2,4,8 splits training into equal stages"
-        + recipe,
+        help=f"Euler steps the target spans ({PAPER_TARGET_STEPS}: the paper); a schedule such as 2,4,8 splits training "
+        "into equal stages" + recipe,
     )
 
 

@@ -22,7 +22,7 @@ from snapflow.cli.common import (
 )
 from snapflow.envs.factory import BENCHMARKS, DEFAULT_BENCHMARK, make_benchmark
 from snapflow.evaluation.config import N_ACT
-from snapflow.flow.modes import SamplingMode
+from snapflow.flow.modes import STANDARD_MODES, SamplingMode
 
 EPISODES = "episodes"  # each row's episode log, in the output folder
 
@@ -49,7 +49,7 @@ def add_parser(subparsers: Any) -> None:
     parser.add_argument(
         "--modes",
         type=_modes,
-        default=_modes("teacher-10,naive,snapflow-1"),
+        default=list(STANDARD_MODES),
         help="comma-separated: teacher-N, naive, snapflow-N (snapflow-N needs a distilled policy)",
     )
     parser.add_argument(

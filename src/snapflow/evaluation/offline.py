@@ -5,6 +5,7 @@ from __future__ import annotations
 import torch
 
 from snapflow.data.chunks import ChunkData
+from snapflow.evaluation.config import OFFLINE_SAMPLES
 from snapflow.evaluation.results import OfflineMetrics
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.solver import sample_actions
@@ -16,7 +17,7 @@ def offline_metrics(
     policy: FlowPolicy,
     data: ChunkData,
     mode: SamplingMode,
-    max_samples: int = 500,
+    max_samples: int = OFFLINE_SAMPLES,
     seed: int = 0,
     batch_size: int = 250,
 ) -> OfflineMetrics:

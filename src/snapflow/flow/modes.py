@@ -69,6 +69,8 @@ class SamplingMode:
 TEACHER_10 = SamplingMode(10, jump=False)
 NAIVE_1 = SamplingMode(1, jump=False)
 SNAPFLOW_1 = SamplingMode(1, jump=True)
+# what a comparison of a teacher and its student samples by default: the teacher, the naive step, the student's jump
+STANDARD_MODES: tuple[SamplingMode, ...] = (TEACHER_10, NAIVE_1, SNAPFLOW_1)
 
 
-__all__ = ["SamplingMode", "TEACHER_10", "NAIVE_1", "SNAPFLOW_1"]
+__all__ = ["SamplingMode", "TEACHER_10", "NAIVE_1", "SNAPFLOW_1", "STANDARD_MODES"]

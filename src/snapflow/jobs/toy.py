@@ -17,7 +17,7 @@ from tqdm.auto import tqdm
 
 from snapflow.data.toy_mixture import ConditionalGaussianMixture
 from snapflow.evaluation.distances import energy_distance
-from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, TEACHER_10, SamplingMode
+from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, STANDARD_MODES, TEACHER_10
 from snapflow.flow.solver import sample_actions
 from snapflow.flow.time_sampling import UniformTimeSampler
 from snapflow.jobs.toy_config import ToyConfig
@@ -46,9 +46,6 @@ class ToyResult:
 
     def to_dict(self) -> dict:
         return {"config": asdict(self.config), "energy_distance": self.distances, "distill_step_s": self.distill_step_s}
-
-
-MODES: tuple[SamplingMode, ...] = (TEACHER_10, NAIVE_1, SNAPFLOW_1)
 
 
 def _fit(
@@ -142,7 +139,7 @@ def run_toy_experiment(config: ToyConfig | None = None, progress: bool = True) -
     data = mixture.sample(repeated, eval_generator).view(config.eval_contexts, config.samples_per_context, 2)
     noise = torch.randn(len(repeated), 1, 2, generator=eval_generator)
     samples, distances = {}, {}
-    for mode in MODES:
+    for mode in STANDARD_MODES:
         policy = student if mode.jump else teacher
         chunk = sample_actions(policy, repeated, noise, mode)
         samples[mode.name] = chunk.view(config.eval_contexts, config.samples_per_context, 2)
@@ -157,9 +154,9 @@ def run_toy_experiment(config: ToyConfig | None = None, progress: bool = True) -
 def markdown_toy(result: ToyResult) -> str:
     """What the toy measured, then each sampler's energy distance, also relative to the naive one step."""
     config = result.config
-    naive = result.distances["naive-1"]
+    naive = result.distances[NAIVE_1.name]
     student = "SnapFlow 1-NFE" if config.method == "snapflow" else f"{config.method} 1-NFE"
-    rows = [("teacher 10-NFE", "teacher-10", 10), ("naive 1-NFE", "naive-1", 1), (student, "snapflow-1", 1)]
+    rows = [("teacher 10-NFE", TEACHER_10.name, 10), ("naive 1-NFE", NAIVE_1.name, 1), (student, SNAPFLOW_1.name, 1)]
     table = markdown_table(
         ["sampler", "NFE", "energy distance", "/ naive 1-NFE"],
         [
@@ -179,7 +176,7 @@ def plot_toy_result(result: ToyResult, path: Path, num_contexts: int = 3) -> Non
     method = result.config.method
 
     def label(name: str) -> str:  # the student's one-step jump, named after the objective that trained it
-        return f"{method} 1-NFE" if name == "snapflow-1" and method != "snapflow" else name
+        return f"{method} 1-NFE" if name == SNAPFLOW_1.name and method != "snapflow" else name
 
     columns = [("data (exact)", result.data_samples)] + [
         (f"{label(name)}  ED={result.distances[name]:.3f}", samples) for name, samples in result.model_samples.items()

@@ -15,6 +15,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, TEACHER_10
 from snapflow.jobs.runner import Job, read_record, run_jobs
 from snapflow.jobs.toy import run_toy_experiment
 from snapflow.jobs.toy_config import ToyConfig
@@ -79,10 +80,10 @@ def compare_targets(
     def per_seed(option: TargetOption, name: str) -> list[float]:
         return [runs[(option, seed)]["energy_distance"][name] for seed in seeds]
 
-    teacher, reference = per_seed(options[0], "teacher-10"), per_seed(options[0], "snapflow-1")
+    teacher, reference = per_seed(options[0], TEACHER_10.name), per_seed(options[0], SNAPFLOW_1.name)
     rows = []
     for option in options:
-        distances = per_seed(option, "snapflow-1")
+        distances = per_seed(option, SNAPFLOW_1.name)
         mean, std = mean_std(distances)
         step_ms = [1000 * runs[(option, seed)]["distill_step_s"] for seed in seeds]
         rows.append(
@@ -105,7 +106,7 @@ def compare_targets(
         "config": {**as_record(base), "seed": None, "target": None, "target_steps": None},
         "seeds": seeds,
     }
-    for name in ("teacher-10", "naive-1"):  # one teacher per seed, whatever the target
+    for name in (TEACHER_10.name, NAIVE_1.name):  # one teacher per seed, whatever the target
         values = per_seed(options[0], name)
         mean, std = mean_std(values)
         summary[name] = {"mean": mean, "std": std, "per_seed": values}
@@ -119,7 +120,7 @@ def compare_targets(
 def markdown_comparison(summary: dict[str, Any]) -> str:
     """The comparison's caption (settings, the teacher's and the naive step's distances) and one row per target."""
     config, rows = summary["config"], summary["rows"]
-    teacher, naive = summary["teacher-10"], summary["naive-1"]
+    teacher, naive = summary[TEACHER_10.name], summary[NAIVE_1.name]
     caption = (
         f"Toy conditional mixture ({config['num_modes']} modes), seeds {', '.join(map(str, summary['seeds']))}; "
         f"{config['distill_steps']} distillation steps, alpha {config['alpha']}, lambda {config['consistency_weight']}, "
@@ -159,7 +160,7 @@ def plot_comparison(summary: dict[str, Any], path: Path) -> None:
     positions = np.arange(len(rows))
     means, stds = [row["distance_mean"] for row in rows], [row["distance_std"] for row in rows]
     axis.bar(positions, means, yerr=stds, capsize=4, color="#4c72b0")
-    for name, style in (("teacher-10", "--"), ("naive-1", ":")):
+    for name, style in ((TEACHER_10.name, "--"), (NAIVE_1.name, ":")):
         axis.axhline(
             summary[name]["mean"], color="black", linestyle=style, label=f"{name} ({summary[name]['mean']:.3f})"
         )

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from snapflow.objective.options import PAPER_ALPHA, PAPER_TARGET_STEPS
 from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES
 
 
@@ -19,11 +20,11 @@ class ToyConfig:
     batch_size: int = 256
     teacher_lr: float = 2e-3
     distill_lr: float = 1e-3
-    alpha: float = 0.5
+    alpha: float = PAPER_ALPHA
     consistency_weight: float = RECIPES[DEFAULT_RECIPE].distill_options["consistency_weight"]  # the recipe's lambda
     method: str = "snapflow"  # or a one-step baseline (snapflow.objective.registry.methods())
     target: str = "euler"  # SnapFlow's target and its steps (a list: a schedule), see DistillSettings
-    target_steps: int | tuple[int, ...] = 2
+    target_steps: int | tuple[int, ...] = PAPER_TARGET_STEPS
     hidden_dim: int = 256
     eval_contexts: int = 12
     samples_per_context: int = 400

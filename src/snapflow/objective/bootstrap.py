@@ -24,6 +24,7 @@ from torch import Tensor
 from snapflow.flow.path import euler_step, interpolate
 from snapflow.flow.time_sampling import BetaTimeSampler, TimeSampler
 from snapflow.objective.base import OneStepRows, TwoBranchObjective, uniform
+from snapflow.objective.options import PAPER_ALPHA, PAPER_CONSISTENCY_WEIGHT
 from snapflow.protocol import Context, FlowPolicy
 
 
@@ -37,8 +38,8 @@ class BootstrappedSnapFlowObjective(TwoBranchObjective):
             converged (log2 K jump sizes, one-step rows drawn evenly over them).
     """
 
-    alpha: float = 0.5
-    consistency_weight: float = 0.1
+    alpha: float = PAPER_ALPHA
+    consistency_weight: float = PAPER_CONSISTENCY_WEIGHT
     time_sampler: TimeSampler = field(default_factory=BetaTimeSampler)
     target_steps: int = 8
 

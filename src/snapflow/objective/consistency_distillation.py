@@ -24,6 +24,7 @@ from torch import Tensor, nn
 from snapflow.flow.path import broadcast_time, euler_step, interpolate
 from snapflow.flow.time_sampling import BetaTimeSampler, TimeSampler
 from snapflow.objective.base import OneStepRows, TwoBranchObjective, uniform
+from snapflow.objective.options import PAPER_ALPHA, PAPER_CONSISTENCY_WEIGHT
 from snapflow.protocol import Context, FlowPolicy
 
 
@@ -41,8 +42,8 @@ class ConsistencyDistillationObjective(TwoBranchObjective):
     the policy's checkpoint: a resumed run restarts it from the resumed weights.
     """
 
-    alpha: float = 0.5
-    consistency_weight: float = 0.1
+    alpha: float = PAPER_ALPHA
+    consistency_weight: float = PAPER_CONSISTENCY_WEIGHT
     time_sampler: TimeSampler = field(default_factory=BetaTimeSampler)
     num_intervals: int = 10
     ema_decay: float = 0.95

@@ -23,6 +23,7 @@ from torch.nn.attention import SDPBackend, sdpa_kernel
 from snapflow.flow.path import broadcast_time, interpolate
 from snapflow.flow.time_sampling import BetaTimeSampler, TimeSampler
 from snapflow.objective.base import OneStepRows, TwoBranchObjective, uniform
+from snapflow.objective.options import PAPER_ALPHA, PAPER_CONSISTENCY_WEIGHT
 from snapflow.protocol import Context, FlowPolicy
 
 
@@ -37,8 +38,8 @@ class MeanFlowObjective(TwoBranchObjective):
             large, and on a small policy the loss was measured to grow 8000-fold in 300 steps.
     """
 
-    alpha: float = 0.5
-    consistency_weight: float = 0.1
+    alpha: float = PAPER_ALPHA
+    consistency_weight: float = PAPER_CONSISTENCY_WEIGHT
     time_sampler: TimeSampler = field(default_factory=BetaTimeSampler)
     adaptive_power: float = 1.0
 

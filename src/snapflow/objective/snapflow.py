@@ -29,13 +29,22 @@ from snapflow.flow.path import conditional_velocity, euler_step, interpolate
 from snapflow.flow.solver import VelocityFn, euler_sample
 from snapflow.flow.time_sampling import BetaTimeSampler, TimeSampler
 from snapflow.objective.base import OneStepRows, TwoBranchObjective, uniform
-from snapflow.objective.options import TEACHER_VELOCITIES, TeacherVelocity, target_stages
+from snapflow.objective.options import (
+    PAPER_ALPHA,
+    PAPER_CONSISTENCY_WEIGHT,
+    PAPER_TARGET_STEPS,
+    TEACHER_VELOCITIES,
+    TeacherVelocity,
+    target_stages,
+)
 from snapflow.protocol import Context, FlowPolicy
 
 
-def euler_shortcut_target(velocity: VelocityFn, x_1: Tensor, steps: int = 2, clamp: float | None = None) -> Tensor:
+def euler_shortcut_target(
+    velocity: VelocityFn, x_1: Tensor, steps: int = PAPER_TARGET_STEPS, clamp: float | None = None
+) -> Tensor:
     """Average of the ``steps`` Euler velocities from t = 1 to 0 along the model's own marginal field,
-    i.e. x_1 - x_0 for the K-step Euler solution x_0 (uniform steps); ``steps = 2`` is the paper's target.
+    i.e. x_1 - x_0 for the K-step Euler solution x_0 (uniform steps); the default ``steps`` is the paper's target.
 
     Computed without gradient: it is a regression target. ``clamp`` bounds each velocity to +-clamp.
     """
@@ -45,7 +54,12 @@ def euler_shortcut_target(velocity: VelocityFn, x_1: Tensor, steps: int = 2, cla
 
 
 def jump_target(
-    velocity: VelocityFn, x_t: Tensor, t: Tensor, s: Tensor, steps: int = 2, clamp: float | None = None
+    velocity: VelocityFn,
+    x_t: Tensor,
+    t: Tensor,
+    s: Tensor,
+    steps: int = PAPER_TARGET_STEPS,
+    clamp: float | None = None,
 ) -> Tensor:
     """Average of the ``steps`` Euler velocities of the model's own marginal field from time ``t`` down to ``s``
     (per row): the average velocity of the jump t -> s that the K-step Euler solver takes. At (t, s) = (1, 0) it is
@@ -85,12 +99,12 @@ class SnapFlowObjective(TwoBranchObjective):
             Euler average of the teacher velocities from t to s (0: the paper, every row jumps from pure noise).
     """
 
-    alpha: float = 0.5
-    consistency_weight: float = 0.1
+    alpha: float = PAPER_ALPHA
+    consistency_weight: float = PAPER_CONSISTENCY_WEIGHT
     time_sampler: TimeSampler = field(default_factory=BetaTimeSampler)
     teacher_velocity_clamp: float | None = None
     teacher_velocity: TeacherVelocity = "marginal"
-    target_steps: int | tuple[int, ...] = 2
+    target_steps: int | tuple[int, ...] = PAPER_TARGET_STEPS
     intermediate_jumps: float = 0.0
 
     def __post_init__(self) -> None:

@@ -13,6 +13,7 @@ from lerobot.configs.policies import PreTrainedConfig
 from snapflow._lazy import resolve
 from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES, lerobot_policy_type
 from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
+from snapflow.objective.options import PAPER_ALPHA, PAPER_CONSISTENCY_WEIGHT, PAPER_TARGET_STEPS
 from snapflow.objective.registry import make_objective
 
 #: the SnapFlow objective's settings a student's config holds, each as ``distill_<name>`` (the names of
@@ -37,9 +38,9 @@ class SnapFlowSampling:
     base_type: ClassVar[str]
     sampling_mode: str = SNAPFLOW_1.name
     distilled: bool | None = None
-    distill_alpha: float = 0.5
-    distill_consistency_weight: float = 0.1
-    distill_target_steps: int = 2
+    distill_alpha: float = PAPER_ALPHA
+    distill_consistency_weight: float = PAPER_CONSISTENCY_WEIGHT
+    distill_target_steps: int = PAPER_TARGET_STEPS
     distill_teacher_velocity_clamp: float | None = None
 
     def __post_init__(self) -> None:
