@@ -2,7 +2,8 @@
 
 Everything random in step k (batch indices, noise, FM times, the one-step rows' times) comes from a generator seeded by
 (seed, process, k), and the learning rate is a function of k, so ``resume`` continues the same loss curve.
-Under ``accelerate launch`` each process draws its own batches and Accelerate averages the gradients.
+Under ``accelerate launch`` each process draws its own batches and Accelerate averages the gradients. Where a run starts
+(fresh or resumed) and each checkpoint it saves are :mod:`snapflow.training.resuming`'s.
 """
 
 from __future__ import annotations
@@ -15,26 +16,16 @@ from typing import Any, Protocol
 
 import torch
 from accelerate import Accelerator
-from accelerate.optimizer import AcceleratedOptimizer
 from torch import Tensor, nn
 from tqdm.auto import tqdm
 
 from snapflow.objective.base import TwoBranchObjective
-from snapflow.policies.checkpoint import LATEST, CheckpointError
 from snapflow.protocol import map_tensors
 from snapflow.reporting.files import write_json
 from snapflow.reporting.locks import hold_run_lock
-from snapflow.reporting.records import as_record
-from snapflow.training.checkpoint import (
-    install_checkpoint,
-    keep_checkpoint,
-    mark_latest,
-    read_kept,
-    restore_training,
-    save_checkpoint,
-)
 from snapflow.training.config import TrainConfig
 from snapflow.training.ema import WeightAverage
+from snapflow.training.resuming import continue_from_kept, keeping_each_checkpoint, save_run_checkpoint, starting_state
 
 HISTORY = "history.json"  # the run's losses and validation, written when training reaches its last step
 
@@ -186,9 +177,9 @@ def train(
     with hold_run_lock(run_directory, holder) if accelerator.is_main_process else nullcontext():
         if keep_progress is not None:
             if resume and accelerator.is_main_process:
-                _continue_kept(accelerator, run_directory, Path(keep_progress), config)
+                continue_from_kept(accelerator, run_directory, Path(keep_progress), config)
             accelerator.wait_for_everyone()
-            on_checkpoint = _keeping(Path(keep_progress), on_checkpoint)
+            on_checkpoint = keeping_each_checkpoint(Path(keep_progress), on_checkpoint)
         return _train(
             accelerator,
             policy,
@@ -205,28 +196,6 @@ def train(
         )
 
 
-def _continue_kept(accelerator: Accelerator, run_directory: Path, kept_in: Path, config: TrainConfig) -> None:
-    """Install the checkpoint kept in ``kept_in`` as the latest of a run folder that has none."""
-    kept = read_kept(kept_in)
-    if kept is None or (run_directory / LATEST).is_file():
-        return
-    install_checkpoint(kept[0], run_directory, config.keep_checkpoints)
-    accelerator.print(
-        f"{run_directory} holds no checkpoint: continuing from the one kept in {kept_in} ({kept[0].name})"
-    )
-
-
-def _keeping(kept_in: Path, then: Callable[[Path], None] | None) -> Callable[[Path], None]:
-    """An ``on_checkpoint`` that keeps a copy of each checkpoint in ``kept_in``, then calls ``then``."""
-
-    def on_checkpoint(checkpoint: Path) -> None:
-        keep_checkpoint(checkpoint, kept_in, {})
-        if then is not None:
-            then(checkpoint)
-
-    return on_checkpoint
-
-
 def _optimiser(
     policy: nn.Module, trainable: list[nn.Parameter] | None, config: TrainConfig
 ) -> tuple[torch.optim.AdamW, WeightAverage | None]:
@@ -241,40 +210,6 @@ def _optimiser(
         return optimizer, None
     trained = {name: p for name, p in policy.named_parameters() if id(p) in trainable_ids}
     return optimizer, WeightAverage(trained, config.ema_decay)
-
-
-def _starting_state(
-    accelerator: Accelerator,
-    run_directory: Path,
-    policy: nn.Module,
-    optimizer: torch.optim.Optimizer,
-    average: WeightAverage | None,
-    config: TrainConfig,
-    resume: bool,
-) -> dict[str, Any]:
-    """A fresh trainer state, or with ``resume`` the latest checkpoint's, loaded into ``policy``, ``optimizer`` and
-    ``average``. Refuses to resume under other training settings, and to start over a run without ``resume``."""
-    recorded = as_record(config)
-    fresh = {"step": 0, "history": [], "validation": [], "train_config": recorded, "wall_time_s": 0.0}
-    if not (run_directory / LATEST).is_file():
-        if resume:
-            accelerator.print(f"nothing to resume in {run_directory}; starting at step 0")
-        return fresh
-    if not resume:
-        raise FileExistsError(
-            f"{run_directory} already holds a run; pass --resume to continue it or choose another --output"
-        )
-    state, saved_average = restore_training(run_directory, policy, optimizer)
-    saved = state["train_config"]
-    if saved != recorded:
-        changed = sorted(key for key in recorded.keys() | saved.keys() if saved.get(key) != recorded.get(key))
-        raise CheckpointError(
-            f"cannot resume {run_directory}: training settings differ from the checkpoint's in {changed}"
-        )
-    if average is not None and saved_average is not None:
-        average.average = saved_average
-    accelerator.print(f"resuming {run_directory} at step {state['step']}")
-    return state
 
 
 def _history_row(running: list[Tensor], step: int, learning_rate: float, schedule: dict[str, Any]) -> dict[str, Any]:
@@ -301,39 +236,6 @@ def _validation_row(
     return {"step": step, **loss}
 
 
-def _save(
-    accelerator: Accelerator,
-    module: nn.Module,
-    optimizer: AcceleratedOptimizer,
-    average: WeightAverage | None,
-    state: dict[str, Any],
-    step: int,
-    started: float,
-    run_directory: Path,
-    metadata: dict[str, Any],
-    config: TrainConfig,
-) -> Path | None:
-    """Checkpoint the run at ``step`` from the main process (its ``state`` brought to that step, its wall time counted
-    from ``started``) and mark it latest, keeping ``config.keep_checkpoints``; every process waits for it. With a
-    weight average, the average is saved as the policy (what evaluation reads) and the raw weights beside it (what
-    training resumes from). Returns the checkpoint's folder on the main process, None on the others."""
-    path = None
-    if accelerator.is_main_process:
-        state.update(step=step, wall_time_s=time.perf_counter() - started)
-        with average.applied() if average is not None else nullcontext() as raw:
-            path = save_checkpoint(
-                run_directory / "checkpoints" / f"step_{step:07d}",
-                accelerator.unwrap_model(module).policy,
-                metadata,
-                optimizer.optimizer,
-                state,
-                training_weights=raw,
-            )
-        mark_latest(run_directory, path, config.keep_checkpoints)
-    accelerator.wait_for_everyone()
-    return path
-
-
 def _train(
     accelerator: Accelerator,
     policy: nn.Module,
@@ -350,7 +252,7 @@ def _train(
 ) -> dict[str, Any]:
     """:func:`train` with the run folder held."""
     optimizer, average = _optimiser(policy, trainable, config)
-    state = _starting_state(accelerator, run_directory, policy, optimizer, average, config, resume)
+    state = starting_state(accelerator, run_directory, policy, optimizer, average, config, resume)
     module, optimizer = accelerator.prepare(ObjectiveModule(policy, objective), optimizer)
     device = accelerator.device
     started = time.perf_counter() - state["wall_time_s"]
@@ -401,7 +303,7 @@ def _train(
                 refresh=False,
             )
         if done % config.checkpoint_every == 0 or last:
-            checkpoint = _save(
+            checkpoint = save_run_checkpoint(
                 accelerator, module, optimizer, average, state, done, started, run_directory, metadata, config
             )
             if checkpoint is not None and on_checkpoint is not None:
