@@ -20,7 +20,7 @@ def _run(command: list[str], **environment: str) -> subprocess.CompletedProcess:
 def test_every_package_imports_only_the_layers_below_it():
     result = _run([str(BIN / "lint-imports")])
     assert result.returncode == 0, result.stdout + result.stderr
-    assert "2 kept, 0 broken" in result.stdout
+    assert "3 kept, 0 broken" in result.stdout
 
 
 def test_the_layer_contract_catches_a_back_import(tmp_path):
@@ -43,6 +43,17 @@ def test_the_lerobot_contract_catches_the_registry_importing_the_plugin_back(tmp
     result = _run([str(BIN / "lint-imports")], PYTHONPATH=str(tmp_path))
     assert result.returncode == 1
     assert "- snapflow.adapters.lerobot.registry -> snapflow.adapters.lerobot.plugin" in result.stdout
+
+
+def test_the_training_contract_catches_the_recipes_importing_the_lerobot_runs_back(tmp_path):
+    """The recipes and the LeRobot runs once imported each other in a circle; a copy whose recipes import the LeRobot
+    runs again breaks the contract."""
+    shutil.copytree(ROOT / "src" / "snapflow", tmp_path / "snapflow")
+    with open(tmp_path / "snapflow" / "training" / "recipes.py", "a") as recipes:
+        recipes.write("\nimport snapflow.training.lerobot  # a deliberate back-import\n")
+    result = _run([str(BIN / "lint-imports")], PYTHONPATH=str(tmp_path))
+    assert result.returncode == 1
+    assert "- snapflow.training.recipes -> snapflow.training.lerobot" in result.stdout
 
 
 def test_ruff_finds_nothing_to_fix_or_reformat():

@@ -12,8 +12,7 @@ from snapflow.cli import main
 from snapflow.jobs.demo import PRESETS, with_recipe
 from snapflow.jobs.sweep import load_sweep
 from snapflow.reporting.records import as_record
-from snapflow.training.config import PAPER_STUDENT_TRAINING
-from snapflow.training.lerobot import paper_training
+from snapflow.training.config import PAPER_STUDENT_TRAINING, paper_training
 from snapflow.training.recipes import DEFAULT_RECIPE, LEROBOT_RECIPE, RECIPES, DistillSettings, student_settings
 from snapflow.training.stages import train_teacher
 from tests.training.fixtures import TINY, synthetic_demonstrations, train_config

@@ -60,4 +60,20 @@ TEACHER_TRAINING = TrainConfig(steps=5000, learning_rate=3e-4)
 PAPER_STUDENT_TRAINING = TrainConfig(steps=2000, learning_rate=3e-5, warmup_steps=50)
 
 
-__all__ = ["TrainConfig", "VAL_FRACTION", "TEACHER_TRAINING", "PAPER_STUDENT_TRAINING"]
+def paper_training() -> TrainConfig:
+    """The paper's settings of a LeRobot student: AdamW at 2.5e-5 after 500 warm-up steps, batch 4, ~30k steps, bf16
+    where the GPU has it (asked of the machine when called, not at import: torch loads then)."""
+    import torch
+
+    return TrainConfig(
+        steps=30000,
+        batch_size=4,
+        learning_rate=2.5e-5,
+        warmup_steps=500,
+        min_learning_rate_ratio=1.0,
+        checkpoint_every=1000,
+        mixed_precision="bf16" if torch.cuda.is_available() and torch.cuda.is_bf16_supported() else "no",
+    )
+
+
+__all__ = ["TrainConfig", "VAL_FRACTION", "TEACHER_TRAINING", "PAPER_STUDENT_TRAINING", "paper_training"]

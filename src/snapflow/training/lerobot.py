@@ -28,24 +28,9 @@ from snapflow.policies.loaded import CheckpointError
 from snapflow.reporting.locks import hold_run_lock
 from snapflow.reporting.records import as_record
 from snapflow.sources import open_policy
-from snapflow.training.config import VAL_FRACTION, TrainConfig
+from snapflow.training.config import VAL_FRACTION, TrainConfig, paper_training
 from snapflow.training.recipes import DistillSettings
 from snapflow.training.trainer import train
-
-
-def paper_training() -> TrainConfig:
-    """The paper's settings: AdamW at 2.5e-5 after 500 warm-up steps, batch 4, ~30k steps, bf16 where the GPU has it
-    (asked of the machine when called, not at import)."""
-    return TrainConfig(
-        steps=30000,
-        batch_size=4,
-        learning_rate=2.5e-5,
-        warmup_steps=500,
-        min_learning_rate_ratio=1.0,
-        checkpoint_every=1000,
-        mixed_precision="bf16" if torch.cuda.is_available() and torch.cuda.is_bf16_supported() else "no",
-    )
-
 
 EXPORT_DIRECTORY = "lerobot_policy"
 SMOLVLM_DIRECTORY = "smolvlm"  # the teacher's SmolVLM config and tokenizer, which its exported config points at
@@ -343,7 +328,6 @@ def _distill_lerobot(
 
 
 __all__ = [
-    "paper_training",
     "EXPORT_DIRECTORY",
     "SMOLVLM_DIRECTORY",
     "check_dataset",

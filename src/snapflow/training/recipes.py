@@ -11,10 +11,16 @@ from collections.abc import Mapping
 from dataclasses import MISSING, dataclass, fields, replace
 from typing import TYPE_CHECKING, Any
 
-from snapflow.objective.options import TeacherVelocity, target_stages
+from snapflow.objective.options import (
+    PAPER_ALPHA,
+    PAPER_CONSISTENCY_WEIGHT,
+    PAPER_TARGET_STEPS,
+    TeacherVelocity,
+    target_stages,
+)
 from snapflow.objective.registry import OBJECTIVES, ObjectiveType, make_objective, methods, targets
 from snapflow.reporting.records import added_option
-from snapflow.training.config import PAPER_STUDENT_TRAINING, TrainConfig
+from snapflow.training.config import PAPER_STUDENT_TRAINING, TrainConfig, paper_training
 
 if TYPE_CHECKING:
     from snapflow.flow.time_sampling import TimeSampler
@@ -23,8 +29,9 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class DistillSettings:
-    """The paper's defaults: SnapFlow, alpha 0.5, lambda 0.1, no clamp, prefix (VLM) frozen, phi_s attached,
-    two-step Euler target.
+    """The paper's defaults: SnapFlow, its alpha and lambda (:data:`~snapflow.objective.options.PAPER_ALPHA`,
+    :data:`~snapflow.objective.options.PAPER_CONSISTENCY_WEIGHT`), no clamp, prefix (VLM) frozen, phi_s attached,
+    two-step Euler target (:data:`~snapflow.objective.options.PAPER_TARGET_STEPS`).
 
     ``method`` picks the one-step objective (:mod:`snapflow.objective.registry`; the baselines share alpha and
     lambda); ``teacher_velocity`` and ``target_time`` exist for the paper's ablations (conditional velocity; no
@@ -38,15 +45,15 @@ class DistillSettings:
     default.
     """
 
-    alpha: float = 0.5
-    consistency_weight: float = 0.1
+    alpha: float = PAPER_ALPHA
+    consistency_weight: float = PAPER_CONSISTENCY_WEIGHT
     teacher_velocity_clamp: float | None = None
     freeze_prefix: bool = True
     method: str = "snapflow"
     teacher_velocity: TeacherVelocity = "marginal"
     target_time: bool = True
     target: str = "euler"
-    target_steps: int | tuple[int, ...] = 2
+    target_steps: int | tuple[int, ...] = PAPER_TARGET_STEPS
     intermediate_jumps: float = 0.0
     # left out of the hash, which a dict cannot join (jobs holding these settings are hashed); equality still sees it
     objective_options: dict[str, Any] = added_option(default_factory=dict, hash=False)
@@ -176,15 +183,18 @@ class Recipe:
         return DistillSettings(**self.distill_options)
 
 
+# both recipes train the student on the paper's budget
+_PAPER_BUDGET = f"{PAPER_STUDENT_TRAINING.steps} steps at lr {PAPER_STUDENT_TRAINING.learning_rate:g}"
 RECIPES: dict[str, Recipe] = {
     "snapflow": Recipe(
         "snapflow's recipe (docs/RESULTS.md, 'One step as good as ten'): the paper's objective and budget with "
-        "lambda 3 (2000 steps at lr 3e-5)",
+        f"lambda 3 ({_PAPER_BUDGET})",
         PAPER_STUDENT_TRAINING,
         {"consistency_weight": 3.0},
     ),
     "paper": Recipe(
-        "the paper's settings: alpha 0.5, lambda 0.1, two-step Euler target, prefix frozen; 2000 steps at lr 3e-5",
+        f"the paper's settings: alpha {PAPER_ALPHA}, lambda {PAPER_CONSISTENCY_WEIGHT}, {PAPER_TARGET_STEPS}-step "
+        f"Euler target, prefix frozen; {_PAPER_BUDGET}",
         PAPER_STUDENT_TRAINING,
         {},
     ),
@@ -204,15 +214,10 @@ def student_settings(
     teacher, :data:`LEROBOT_RECIPE` for a LeRobot policy), each field given in ``train`` (:class:`TrainConfig`) and
     ``distill`` (:class:`DistillSettings`) overriding the recipe's; ``distill``'s ``objective_options`` join the
     recipe's. A LeRobot student trains with the paper's LeRobot optimisation
-    (:func:`snapflow.training.lerobot.paper_training`) whatever the recipe: the recipes' budgets are the built-in
+    (:func:`snapflow.training.config.paper_training`) whatever the recipe: the recipes' budgets are the built-in
     policies'."""
     chosen = RECIPES[recipe or (LEROBOT_RECIPE if lerobot else DEFAULT_RECIPE)]
-    if lerobot:
-        from snapflow.training.lerobot import paper_training  # torch: the bf16 question is asked of the machine
-
-        base_train = paper_training()
-    else:
-        base_train = chosen.train
+    base_train = paper_training() if lerobot else chosen.train
     options = {**chosen.distill_options, **(distill or {})}
     joined = {**chosen.distill_options.get("objective_options", {}), **options.get("objective_options", {})}
     if joined:
