@@ -34,6 +34,7 @@ def repository(tmp_path: Path) -> Path:
     git(root, "init", "-q", "-b", "main")
     git(root, "config", "user.email", "tests@example.com")
     git(root, "config", "user.name", "tests")
+    git(root, "config", "uploadpack.allowFilter", "true")  # serve blob-less clones, as a hosting service does
     (root / ".gitignore").write_text((REPOSITORY / ".gitignore").read_text())
     (root / "README.md").write_text("a project\n")
     git(root, "add", ".")
@@ -73,6 +74,8 @@ def test_archive_then_restore_brings_back_the_same_bytes(repository: Path) -> No
     clone = repository.parent / "clone"
     git(repository.parent, "clone", "-q", "--filter=blob:none", f"file://{repository}", str(clone))
     assert not (clone / CHECKPOINT / "policy.safetensors").exists()
+    missing = git(clone, "rev-list", "--objects", "--missing=print", "--all").splitlines()
+    assert f"?{entry.blob}" in missing  # the clone did not download the weights
     assert "archived" in snapflow(clone, "checkpoints", "list").stdout
     result = snapflow(clone, "checkpoints", "restore", CHECKPOINT)
     assert result.returncode == 0, result.stderr
