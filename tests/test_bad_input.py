@@ -438,9 +438,10 @@ def test_help_and_version_load_no_torch_and_every_option_says_what_it_does():
     for name, command in commands.choices.items():
         for action in command._actions:
             assert action.help, f"snapflow {name} {'/'.join(action.option_strings) or action.dest} has no help"
-        # one name for where a command writes (the sweep writes where its config says; serve writes nothing)
+        # one name for where a command writes (the sweep writes where its config says; serve writes nothing; the
+        # checkpoint archive writes where its manifest says)
         outputs = [action.option_strings for action in command._actions if action.dest == "output"]
-        assert outputs == ([] if name in ("sweep", "serve") else [["--output", "--output-dir"]]), name
+        assert outputs == ([] if name in ("sweep", "serve", "checkpoints") else [["--output", "--output-dir"]]), name
     script = "import sys\nfrom snapflow.cli import main\ntry:\n    main(sys.argv[1:])\nexcept SystemExit:\n    pass\nprint('torch' in sys.modules)\n"
     for arguments in (["--help"], ["train", "--help"], ["--version"]):
         result = subprocess.run([sys.executable, "-c", script, *arguments], capture_output=True, text=True)

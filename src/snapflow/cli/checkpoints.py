@@ -29,7 +29,7 @@ def add_parser(subparsers: Any) -> None:
         run,
         _interrupted,
     )
-    actions = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
+    actions = parser.add_subparsers(dest="action", required=True, metavar="ACTION", help="what to do")
     listing = actions.add_parser("list", help="each archived file, its size, and whether it is in place")
     listing.add_argument("paths", nargs="*", metavar="PATH", help="only the files at or under these paths")
     restoring = actions.add_parser("restore", help="write archived files back where they were, from history")
