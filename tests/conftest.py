@@ -13,10 +13,17 @@ from pathlib import Path
 os.environ["HF_HUB_OFFLINE"] = os.environ["TRANSFORMERS_OFFLINE"] = "1"
 os.environ["HF_HUB_CACHE"] = tempfile.mkdtemp(prefix="snapflow-tests-hf-cache-")
 atexit.register(shutil.rmtree, os.environ["HF_HUB_CACHE"], ignore_errors=True)
+# Under pytest-xdist (`-n auto`: one worker a core) each worker, and every process it starts, computes on one thread:
+# two workers of two threads each on two cores wait on each other's time slices, several times slower
+if "PYTEST_XDIST_WORKER" in os.environ:
+    os.environ["OMP_NUM_THREADS"] = os.environ["MKL_NUM_THREADS"] = "1"
 
 import pytest  # noqa: E402
 import torch  # noqa: E402
 from torch import Tensor  # noqa: E402
+
+if "PYTEST_XDIST_WORKER" in os.environ:
+    torch.set_num_threads(1)
 
 from snapflow.nn import SnapFlowPolicy  # noqa: E402
 from tests.helpers import ACTION_DIM, CHUNK, OBSERVATION_DIM, make_model, randomise_target_time  # noqa: E402
