@@ -8,7 +8,7 @@ from importlib.metadata import version
 from typing import Any
 
 from snapflow.adapters.lerobot_types import PLUGIN_LEROBOT, lerobot_loads_plugins
-from snapflow.cli.common import COUNT, add_command
+from snapflow.cli.common import COUNT, NON_NEGATIVE, add_command
 
 
 def add_parser(subparsers: Any) -> None:
@@ -21,6 +21,12 @@ def add_parser(subparsers: Any) -> None:
     )
     parser.add_argument("--host", default="localhost", help="address to bind (LeRobot's default)")
     parser.add_argument("--port", type=COUNT, default=8080, help="port to listen on (LeRobot's default)")
+    parser.add_argument(
+        "--inference-latency",
+        type=NON_NEGATIVE,
+        help="LeRobot's floor on a chunk's round trip, in seconds: the server holds each chunk back until this much "
+        "has passed (default: LeRobot's, 1/30 s; 0 shows what the one step saves)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -37,5 +43,6 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"serving SnapFlow students on {args.host}:{args.port}; the robot client asks for policy_type=snapflow_<type>"
     )
-    serve(PolicyServerConfig(host=args.host, port=args.port))
+    latency = {} if args.inference_latency is None else {"inference_latency": args.inference_latency}
+    serve(PolicyServerConfig(host=args.host, port=args.port, **latency))
     return 0

@@ -1,0 +1,101 @@
+"""``snapflow serve`` started as a user starts it: a command in its own process, which must register the student types
+itself, and a client written from LeRobot's own gRPC types. Payloads that would run code in the server (here: create a
+file) are refused by name, before they run, and the server goes on to serve a student."""
+
+from __future__ import annotations
+
+import os
+import pickle
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test command; this environment lacks it")
+from snapflow.adapters.lerobot_types import PLUGIN_LEROBOT, lerobot_loads_plugins  # noqa: E402
+
+if not lerobot_loads_plugins():
+    pytest.skip(f"snapflow serve needs lerobot {PLUGIN_LEROBOT} or newer", allow_module_level=True)
+grpc = pytest.importorskip("grpc", reason="LeRobot's async extra (lerobot[async]) brings grpcio")
+
+from lerobot.async_inference.helpers import RemotePolicyConfig, TimedObservation  # noqa: E402
+from lerobot.transport import services_pb2, services_pb2_grpc  # noqa: E402
+from lerobot.transport.utils import send_bytes_in_chunks  # noqa: E402
+from lerobot.utils.feature_utils import hw_to_dataset_features  # noqa: E402
+
+from tests.lerobot_tiny import IMAGE_SIZE, save_tiny_student  # noqa: E402
+
+JOINTS = ("shoulder.pos", "elbow.pos", "wrist.pos", "wrist_roll.pos")
+
+
+class CreatesAFile:
+    """What an attacker sends: unpickling it calls ``open(path, "w")``, which creates the file."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def __reduce__(self):
+        return open, (str(self.path), "w")
+
+
+@pytest.fixture
+def server(tmp_path):
+    """``snapflow serve`` on a free loopback port, in a process of its own (LeRobot writes its logs/ into its
+    working directory); its port once it answers."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    command = [str(Path(sys.executable).with_name("snapflow")), "serve", "--host", "127.0.0.1", "--port", str(port)]
+    process = subprocess.Popen(
+        [*command, "--inference-latency", "0"],
+        cwd=tmp_path,
+        env=os.environ,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        stdin=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        with grpc.insecure_channel(f"127.0.0.1:{port}") as channel:
+            grpc.channel_ready_future(channel).result(timeout=120)
+        yield port
+    finally:
+        process.terminate()
+        output, _ = process.communicate(timeout=30)
+        print(output)  # shown on a failure: what the server logged
+
+
+@pytest.mark.slow
+def test_the_command_serves_a_student_and_refuses_a_payload_that_runs_code(server, vlm_directory, tmp_path):
+    student = save_tiny_student(
+        vlm_directory, tmp_path / "student", image_key="observation.images.front", image_size=IMAGE_SIZE
+    )
+    robot = {**dict.fromkeys(JOINTS, float), "front": (IMAGE_SIZE, IMAGE_SIZE, 3)}
+    marker = tmp_path / "created-by-a-client"
+    with grpc.insecure_channel(f"127.0.0.1:{server}") as channel:
+        stub = services_pb2_grpc.AsyncInferenceStub(channel)
+        stub.Ready(services_pb2.Empty())
+        payload = pickle.dumps(CreatesAFile(marker))
+        with pytest.raises(grpc.RpcError) as refused:
+            stub.SendPolicyInstructions(services_pb2.PolicySetup(data=payload))
+        assert refused.value.code() == grpc.StatusCode.INVALID_ARGUMENT
+        assert "refused a message that calls _io.open" in refused.value.details()
+        with pytest.raises(grpc.RpcError, match="refused a message that calls _io.open"):
+            stub.SendObservations(send_bytes_in_chunks(payload, services_pb2.Observation))
+        assert not marker.exists(), "the client's code ran in the server"
+
+        # the same server, on: a student of the plugin's type, which the command registered itself
+        features = hw_to_dataset_features(robot, "observation")
+        specs = RemotePolicyConfig("snapflow_smolvla", str(student), features, 4, "cpu")
+        stub.SendPolicyInstructions(services_pb2.PolicySetup(data=pickle.dumps(specs)))
+        raw = {joint: 0.1 * index for index, joint in enumerate(JOINTS)}
+        raw |= {"front": np.zeros((IMAGE_SIZE, IMAGE_SIZE, 3), np.uint8), "task": "reach the red block"}
+        observation = TimedObservation(timestamp=time.time(), observation=raw, timestep=0, must_go=True)
+        stub.SendObservations(send_bytes_in_chunks(pickle.dumps(observation), services_pb2.Observation))
+        actions = pickle.loads(stub.GetActions(services_pb2.Empty()).data)  # nosec - the answer of our own server
+    assert [action.get_timestep() for action in actions] == [0, 1, 2, 3]
+    assert all(np.isfinite(action.get_action().numpy()).all() for action in actions)
