@@ -4,6 +4,8 @@ checkpointing, and the CLI end to end (distill on a local LeRobotDataset, eval i
 
 from __future__ import annotations
 
+import shutil
+
 import pytest
 import torch
 
@@ -285,6 +287,23 @@ def test_cli_evaluates_a_distilled_smolvla_in_lerobots_own_metaworld(vlm_directo
     assert "unknown LeRobot environment 'nowhere'" in capsys.readouterr().err
     assert main(changed("--n-act", "9")) == 2  # more actions per chunk than the chunk holds
     assert "n_action_steps must be between 1" in capsys.readouterr().err
+
+    # a student as lerobot-train leaves it (its config's own label, no snapflow.json) opens as every command opens it
+    trained = tmp_path / "lerobot-train-student"
+    shutil.copytree(directory, trained)
+    (trained / "snapflow.json").unlink()
+    quick = changed("--policy", str(trained))
+    quick[quick.index("--modes") + 1] = "snapflow-1"
+    quick[quick.index("--output") + 1] = str(tmp_path / "eval-trained")
+    assert main(quick) == 0, capsys.readouterr().err
+    assert list(json.loads((tmp_path / "eval-trained" / "report.json").read_text())["modes"]) == ["snapflow-1"]
+    # never distilled: its one step would be the naive one, refused as such
+    config = json.loads((trained / "config.json").read_text())
+    (trained / "config.json").write_text(json.dumps({**config, "distilled": False}))
+    assert main(quick) == 2
+    assert (
+        "is not SnapFlow-distilled (a flow-matching teacher): snapflow-1 would be the naive" in capsys.readouterr().err
+    )
 
 
 def test_dataset_image_channels_are_read_from_either_layout_even_without_names():

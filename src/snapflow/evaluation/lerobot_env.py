@@ -1,4 +1,4 @@
-"""Closed-loop success of a SnapFlow-distilled LeRobot policy in LeRobot's own simulated environments
+"""Closed-loop success of a LeRobot policy (opened as every command opens one) in LeRobot's own simulated environments
 (pusht, aloha, libero, metaworld, ...), through LeRobot's env factory and ``eval_policy_all`` rollout, once per
 sampling mode. The numbers are LeRobot's: ``pc_success`` over ``n_episodes``, rewards, per task and suite."""
 
@@ -11,13 +11,15 @@ from typing import Any
 
 import torch
 
-from snapflow.adapters.lerobot.checkpoint import load_distilled
+from snapflow.adapters.lerobot.evaluation import LoadedLeRobotPolicy
 from snapflow.adapters.lerobot.libero import packaged_initial_states
 from snapflow.envs.libero import SUITES, Libero, suite_of
 from snapflow.flow.modes import SamplingMode
 from snapflow.inference.fast_paths import apply_fast_path
+from snapflow.policies.loaded import CheckpointError
 from snapflow.reporting.files import write_json, write_text
 from snapflow.reporting.tables import markdown_table
+from snapflow.sources import open_policy
 
 
 def make_lerobot_env_config(env_type: str, task: str | None = None, image_size: int | None = None) -> Any:
@@ -70,7 +72,7 @@ def evaluate_in_lerobot_env(
 
     if episodes < 1 or n_envs < 1:
         raise ValueError("episodes and n_envs must be at least 1")
-    adapter = load_distilled(policy_directory)
+    adapter = _open_lerobot_policy(policy_directory, modes)
     policy = adapter.policy
     chunk = policy.config.chunk_size
     n_action_steps = n_action_steps or policy.config.n_action_steps
@@ -130,6 +132,26 @@ def evaluate_in_lerobot_env(
         "fast_path": fast_path,
         "modes": results,
     }
+
+
+def _open_lerobot_policy(source: str | Path, modes: list[SamplingMode]) -> Any:
+    """The adapter of the LeRobot policy at ``source``, opened as every command opens one (a ``snapflow distill``
+    student, a ``lerobot-train`` checkpoint of a student type, a teacher), each of ``modes`` checked against it: a
+    jump mode of a policy never distilled, an export, or a built-in policy is refused by name."""
+    opened = open_policy(source)
+    if not isinstance(opened, LoadedLeRobotPolicy):
+        raise CheckpointError(
+            f"{source} is a {opened.policy_type} policy of snapflow's own: LeRobot's environments run LeRobot "
+            "policies; evaluate it with snapflow eval --env instead"
+        )
+    if opened.exported:
+        raise CheckpointError(
+            f"{source} is a {opened.export['format']} export: LeRobot's rollout runs the PyTorch policy; give the "
+            f"folder it was exported from ({opened.export['source']})"
+        )
+    for mode in modes:
+        opened.check_mode(mode)
+    return opened.policy
 
 
 def lerobot_eval_table(report: dict[str, Any]) -> str:
