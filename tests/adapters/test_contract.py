@@ -474,6 +474,17 @@ class LeRobotAdapterContract(FlowPolicyContract):
             for entry in latency["modes"].values()
         )
 
+        # a student type never distilled (as lerobot-train leaves one whose config says so) is timed at its naive
+        # step, under that name, never as SnapFlow's
+        from snapflow.benchmark.subjects import make_subject
+        from snapflow.flow.modes import NAIVE_1
+
+        (directory / "snapflow.json").unlink()
+        config = json.loads((directory / "config.json").read_text())
+        (directory / "config.json").write_text(json.dumps({**config, "distilled": False}))
+        with self.loading():
+            assert make_subject(str(directory), None, torch.device("cpu"), torch.float32).one_step == NAIVE_1
+
 
 class TestSmolVLAAdapter(LeRobotAdapterContract):
     policy_type = "smolvla"

@@ -119,8 +119,11 @@ def exported_lerobot_subject(loaded: Any, name: str) -> BenchSubject:
     )
 
 
-def lerobot_subject(policy: nn.Module, name: str, device: torch.device, dtype: torch.dtype) -> BenchSubject:
-    """Any LeRobot pi0 / pi0.5 / SmolVLA under its SnapFlow adapter (phi_s included, as the student runs)."""
+def lerobot_subject(
+    policy: nn.Module, name: str, device: torch.device, dtype: torch.dtype, one_step: SamplingMode = SNAPFLOW_1
+) -> BenchSubject:
+    """Any LeRobot pi0 / pi0.5 / SmolVLA under its SnapFlow adapter (phi_s included, as the student runs), its 1-NFE
+    mode ``one_step``."""
     from snapflow.adapters.lerobot import LeRobotFlowPolicy, wrap_policy
     from snapflow.adapters.lerobot.base import lerobot_time_sampler
     from snapflow.adapters.lerobot.evaluation import lerobot_observation
@@ -154,6 +157,7 @@ def lerobot_subject(policy: nn.Module, name: str, device: torch.device, dtype: t
             "tokens": config.tokenizer_max_length,
             "cameras": list(config.image_features),
         },
+        one_step=one_step,
         time_sampler=lerobot_time_sampler(config),
     )
 
@@ -250,7 +254,9 @@ def opened_subject(
         return builtin_subject(loaded, name, device, dtype)
     if loaded.exported:
         return exported_lerobot_subject(loaded, name)
-    return lerobot_subject(loaded.policy, name, torch.device(device), dtype)
+    # never distilled (a teacher, or a student type whose config says so): its one step is the naive one, named so
+    one_step = SNAPFLOW_1 if loaded.distilled else NAIVE_1
+    return lerobot_subject(loaded.policy, name, torch.device(device), dtype, one_step)
 
 
 __all__ = [
