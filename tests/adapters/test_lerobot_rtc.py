@@ -3,6 +3,8 @@ output), prefix inpainting on the one jump (the executed prefix continues the pr
 
 from __future__ import annotations
 
+import warnings
+
 import pytest
 import torch
 
@@ -79,6 +81,31 @@ def test_inpainting_is_lerobots_guided_jump_at_weight_one_where_the_jump_moves_w
         guided = RTCProcessor(RTCConfig(enabled=True, execution_horizon=4, max_guidance_weight=weight))
         velocity = guided.denoise_step(noise, prev, 1, 1.0, lambda x: -offset + 0 * x, 4)
         assert torch.allclose(noise - velocity, blended, atol=1e-6) is matches
+
+
+def test_a_jumps_guidance_weight_acts_up_to_one_and_above_it_is_capped_out_loud():
+    from lerobot.policies.rtc.configuration_rtc import RTCConfig
+    from lerobot.policies.rtc.modeling_rtc import RTCProcessor
+
+    from snapflow.adapters.lerobot.rtc import sample_with_rtc
+    from snapflow.flow.modes import SNAPFLOW_1
+
+    noise, offset, prev = torch.randn(1, 6, 3), torch.randn(1, 6, 3), torch.randn(1, 5, 3)
+    chunks = {}
+    for weight in (0.25, 0.5, 1.0, 10.0):
+        processor = RTCProcessor(RTCConfig(enabled=True, execution_horizon=4, max_guidance_weight=weight))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            chunks[weight] = sample_with_rtc(lambda x, t, s: -offset + 0 * x, noise, SNAPFLOW_1, processor, prev, 1, 4)
+        said = [str(warning.message) for warning in caught if "max_guidance_weight" in str(warning.message)]
+        assert len(said) == (weight > 1), weight  # a cap is never silent
+    free = noise + offset
+    assert not torch.allclose(chunks[1.0], free)  # the prefix pulls the jump's own chunk
+    for weight in (0.25, 0.5):  # a weight below 1 pulls that share of the way toward the prefix
+        assert torch.allclose(chunks[weight] - free, weight * (chunks[1.0] - free), atol=1e-6)
+    assert torch.equal(chunks[10.0], chunks[1.0])
+    assert "max_guidance_weight 10 would throw a one-step jump 9 times the gap past" in said[0]
+    assert "the jump inpaints the prefix at weight 1" in said[0]
 
 
 def test_trained_rtc_is_refused_by_name(vlm_directory):

@@ -11,12 +11,14 @@ One jump integrates nothing: LeRobot's guided jump from t = 1 is ``a + w * (prev
 lands nine times the gap past the prefix on its other side. What carries over is the same correction at w = 1:
 inpainting of the prefix with LeRobot's prefix weights (:func:`inpaint_prefix`): the actions executed while the chunk
 is computed are the previous chunk's, the next ones blend into the new chunk along the weights' ramp, and the rest
-is the jump's own. No backward pass. LeRobot's trained RTC (the prefix given in training) is refused by name: no
+is the jump's own. No backward pass. ``max_guidance_weight`` acts up to 1 (0.5: half the pull toward the prefix);
+above 1 (LeRobot's default, 10) the jump inpaints at 1 and says so in a warning, never silently. LeRobot's trained RTC (the prefix given in training) is refused by name: no
 student here was distilled with the prefix given.
 """
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from typing import Any
 
@@ -89,13 +91,34 @@ def guided_euler(
 
 
 def inpaint_prefix(
-    actions: Tensor, processor: Any, prev_chunk_left_over: Tensor, inference_delay: int, execution_horizon: int | None
+    actions: Tensor,
+    processor: Any,
+    prev_chunk_left_over: Tensor,
+    inference_delay: int,
+    execution_horizon: int | None,
+    guidance_weight: float = 1.0,
 ) -> Tensor:
-    """The chunk with the previous chunk's prefix inpainted: ``a + weights * (prev - a)``, the guided correction at
-    weight 1 (see the module's docstring)."""
+    """The chunk with the previous chunk's prefix inpainted: ``a + w * weights * (prev - a)``, the guided correction
+    at weight ``w`` = ``guidance_weight`` (at most 1, see the module's docstring)."""
+    if not 0 <= guidance_weight <= 1:
+        raise ValueError(f"a jump's guidance weight is between 0 and 1, got {guidance_weight}")
     prev = padded_prefix(prev_chunk_left_over, actions)
     weights = prefix_weights(processor, prev_chunk_left_over, inference_delay, execution_horizon, actions.shape[1])
-    return actions + weights.to(actions) * (prev - actions)
+    return actions + guidance_weight * weights.to(actions) * (prev - actions)
+
+
+def jump_guidance_weight(processor: Any) -> float:
+    """The guidance weight a jump applies: the processor's ``max_guidance_weight`` up to 1; above it, 1, with a
+    warning that says why (Python shows it once a place, as every warning)."""
+    asked = float(processor.rtc_config.max_guidance_weight)
+    if asked > 1:
+        warnings.warn(
+            f"guided RTC's max_guidance_weight {asked:g} would throw a one-step jump {asked - 1:g} times the gap past "
+            "the previous chunk's prefix: the jump inpaints the prefix at weight 1 (teacher-N modes apply "
+            f"{asked:g} per Euler step); give max_guidance_weight <= 1 to pull less",
+            stacklevel=3,
+        )
+    return min(asked, 1.0)
 
 
 def sample_with_rtc(
@@ -116,12 +139,14 @@ def sample_with_rtc(
     if not mode.jump:
         return guided_euler(velocity, noise, mode, processor, prev_chunk_left_over, inference_delay, execution_horizon)
     actions = euler_sample(velocity, noise, mode)
-    return inpaint_prefix(actions, processor, prev_chunk_left_over, inference_delay, execution_horizon)
+    weight = jump_guidance_weight(processor)
+    return inpaint_prefix(actions, processor, prev_chunk_left_over, inference_delay, execution_horizon, weight)
 
 
 __all__ = [
     "guided_euler",
     "inpaint_prefix",
+    "jump_guidance_weight",
     "padded_prefix",
     "prefix_weights",
     "rtc_processor_in_force",
