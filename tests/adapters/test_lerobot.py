@@ -285,6 +285,11 @@ def test_cli_evaluates_a_distilled_smolvla_in_lerobots_own_metaworld(vlm_directo
 
     assert main(changed("--lerobot-env", "nowhere")) == 2
     assert "unknown LeRobot environment 'nowhere'" in capsys.readouterr().err
+    assert main(changed("--lerobot-env", "pusht")) == 2  # LeRobot's PushT package is not installed here
+    assert (
+        'LeRobot\'s pusht environment needs gym_pusht, which is not installed: pip install "lerobot[pusht]"'
+        in capsys.readouterr().err
+    )
     assert main(changed("--n-act", "9")) == 2  # more actions per chunk than the chunk holds
     assert "n_action_steps must be between 1" in capsys.readouterr().err
 

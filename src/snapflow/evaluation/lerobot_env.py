@@ -94,7 +94,10 @@ def evaluate_in_lerobot_env(
     )
     env_preprocessor, env_postprocessor = make_env_pre_post_processors(env_config, policy.config)
     with packaged_initial_states() if env_type == "libero" else nullcontext():
-        environments = make_env(env_config, n_envs=n_envs)
+        try:
+            environments = make_env(env_config, n_envs=n_envs)
+        except ModuleNotFoundError as missing:
+            raise ValueError(_missing_env_package(env_type, env_config, missing)) from None
     if max_episode_steps:
         for suite in environments.values():
             for vector_env in suite.values():
@@ -132,6 +135,18 @@ def evaluate_in_lerobot_env(
         "fast_path": fast_path,
         "modes": results,
     }
+
+
+def _missing_env_package(env_type: str, env_config: Any, missing: ModuleNotFoundError) -> str:
+    """The one line that names the package LeRobot's environment ``env_type`` lacks, with its install command (the
+    simulators snapflow installs itself by its own extras, the others by LeRobot's)."""
+    package = getattr(env_config, "package_name", None) or missing.name or str(missing)
+    install = (
+        f'pip install "snapflow-vla[{env_type}]"'
+        if env_type in ("libero", "metaworld")
+        else (f'pip install "lerobot[{env_type}]"')
+    )
+    return f"LeRobot's {env_type} environment needs {package}, which is not installed: {install}"
 
 
 def _open_lerobot_policy(source: str | Path, modes: list[SamplingMode]) -> Any:
