@@ -126,6 +126,21 @@ def test_a_missing_archived_weight_names_the_restore_command(repository: Path) -
         read_tensors(repository / CHECKPOINT / "policy.safetensors")
 
 
+def test_a_sweep_never_trains_again_what_history_keeps(repository: Path) -> None:
+    """A kept checkpoint whose weights are archived but not restored stops the runner with the restore command,
+    where reading it as absent would train the run again from scratch; restored, it is found where it was."""
+    from snapflow.training.checkpoint import KEPT, read_kept
+
+    kept = repository / CHECKPOINT
+    (kept.parent / KEPT).write_text(json.dumps({"checkpoint": kept.name, "finished": True}))
+    assert snapflow(repository, "checkpoints", "archive").returncode == 0
+    (kept / "policy.safetensors").unlink()
+    with pytest.raises(FileNotFoundError, match=f"lacks its weights; .*`snapflow checkpoints restore {CHECKPOINT}"):
+        read_kept(kept.parent)
+    assert snapflow(repository, "checkpoints", "restore").returncode == 0
+    assert read_kept(kept.parent) == (kept, {"finished": True})
+
+
 def test_the_repository_manifest_names_blobs_its_history_holds() -> None:
     """Every archived checkpoint of this repository is in main's history at the commit and path named, and none is
     in the tree."""
