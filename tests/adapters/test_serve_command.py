@@ -4,6 +4,7 @@ file) are refused by name, before they run, and the server goes on to serve a st
 
 from __future__ import annotations
 
+import json
 import os
 import pickle
 import socket
@@ -99,3 +100,21 @@ def test_the_command_serves_a_student_and_refuses_a_payload_that_runs_code(serve
         actions = pickle.loads(stub.GetActions(services_pb2.Empty()).data)  # nosec - the answer of our own server
     assert [action.get_timestep() for action in actions] == [0, 1, 2, 3]
     assert all(np.isfinite(action.get_action().numpy()).all() for action in actions)
+
+
+@pytest.mark.slow
+def test_the_round_trip_benchmark_times_both_modes_under_the_floor_and_without_it(tmp_path):
+    """``scripts/serve_round_trip.py`` in its short form: the committed table's four rows, each timed."""
+    script = Path(__file__).resolve().parents[2] / "scripts" / "serve_round_trip.py"
+    arguments = [sys.executable, str(script), str(tmp_path), "--chunks", "2", "--warmup", "1"]
+    finished = subprocess.run(arguments, capture_output=True, text=True, timeout=600, env=os.environ)
+    assert finished.returncode == 0, finished.stderr[-3000:]
+    result = json.loads((tmp_path / "round_trip.json").read_text())
+    assert [(row["floor_s"], row["mode"]) for row in result["rows"]] == [
+        (None, "snapflow-1"),
+        (None, "teacher-10"),
+        (0.0, "snapflow-1"),
+        (0.0, "teacher-10"),
+    ]
+    assert all(row["chunks"] == 2 and 0 < row["median_ms"] <= row["p90_ms"] for row in result["rows"])
+    assert "| 0 s | snapflow-1 |" in (tmp_path / "round_trip.md").read_text()
