@@ -141,11 +141,8 @@ def _missing_env_package(env_type: str, env_config: Any, missing: ModuleNotFound
     """The one line that names the package LeRobot's environment ``env_type`` lacks, with its install command (the
     simulators snapflow installs itself by its own extras, the others by LeRobot's)."""
     package = getattr(env_config, "package_name", None) or missing.name or str(missing)
-    install = (
-        f'pip install "snapflow-vla[{env_type}]"'
-        if env_type in ("libero", "metaworld")
-        else (f'pip install "lerobot[{env_type}]"')
-    )
+    distribution = "snapflow-vla" if env_type in ("libero", "metaworld") else "lerobot"
+    install = f'pip install "{distribution}[{env_type}]"'
     return f"LeRobot's {env_type} environment needs {package}, which is not installed: {install}"
 
 

@@ -166,9 +166,9 @@ def read_kept(directory: Path) -> tuple[Path, dict[str, Any]] | None:
         return None
     checkpoint = Path(directory) / note.pop("checkpoint")
     weights = checkpoint / POLICY_WEIGHTS
-    if checkpoint.is_dir() and not weights.is_file() and archived_hint(weights):
+    if checkpoint.is_dir() and not weights.is_file() and (hint := archived_hint(weights)):
         # never train again what history keeps: hours of work, where one command brings the weights back
-        raise FileNotFoundError(f"the kept checkpoint {checkpoint} lacks its weights{archived_hint(weights)}")
+        raise FileNotFoundError(f"the kept checkpoint {checkpoint} lacks its weights{hint}")
     return (checkpoint, note) if checkpoint.is_dir() else None
 
 

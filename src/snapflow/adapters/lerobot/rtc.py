@@ -12,8 +12,8 @@ lands nine times the gap past the prefix on its other side. What carries over is
 inpainting of the prefix with LeRobot's prefix weights (:func:`inpaint_prefix`): the actions executed while the chunk
 is computed are the previous chunk's, the next ones blend into the new chunk along the weights' ramp, and the rest
 is the jump's own. No backward pass. ``max_guidance_weight`` acts up to 1 (0.5: half the pull toward the prefix);
-above 1 (LeRobot's default, 10) the jump inpaints at 1 and says so in a warning, never silently. LeRobot's trained RTC (the prefix given in training) is refused by name: no
-student here was distilled with the prefix given.
+above 1 (LeRobot's default, 10) the jump inpaints at 1 and says so in a warning, never silently. LeRobot's trained
+RTC (the prefix given in training) is refused by name: no student here was distilled with the prefix given.
 """
 
 from __future__ import annotations
