@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import os
+import socket
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -99,3 +100,10 @@ def run_short_lerobot_chain(folder: Path, bench: str) -> Path:
     )
     assert finished.returncode == 0, finished.stderr[-3000:]
     return folder
+
+
+def free_loopback_port() -> int:
+    """A port on the loopback that nothing listens on now, for a server a test starts."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]

@@ -5,7 +5,6 @@ asked for under its teacher's type instead of dropping phi_s."""
 from __future__ import annotations
 
 import pickle
-import socket
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +28,7 @@ from lerobot.transport.utils import send_bytes_in_chunks  # noqa: E402
 from lerobot.utils.feature_utils import hw_to_dataset_features  # noqa: E402
 
 from snapflow.adapters.lerobot.serve import start_server  # noqa: E402
+from tests.helpers import free_loopback_port  # noqa: E402
 from tests.lerobot_tiny import (  # noqa: E402
     IMAGE_SIZE,
     PI_IMAGE_SIZE,
@@ -54,12 +54,6 @@ class Served:
     def features(self) -> dict:
         robot = {**dict.fromkeys(self.joints, float), self.camera: (self.image_size, self.image_size, 3)}
         return hw_to_dataset_features(robot, "observation")
-
-
-def _free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
 
 
 @pytest.fixture(scope="module", params=["smolvla", "pi0", "pi05"])
@@ -99,7 +93,7 @@ def _chunk(stub, policy_server, student: Served, sampling_mode: str, actions_per
 @pytest.mark.slow
 def test_lerobots_policy_server_serves_a_student_one_pass_a_chunk(student, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # LeRobot's server writes its logs/ into the working directory
-    port = _free_port()
+    port = free_loopback_port()
     server, policy_server = start_server(PolicyServerConfig(host="127.0.0.1", port=port, inference_latency=0.0))
     try:
         with grpc.insecure_channel(f"127.0.0.1:{port}") as channel:
@@ -116,7 +110,7 @@ def test_lerobots_policy_server_serves_a_student_one_pass_a_chunk(student, tmp_p
 
 def test_a_student_asked_for_under_its_teachers_type_is_refused_by_name(student, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # LeRobot's server writes its logs/ into the working directory
-    port = _free_port()
+    port = free_loopback_port()
     server, _ = start_server(PolicyServerConfig(host="127.0.0.1", port=port))
     try:
         with grpc.insecure_channel(f"127.0.0.1:{port}") as channel:

@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import os
 import pickle
-import socket
 import subprocess
 import sys
 import time
@@ -28,6 +27,7 @@ from lerobot.transport import services_pb2, services_pb2_grpc  # noqa: E402
 from lerobot.transport.utils import send_bytes_in_chunks  # noqa: E402
 from lerobot.utils.feature_utils import hw_to_dataset_features  # noqa: E402
 
+from tests.helpers import free_loopback_port  # noqa: E402
 from tests.lerobot_tiny import IMAGE_SIZE, save_tiny_student  # noqa: E402
 
 JOINTS = ("shoulder.pos", "elbow.pos", "wrist.pos", "wrist_roll.pos")
@@ -47,9 +47,7 @@ class CreatesAFile:
 def server(tmp_path):
     """``snapflow serve`` on a free loopback port, in a process of its own (LeRobot writes its logs/ into its
     working directory); its port once it answers."""
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
+    port = free_loopback_port()
     command = [str(Path(sys.executable).with_name("snapflow")), "serve", "--host", "127.0.0.1", "--port", str(port)]
     process = subprocess.Popen(
         [*command, "--inference-latency", "0"],
