@@ -76,6 +76,9 @@ class FlowPolicyContract:
     """The checks; subclasses implement the hooks below (not collected itself: its name does not start with Test)."""
 
     batch_size: ClassVar[int] = 4
+    #: the graphs torch.compile makes of the one-step chunk under ``deploy``: one, the prefix and the jump together
+    #: (None: the policy's own upstream code breaks the graph)
+    deploy_graphs: ClassVar[int | None] = 1
 
     # ---- what a subclass provides ----------------------------------------------------------------------------
     def build(self) -> nn.Module:
@@ -250,6 +253,31 @@ class FlowPolicyContract:
         for mode, expected in eager.items():
             # inductor fuses and reorders float32 arithmetic: equal within rounding, not bit for bit
             torch.testing.assert_close(sample_actions(policy, observation, noise, mode), expected, atol=1e-4, rtol=1e-4)
+
+    @pytest.mark.slow
+    def test_the_deploy_fast_path_runs_the_one_step_chunk_as_one_graph_within_its_bound(self, policy, batch):
+        from torch._dynamo.utils import counters
+
+        from snapflow.inference.deploy import DEPLOY_ACTION_BOUND
+        from snapflow.inference.fast_paths import apply_fast_path
+
+        randomise_target_time(policy)
+        policy.eval()
+        observation, actions = batch
+        noise = self.noise_like(actions)
+        eager = {mode: sample_actions(policy, observation, noise, mode) for mode in (SNAPFLOW_1, TEACHER_10)}
+        assert apply_fast_path(policy, "deploy") is policy
+        graphs = counters["stats"]["unique_graphs"]
+        one_step = sample_actions(policy, observation, noise, SNAPFLOW_1)
+        if self.deploy_graphs is not None:
+            assert counters["stats"]["unique_graphs"] - graphs == self.deploy_graphs, (
+                "the prefix and the jump, one graph"
+            )
+        for mode, fast in (
+            (SNAPFLOW_1, one_step),
+            (TEACHER_10, sample_actions(policy, observation, noise, TEACHER_10)),
+        ):
+            assert (fast - eager[mode]).abs().max().item() <= DEPLOY_ACTION_BOUND, mode.name
 
 
 # ---- the LeRobot adapters -------------------------------------------------------------------------------------
@@ -488,6 +516,10 @@ class LeRobotAdapterContract(FlowPolicyContract):
 
 class TestSmolVLAAdapter(LeRobotAdapterContract):
     policy_type = "smolvla"
+    # transformers' SmolVLM vision embeddings size their position ids from a tensor (.item(), nonzero: which one
+    # depends on the transformers release), once per image of the batch: each breaks the graph (upstream code; pi0 /
+    # pi0.5's PaliGemma has none)
+    deploy_graphs = None
 
 
 @PI_SKIP

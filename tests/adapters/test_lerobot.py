@@ -15,6 +15,7 @@ from packaging.version import Version  # noqa: E402
 
 from snapflow import SnapFlowObjective  # noqa: E402
 from snapflow.adapters.lerobot import load_distilled, wrap_policy  # noqa: E402
+from snapflow.inference.deploy import DEPLOY_ACTION_BOUND  # noqa: E402
 from tests.lerobot_tiny import (  # noqa: E402
     LEROBOT,
     PI_SKIP,
@@ -336,16 +337,18 @@ def test_dataset_image_channels_are_read_from_either_layout_even_without_names()
 @PI_SKIP
 @pytest.mark.parametrize("policy_type", ["pi0", "pi05"])
 def test_the_vision_tower_runs_in_bfloat16_on_request_and_moves_the_actions_little(policy_type):
-    from snapflow.benchmark.bench import vision_in_bfloat16
+    from snapflow.benchmark.bench import one_step_actions
     from snapflow.benchmark.subjects import lerobot_subject
 
     with tiny_pi_configs(policy_type):
         subject = lerobot_subject(
             randomise_target_time(wrap_policy(build_tiny_pi(policy_type))), "tiny", torch.device("cpu"), torch.float32
         )
-    difference = vision_in_bfloat16(subject)
+    exact = one_step_actions(subject)
+    for _ in range(2):  # a second call changes nothing more
+        subject.policy.run_vision_in(torch.bfloat16)
+        difference = (one_step_actions(subject) - exact).abs().max().item()
     tower = subject.policy.policy.model.paligemma_with_expert.paligemma.model.vision_tower
     assert {parameter.dtype for parameter in tower.parameters()} == {torch.bfloat16}
-    assert any("bfloat16" in counts for counts in subject.details["dtypes"].values())
-    # bfloat16 rounding of the image features, nothing more: a change, and a small one
-    assert 0 < difference < 0.5
+    # bfloat16 rounding of the image features, nothing more: a change, and one within deploy's bound
+    assert 0 < difference <= DEPLOY_ACTION_BOUND

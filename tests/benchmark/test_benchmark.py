@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 from dataclasses import replace
+from pathlib import Path
 
 import pytest
 import torch
@@ -16,6 +20,7 @@ from snapflow.cli import main
 from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, SamplingMode
 from snapflow.flow.solver import sample_actions
 from snapflow.inference import compile_policy
+from snapflow.inference.deploy import DEPLOY_ACTION_BOUND
 from snapflow.nn import SnapFlowPolicy
 from snapflow.policies.mlp import MLPFlowModel, MLPPolicyConfig
 from tests.evaluation.figures import CYCLE, assert_figure
@@ -138,8 +143,15 @@ def test_bench_cli_times_a_built_in_architecture_and_writes_every_result_file(ar
         assert entry["end_to_end_speedup"] == pytest.approx(
             reference["end_to_end"]["median_ms"] / entry["end_to_end"]["median_ms"]
         )
+        # what a pass adds to a chunk: end-to-end minus the prefix, over NFE
+        assert entry["marginal_per_pass_ms"] == pytest.approx(
+            (entry["end_to_end"]["median_ms"] - latency["prefix"]["median_ms"]) / entry["nfe"]
+        )
     assert report["jump_to_teacher_pass_ratio"] == pytest.approx(
         latency["modes"]["snapflow-1"]["per_pass_ms"] / reference["per_pass_ms"]
+    )
+    assert report["jump_to_teacher_marginal_ratio"] == pytest.approx(
+        latency["modes"]["snapflow-1"]["marginal_per_pass_ms"] / reference["marginal_per_pass_ms"]
     )
     # throughput at the default batch sizes, of the 10-step teacher and the one-step mode
     assert list(report["throughput"]) == ["1", "8", "32"]
@@ -149,13 +161,18 @@ def test_bench_cli_times_a_built_in_architecture_and_writes_every_result_file(ar
             assert timed["chunks_per_s"] == pytest.approx(int(size) * 1e3 / timed["end_to_end"]["median_ms"])
     assert "| 32 |" in (output / "bench.md").read_text()
     assert (
-        report["machine"]["torch"] == torch.__version__ and report["dtype"] == "float32" and report["fast_path"] is None
+        report["machine"]["torch"] == torch.__version__ and report["fast_path"] is None and "first_chunk" not in report
     )
     assert report["subject"] == f"{architecture} (random weights)" and report["details"]["policy_type"] == architecture
     expected = random_builtin_policy(architecture)
     assert report["details"]["parameters"] == sum(parameter.numel() for parameter in expected.policy.parameters())
     assert report["details"]["config"] == expected.processor.config.to_dict()
     assert report["details"]["dtypes"] == {"(all)": {"float32": report["details"]["parameters"]}}
+    assert report["dtype"] == {
+        "requested": "float32",
+        "inputs": "float32",
+        "parameters": {"float32": report["details"]["parameters"]},
+    }
     assert "weights " in (output / "bench.md").read_text()
     assert "profile_table" not in report
     if profile:
@@ -222,18 +239,40 @@ def test_parameter_dtypes_lists_the_groups_that_run_in_each_precision():
 
 def test_a_bfloat16_built_in_policy_is_timed_in_bfloat16(tmp_path):
     arguments = ["bench", "--architecture", "minivla", "--dtype", "bfloat16", "--warmup", "0", "--repeats", "1"]
-    extra = ["--batch-sizes", "1", "--tf32", "--distill-batch-sizes", "2,3"]
+    extra = ["--batch-sizes", "1", "--distill-batch-sizes", "2,3"]
     assert main([*arguments, "--no-profile", *extra, "--output", str(tmp_path)]) == 0
     report = json.loads((tmp_path / "bench.json").read_text())
     assert set(report["details"]["dtypes"]["(all)"]) == {"bfloat16"}
-    assert "M bfloat16" in (tmp_path / "bench.md").read_text()
-    assert report["tf32"]["max_abs_action_difference"] >= 0 and "TF32 on" in (tmp_path / "bench.md").read_text()
+    # the dtype asked for, and what ran: here the same
+    assert report["dtype"]["requested"] == "bfloat16" and set(report["dtype"]["parameters"]) == {"bfloat16"}
+    assert "M bfloat16 (asked: bfloat16)" in (tmp_path / "bench.md").read_text()
     assert [row["batch_size"] for row in report["distill_step"]["rows"]] == [2, 3]
     assert all(row["step_ms_median"] > 0 and row["peak_memory_gib"] > 0 for row in report["distill_step"]["rows"])
 
 
-def test_a_bfloat16_vision_tower_is_refused_where_there_is_none(tmp_path, capsys):
-    arguments = ["bench", "--architecture", "mlp", "--vision-dtype", "bfloat16", "--output", str(tmp_path)]
-    assert main(arguments) == 2
-    assert "--vision-dtype applies to LeRobot's pi0 and pi0.5" in capsys.readouterr().err
-    assert not (tmp_path / "bench.json").exists()
+@pytest.mark.slow
+def test_the_gpu_latency_script_times_the_deploy_fast_path_from_a_cold_then_a_warm_compile_cache(tmp_path):
+    """``scripts/gpu_latency.sh`` in its short form, as a user starts it: two bench processes on the MLP, the first
+    compiling into an empty cache, the second reading it back."""
+    finished = subprocess.run(
+        ["bash", str(Path(__file__).resolve().parents[2] / "scripts" / "gpu_latency.sh"), str(tmp_path)],
+        env={**os.environ, "SHORT": "1", "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"},
+        capture_output=True,
+        text=True,
+        stdin=subprocess.DEVNULL,
+        timeout=900,
+    )
+    assert finished.returncode == 0, finished.stderr[-3000:]
+    assert "mlp-cpu-cold: exit 0" in finished.stdout and "mlp-cpu: exit 0" in finished.stdout
+    cold, warm = (json.loads((tmp_path / run / "bench.json").read_text()) for run in ("mlp-cpu-cold", "mlp-cpu"))
+    assert cold["fast_path"] == warm["fast_path"] == "deploy"
+    assert "cold start" in (tmp_path / "mlp-cpu-cold" / "bench.md").read_text()
+    cold, warm = cold["first_chunk"], warm["first_chunk"]
+    assert cold["start"] == "cold" and cold["cache_misses"] > 0
+    assert cold["compile_cache"] == warm["compile_cache"] == str(tmp_path / "compile-cache")
+    assert warm["start"] == "warm" and warm["cache_misses"] == 0 and warm["cache_hits"] > 0
+    for first in (cold, warm):
+        # the prefix and the jump as one graph, its actions within the stated bound of the eager policy's
+        assert first["graphs"] == 1 and first["seconds"] > 0
+        assert first["action_bound"] == DEPLOY_ACTION_BOUND and first["within_bound"]
+        assert first["max_abs_action_difference"] <= DEPLOY_ACTION_BOUND

@@ -21,6 +21,8 @@ class SmolVLMSize:
     text_heads: int = 4
     text_kv_heads: int = 2
     max_positions: int = 256
+    vision_intermediate: int | None = None  # the MLP widths; None: twice the hidden width
+    text_intermediate: int | None = None
 
     @property
     def image_tokens(self) -> int:
@@ -32,6 +34,22 @@ SMOLVLM_SIZES = {
     # a few million parameters, the size of the demo's built-in policy: trains to a Meta-World teacher on a CPU
     "small": SmolVLMSize(
         vision_hidden=64, vision_layers=2, text_hidden=192, text_layers=4, text_heads=6, text_kv_heads=2
+    ),
+    # SmolVLA's own, HuggingFaceTB/SmolVLM2-500M-Video-Instruct's dimensions (a SigLIP at 512 px, SmolLM2's 32 text
+    # layers of which SmolVLA keeps 16), with the word-level vocabulary written here: for timing at full size
+    "full": SmolVLMSize(
+        image_size=512,
+        scale_factor=4,
+        vision_hidden=768,
+        vision_intermediate=3072,
+        vision_layers=12,
+        vision_heads=12,
+        text_hidden=960,
+        text_intermediate=2560,
+        text_layers=32,
+        text_heads=15,
+        text_kv_heads=5,
+        max_positions=8192,
     ),
 }
 

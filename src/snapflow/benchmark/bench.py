@@ -2,27 +2,26 @@
 (the report it makes: :mod:`snapflow.benchmark.report`).
 
 One step is what deployment runs: the prefix encoded once per chunk, then one pass of the action expert. Optionally
-the policy runs a registered fast path (:mod:`snapflow.inference.fast_paths`: ``compile``, ``compile-reduce-overhead``
-capturing CUDA graphs on a GPU, ...) and in bfloat16 / float16. The profile of the one-step path shows where its time
-goes.
+the policy runs a registered fast path (:mod:`snapflow.inference.fast_paths`: ``deploy``, the recommended one,
+``compile-reduce-overhead`` capturing CUDA graphs on a GPU, ...): its first chunk is timed from its application
+(compilation included) and its actions compared with the eager policy's. The policy may run in bfloat16 / float16.
+The profile of the one-step path shows where its time goes.
 """
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import time
-from collections.abc import Iterator
 
 import torch
 
 from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES
 from snapflow.benchmark.latency import Timing, measure_latency, time_round_robin
-from snapflow.benchmark.report import BenchReport, OneStepProfile, Throughput
-from snapflow.benchmark.subjects import BenchSubject, parameter_dtypes
+from snapflow.benchmark.report import BenchReport, FirstChunk, OneStepProfile, Throughput
+from snapflow.benchmark.subjects import BenchSubject, parameter_totals
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.solver import sample_actions
-from snapflow.inference.fast_paths import apply_fast_path
+from snapflow.inference.fast_paths import FAST_PATHS, apply_fast_path
 from snapflow.protocol import map_tensors
 from snapflow.reporting.machine import machine
 
@@ -74,40 +73,35 @@ def measure_throughput(
     return Throughput(timings)
 
 
-@contextlib.contextmanager
-def _tf32() -> Iterator[None]:
-    """Float32 matrix products in TF32 (on GPUs that have it; LeRobot leaves it off) while active."""
-    before = (
-        torch.backends.cuda.matmul.allow_tf32,
-        torch.backends.cudnn.allow_tf32,
-        torch.get_float32_matmul_precision(),
-    )
-    torch.backends.cuda.matmul.allow_tf32 = torch.backends.cudnn.allow_tf32 = True
-    torch.set_float32_matmul_precision("high")
-    try:
-        yield
-    finally:
-        torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32 = before[:2]
-        torch.set_float32_matmul_precision(before[2])
-
-
 @torch.inference_mode()
 def one_step_actions(subject: BenchSubject) -> torch.Tensor:
-    """The subject's one-step actions on its own inputs, in float32: what a precision option is measured by."""
+    """The subject's one-step actions on its own inputs, in float32: what a fast path is measured against."""
     return sample_actions(subject.policy, subject.observation, subject.noise, subject.one_step).float()
 
 
-def vision_in_bfloat16(subject: BenchSubject) -> float:
-    """Run a pi0 / pi0.5 subject's vision tower in bfloat16 (LeRobot keeps it in float32) and return how far that
-    moves its one-step actions on its inputs."""
-    if not callable(getattr(subject.policy, "run_vision_in", None)):
-        raise ValueError(
-            "--vision-dtype applies to LeRobot's pi0 and pi0.5, whose vision tower LeRobot keeps in float32"
-        )
-    exact = one_step_actions(subject)
-    subject.policy.run_vision_in(torch.bfloat16)
-    subject.details["dtypes"] = parameter_dtypes(subject.policy.policy)
-    return (one_step_actions(subject) - exact).abs().max().item()
+def time_first_chunk(subject: BenchSubject, fast_path: str) -> FirstChunk:
+    """Apply ``fast_path`` to the subject's policy and time its first one-step chunk (compilation and graph capture
+    included) against the eager policy's chunk on the same inputs; count the graphs torch.compile made for it and
+    how many of them its on-disk cache held (``$TORCHINDUCTOR_CACHE_DIR``, else torch's default folder)."""
+    from torch._dynamo.utils import counters
+    from torch._inductor.runtime.cache_dir_utils import cache_dir
+
+    eager = one_step_actions(subject)
+    before = (counters["stats"]["unique_graphs"], counters["inductor"]["fxgraph_cache_hit"])
+    misses = counters["inductor"]["fxgraph_cache_miss"]
+    apply_fast_path(subject.policy, fast_path)
+    began = time.perf_counter()
+    fast = one_step_actions(subject)
+    seconds = time.perf_counter() - began  # .float() has synchronised with the device
+    return FirstChunk(
+        seconds,
+        (fast - eager).abs().max().item(),
+        FAST_PATHS[fast_path].action_bound,
+        counters["stats"]["unique_graphs"] - before[0],
+        counters["inductor"]["fxgraph_cache_hit"] - before[1],
+        counters["inductor"]["fxgraph_cache_miss"] - misses,
+        cache_dir(),
+    )
 
 
 def run_bench(
@@ -118,42 +112,46 @@ def run_bench(
     profile: bool = True,
     modes: tuple[SamplingMode, ...] | None = None,
     batch_sizes: tuple[int, ...] = (),
-    tf32: bool = False,
 ) -> BenchReport:
     """Time ``subject`` at batch 1 at every mode (default: the teacher's 10, 5, 2 steps and the subject's one-step
     mode; the first is the reference of the speedups), the throughput of the first and last mode at
     ``batch_sizes``, and, optionally, profile its one-step mode, with the policy in fast path ``fast_path`` (a
-    registered name, :func:`snapflow.inference.apply_fast_path`) where one is given."""
+    registered name, :func:`snapflow.inference.apply_fast_path`) where one is given: then its first chunk too."""
     modes = modes or subject.only_modes or (*TEACHER_MODES, subject.one_step)
-    exact = one_step_actions(subject) if tf32 else None
-    with _tf32() if tf32 else contextlib.nullcontext():
-        # what TF32 costs in accuracy, measured on the subject's inputs before it is timed
-        tf32_difference = (one_step_actions(subject) - exact).abs().max().item() if exact is not None else None
-        if fast_path:
-            apply_fast_path(subject.policy, fast_path)
-        latency = measure_latency(subject.policy, subject.observation, subject.noise, list(modes), warmup, repeats)
-        throughput = (
-            measure_throughput(
-                subject, tuple(dict.fromkeys((modes[0], modes[-1]))), batch_sizes, min(warmup, 3), max(3, repeats // 5)
-            )
-            if batch_sizes
-            else None
+    first_chunk = time_first_chunk(subject, fast_path) if fast_path else None
+    latency = measure_latency(subject.policy, subject.observation, subject.noise, list(modes), warmup, repeats)
+    throughput = (
+        measure_throughput(
+            subject, tuple(dict.fromkeys((modes[0], modes[-1]))), batch_sizes, min(warmup, 3), max(3, repeats // 5)
         )
-        profiled = profile_one_step(subject) if profile else None
+        if batch_sizes
+        else None
+    )
+    profiled = profile_one_step(subject) if profile else None
     teacher, one_step = latency.modes[modes[0].name], latency.modes[modes[-1].name]
     # what one jump costs against one teacher step: phi_s's s path should add nothing measurable
     jump_ratio = one_step.per_pass_ms / teacher.per_pass_ms if modes[-1].jump and not modes[0].jump else None
+    marginal_ratio = (
+        latency.marginal_per_pass_ms(modes[-1].name) / latency.marginal_per_pass_ms(modes[0].name)
+        if jump_ratio is not None
+        else None
+    )
     declared = LEROBOT_POLICY_TYPES.get(subject.details.get("policy_type", ""))
     paper = declared.paper_latency if declared else None  # the paper's A800 figures, end-to-end ms, batch 1
     return BenchReport(
         subject.name,
         subject.details,
         machine(),
-        str(subject.noise.dtype).removeprefix("torch."),
+        {
+            "requested": str(subject.dtype).removeprefix("torch."),
+            "inputs": str(subject.noise.dtype).removeprefix("torch."),
+            "parameters": parameter_totals(subject.policy),
+        },
         fast_path,
         latency,
-        tf32_difference=tf32_difference,
+        first_chunk=first_chunk,
         jump_to_teacher_pass_ratio=jump_ratio,
+        jump_to_teacher_marginal_ratio=marginal_ratio,
         throughput=throughput,
         paper_a800={**paper, "end_to_end_speedup": paper["teacher_10_ms"] / paper["snapflow_1_ms"]} if paper else None,
         profile=profiled,
@@ -165,6 +163,6 @@ __all__ = [
     "profile_one_step",
     "measure_throughput",
     "one_step_actions",
-    "vision_in_bfloat16",
+    "time_first_chunk",
     "run_bench",
 ]

@@ -92,10 +92,21 @@ class LatencyReport:
     repeats: int
     device: str
 
+    def marginal_per_pass_ms(self, name: str) -> float:
+        """Mode ``name``'s marginal cost of a pass: its end-to-end median minus the prefix's, over its NFE (what a
+        pass adds to a chunk, fixed costs such as the prefix's copy out of a graph included, unlike the denoising
+        passes timed alone)."""
+        row = self.modes[name]
+        prefix = row.prefix or self.prefix
+        return (row.end_to_end.median_ms - prefix.median_ms) / row.nfe
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "prefix": asdict(self.prefix),
-            "modes": {name: row.to_dict() for name, row in self.modes.items()},
+            "modes": {
+                name: {**row.to_dict(), "marginal_per_pass_ms": self.marginal_per_pass_ms(name)}
+                for name, row in self.modes.items()
+            },
             "warmup": self.warmup,
             "repeats": self.repeats,
             "device": self.device,

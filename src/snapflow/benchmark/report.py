@@ -50,6 +50,35 @@ class Throughput:
         }
 
 
+@dataclass(frozen=True)
+class FirstChunk:
+    """A fast path's first one-step chunk: its wall time from the fast path's application (compilation and graph
+    capture included), how far its actions are from the eager policy's on the same inputs against the fast path's
+    stated bound, the graphs torch.compile made for it (one where nothing breaks the chunk's graph; none for a fast
+    path that compiles nothing), and how many compiled graphs torch's on-disk cache held (``cache_hits``) or had to
+    compile (``cache_misses``), in cache folder ``compile_cache``."""
+
+    seconds: float
+    max_abs_action_difference: float
+    action_bound: float | None
+    graphs: int
+    cache_hits: int
+    cache_misses: int
+    compile_cache: str
+
+    @property
+    def start(self) -> str:
+        """``cold`` where anything was compiled afresh, ``warm`` where all came from the cache, else ``none``."""
+        return "cold" if self.cache_misses else "warm" if self.cache_hits else "none"
+
+    @property
+    def within_bound(self) -> bool | None:
+        return None if self.action_bound is None else self.max_abs_action_difference <= self.action_bound
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**asdict(self), "start": self.start, "within_bound": self.within_bound}
+
+
 @dataclass
 class BenchReport:
     """What ``snapflow bench`` measured of one subject; ``to_dict()`` is ``bench.json``. The sections after
@@ -58,16 +87,17 @@ class BenchReport:
     subject: str
     details: dict[str, Any]  # the subject's (policy type, sizes, parameters by module group and dtype, ...)
     machine: dict[str, Any]
-    dtype: str  # of the inputs
+    dtype: dict[str, Any]  # the dtype asked for, the inputs' and the parameters' count per dtype (what runs)
     fast_path: str | None  # the registered name of the fast path timed (snapflow.inference.fast_paths), or None
     latency: LatencyReport
-    tf32_difference: float | None = None  # max |one-step actions with TF32 - without|, on the subject's inputs
-    jump_to_teacher_pass_ratio: float | None = None  # one jump's time over one teacher step's
+    first_chunk: FirstChunk | None = None  # the fast path's first chunk, where one is timed
+    jump_to_teacher_pass_ratio: float | None = None  # one jump's denoising time over one teacher step's
+    # one jump's marginal cost (end-to-end minus prefix) over one teacher step's (end-to-end minus prefix, over NFE)
+    jump_to_teacher_marginal_ratio: float | None = None
     throughput: Throughput | None = None
     paper_a800: dict[str, float] | None = None  # the paper's figures for this policy type
     profile: OneStepProfile | None = None
     distill_step: dict[str, Any] | None = None  # from snapflow.benchmark.training_cost.distillation_step_cost
-    vision_bfloat16_difference: float | None = None  # as tf32_difference, for a vision tower run in bfloat16
 
     def to_dict(self) -> dict[str, Any]:
         """``bench.json``: every section measured (the profiler's table goes to ``profile.txt`` instead)."""
@@ -79,10 +109,12 @@ class BenchReport:
             "fast_path": self.fast_path,
             "latency": self.latency.to_dict(),
         }
-        if self.tf32_difference is not None:
-            report["tf32"] = {"max_abs_action_difference": self.tf32_difference}
+        if self.first_chunk is not None:
+            report["first_chunk"] = self.first_chunk.to_dict()
         if self.jump_to_teacher_pass_ratio is not None:
             report["jump_to_teacher_pass_ratio"] = self.jump_to_teacher_pass_ratio
+        if self.jump_to_teacher_marginal_ratio is not None:
+            report["jump_to_teacher_marginal_ratio"] = self.jump_to_teacher_marginal_ratio
         if self.throughput is not None:
             report["throughput"] = self.throughput.to_dict()
         if self.paper_a800 is not None:
@@ -91,22 +123,17 @@ class BenchReport:
             report["profile_one_step"] = self.profile.to_dict()
         if self.distill_step is not None:
             report["distill_step"] = self.distill_step
-        if self.vision_bfloat16_difference is not None:
-            report["vision_bfloat16"] = {"max_abs_action_difference": self.vision_bfloat16_difference}
         return report
 
 
 def _precision(report: BenchReport) -> str:
     """The precision the weights actually run in: parameter counts per dtype over every module group (a single
     requested dtype hides the layers a policy keeps in float32)."""
-    groups = report.details.get("dtypes")
-    if not groups:
-        return f"inputs {report.dtype}"
-    totals: dict[str, int] = {}
-    for counts in groups.values():
-        for name, count in counts.items():
-            totals[name] = totals.get(name, 0) + count
-    return "weights " + " + ".join(f"{count / 1e6:.1f}M {name}" for name, count in sorted(totals.items()))
+    totals = report.dtype["parameters"]
+    asked = f" (asked: {report.dtype['requested']})"
+    if not totals:
+        return f"inputs {report.dtype['inputs']}{asked}"
+    return "weights " + " + ".join(f"{count / 1e6:.1f}M {name}" for name, count in sorted(totals.items())) + asked
 
 
 # bench.md: one function a section, each None where its section was not measured, in the order they are written
@@ -116,7 +143,7 @@ def _latency_markdown(report: BenchReport) -> str:
     """The title, how it was timed, the prefix, and the table of modes."""
     latency, host = report.latency, report.machine
     device = host["gpu"] or f"{host['cpu']} ({host['threads']} threads)"
-    header = ["mode", "NFE", "denoising ms", "per pass ms", "end-to-end ms", "denoising share"]
+    header = ["mode", "NFE", "denoising ms", "per pass ms", "end-to-end ms", "marginal per pass ms", "denoising share"]
     header += ["denoising speedup", "end-to-end speedup"]
     rows = [
         [
@@ -125,6 +152,7 @@ def _latency_markdown(report: BenchReport) -> str:
             f"{row.denoising.median_ms:.2f} ({row.denoising.p90_ms:.2f})",
             f"{row.per_pass_ms:.2f}",
             f"{row.end_to_end.median_ms:.2f} ({row.end_to_end.p90_ms:.2f})",
+            f"{latency.marginal_per_pass_ms(name):.2f}",
             f"{row.denoising_share:.0%}",
             f"{row.denoising_speedup:.2f}x",
             f"{row.end_to_end_speedup:.2f}x",
@@ -176,25 +204,32 @@ def _distill_step_markdown(report: BenchReport) -> str | None:
     )
 
 
-def _vision_bfloat16_markdown(report: BenchReport) -> str | None:
-    if report.vision_bfloat16_difference is None:
+def _first_chunk_markdown(report: BenchReport) -> str | None:
+    first = report.first_chunk
+    if first is None:
         return None
-    return (
-        f"Vision tower in bfloat16: the one-step actions move by at most {report.vision_bfloat16_difference:.2e} "
-        "(normalised units) on these inputs."
+    bound = (
+        ""
+        if first.action_bound is None
+        else f" (its stated bound {first.action_bound:g}: " + ("within)" if first.within_bound else "EXCEEDED)")
     )
-
-
-def _tf32_markdown(report: BenchReport) -> str | None:
-    if report.tf32_difference is None:
-        return None
-    return f"TF32 on: the one-step actions move by at most {report.tf32_difference:.2e} (normalised units) on these inputs."
+    return (
+        f"First chunk on the fast path: {first.seconds:.1f} s from its application, compilation included, "
+        f"{first.start} start ({first.graphs} graph(s); {first.cache_hits} read compiled from the cache "
+        f"`{first.compile_cache}`, {first.cache_misses} compiled afresh). "
+        f"Its one-step actions are within {first.max_abs_action_difference:.2e} (normalised units) of the eager "
+        f"policy's on the same inputs{bound}."
+    )
 
 
 def _jump_markdown(report: BenchReport) -> str | None:
     if report.jump_to_teacher_pass_ratio is None:
         return None
-    return f"One jump costs {report.jump_to_teacher_pass_ratio:.2f}x one teacher step (per-pass medians above)."
+    return (
+        f"One jump costs {report.jump_to_teacher_pass_ratio:.2f}x one teacher step by the denoising passes alone, "
+        f"{report.jump_to_teacher_marginal_ratio:.2f}x by the marginal cost of a pass (end-to-end minus prefix, over "
+        "NFE), medians above."
+    )
 
 
 def _throughput_markdown(report: BenchReport) -> str | None:
@@ -243,8 +278,7 @@ _SECTIONS = (
     _latency_markdown,
     _dtypes_markdown,
     _distill_step_markdown,
-    _vision_bfloat16_markdown,
-    _tf32_markdown,
+    _first_chunk_markdown,
     _jump_markdown,
     _throughput_markdown,
     _paper_markdown,
@@ -305,4 +339,4 @@ def write_bench(report: BenchReport, directory: str | Path) -> Path:
     return directory
 
 
-__all__ = ["OneStepProfile", "Throughput", "BenchReport", "markdown_bench", "plot_bench", "write_bench"]
+__all__ = ["OneStepProfile", "Throughput", "FirstChunk", "BenchReport", "markdown_bench", "plot_bench", "write_bench"]

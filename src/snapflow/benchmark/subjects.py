@@ -46,6 +46,8 @@ class BenchSubject:
     only_modes: tuple[SamplingMode, ...] | None = None
     #: the flow-matching times it trains on (the cost of a distillation step draws them)
     time_sampler: TimeSampler = BUILTIN_TIME_SAMPLER
+    #: the dtype it was asked to run in (what runs is in ``details["dtypes"]``: a policy may keep layers in float32)
+    dtype: torch.dtype = torch.float32
 
 
 def _parameter_count(module: nn.Module) -> int:
@@ -78,6 +80,7 @@ def builtin_subject(
         SNAPFLOW_1 if loaded.exported or loaded.policy.target_time_embedding is not None else NAIVE_1,
         (SNAPFLOW_1,) if loaded.exported else None,
         loaded.time_sampler,
+        dtype,
     )
 
 
@@ -159,6 +162,7 @@ def lerobot_subject(
         },
         one_step=one_step,
         time_sampler=lerobot_time_sampler(config),
+        dtype=dtype,
     )
 
 
@@ -189,6 +193,15 @@ def lerobot_architecture(policy_type: str, device: torch.device, vlm: str | None
         check_source(getattr(config, declared.vlm_option), CONFIG_NAME, f"a VLM for {declared.class_stem}")
     with torch.device(device):  # built where it runs: a full-size pi0.5 takes minutes on the CPU, seconds on a GPU
         return get_policy_class(policy_type)(config)
+
+
+def parameter_totals(module: nn.Module) -> dict[str, int]:
+    """Parameter count per dtype over all of ``module``."""
+    totals: dict[str, int] = {}
+    for parameter in module.parameters():
+        name = str(parameter.dtype).removeprefix("torch.")
+        totals[name] = totals.get(name, 0) + parameter.numel()
+    return totals
 
 
 def parameter_dtypes(module: nn.Module, depth: int = 3) -> dict[str, dict[str, int]]:
@@ -262,6 +275,7 @@ def opened_subject(
 __all__ = [
     "exported_lerobot_subject",
     "parameter_dtypes",
+    "parameter_totals",
     "BenchSubject",
     "builtin_subject",
     "random_builtin_policy",

@@ -4,8 +4,12 @@ cost of its distillation step."""
 from __future__ import annotations
 
 import argparse
+import os
+import tempfile
+from pathlib import Path
 from typing import Any
 
+from snapflow.adapters.lerobot_config import SMOLVLM_SIZES
 from snapflow.benchmark.architectures import architectures
 from snapflow.cli.common import (
     COUNT,
@@ -38,8 +42,15 @@ def add_parser(subparsers: Any) -> None:
     subject.add_argument(
         "--architecture", choices=architectures(), help="random weights at full size (minivla: the demo's policy)"
     )
-    parser.add_argument(
+    vlm = parser.add_mutually_exclusive_group()
+    vlm.add_argument(
         "--vlm", help="smolvla: folder (or hub id) of its VLM's config and processor (no weights are loaded)"
+    )
+    vlm.add_argument(
+        "--smolvlm",
+        choices=list(SMOLVLM_SIZES),
+        help="smolvla: its VLM's config written locally at this size instead (full: SmolVLM2-500M's dimensions, "
+        "SmolVLA's own; no hub)",
     )
     parser.add_argument("--device", help="cpu, cuda, cuda:1, ... (default: cuda when available)")
     parser.add_argument(
@@ -56,14 +67,10 @@ def add_parser(subparsers: Any) -> None:
         "these batch sizes, e.g. 4,32",
     )
     parser.add_argument(
-        "--vision-dtype",
-        choices=["bfloat16"],
-        help="pi0 / pi0.5: run the vision tower in this dtype (LeRobot keeps it in float32); reports how far actions move",
-    )
-    parser.add_argument(
-        "--tf32",
-        action="store_true",
-        help="float32 matrix products in TF32 where the GPU has it (off in LeRobot); reports how far actions move",
+        "--compile-cache",
+        metavar="DIR",
+        help="torch's compile cache for the fast path ($TORCHINDUCTOR_CACHE_DIR; default: torch's, in the temporary "
+        "directory): empty, the first chunk is timed from a cold start; filled by an earlier run, from a warm one",
     )
     parser.add_argument(
         "--batch-sizes",
@@ -74,18 +81,28 @@ def add_parser(subparsers: Any) -> None:
     add_output(parser, "outputs/bench", "where bench.json, bench.md and the plot go")
 
 
+def _written_smolvlm(size: str, folder: Path) -> str:
+    """A SmolVLM config, processor and word-level tokenizer of size ``size`` written in ``folder``."""
+    from snapflow.adapters.lerobot.smolvlm import words_of, write_smolvlm
+
+    return str(write_smolvlm(folder, words_of(["pick up the object and place it in the basket"]), SMOLVLM_SIZES[size]))
+
+
 def run(args: argparse.Namespace) -> int:
     check_writable(args.output)
+    if args.compile_cache:  # before torch compiles anything: it reads the variable then
+        os.environ["TORCHINDUCTOR_CACHE_DIR"] = str(Path(args.compile_cache).resolve())
     import torch
 
-    from snapflow.benchmark.bench import run_bench, vision_in_bfloat16
+    from snapflow.benchmark.bench import run_bench
     from snapflow.benchmark.report import markdown_bench, write_bench
     from snapflow.benchmark.subjects import make_subject
 
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     dtype = {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch.float16}[args.dtype]
-    subject = make_subject(args.policy, args.architecture, device, dtype, args.vlm)
-    vision_difference = vision_in_bfloat16(subject) if args.vision_dtype else None
+    with tempfile.TemporaryDirectory() as scratch:
+        vlm = _written_smolvlm(args.smolvlm, Path(scratch)) if args.smolvlm else args.vlm
+        subject = make_subject(args.policy, args.architecture, device, dtype, vlm)
     distill_step = None
     if args.distill_batch_sizes:  # first, in place: before a fast path changes the policy
         from snapflow.benchmark.training_cost import distillation_step_cost
@@ -100,9 +117,8 @@ def run(args: argparse.Namespace) -> int:
         args.fast_path,
         profile=not args.no_profile,
         batch_sizes=args.batch_sizes,
-        tf32=args.tf32,
     )
-    report.distill_step, report.vision_bfloat16_difference = distill_step, vision_difference
+    report.distill_step = distill_step
     write_bench(report, args.output)
     print(markdown_bench(report))
     print(f"wrote bench.json, bench.md, latency.png{'' if args.no_profile else ' and profile.txt'} to {args.output}")

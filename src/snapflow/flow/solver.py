@@ -13,7 +13,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from snapflow.flow.modes import SamplingMode
+from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
 from snapflow.flow.path import euler_step
 from snapflow.protocol import FlowPolicy
 
@@ -36,7 +36,12 @@ def euler_sample(velocity: VelocityFn, noise: Tensor, mode: SamplingMode) -> Ten
 
 @torch.no_grad()
 def sample_actions(policy: FlowPolicy, observation: Any, noise: Tensor, mode: SamplingMode) -> Tensor:
-    """Encode ``observation`` once, then denoise ``noise`` into an action chunk with ``mode``."""
+    """Encode ``observation`` once, then denoise ``noise`` into an action chunk with ``mode``. SnapFlow 1-NFE runs
+    the policy's ``one_step_chunk(observation, noise)`` where a fast path fused the prefix and the jump into one
+    graph (:func:`snapflow.inference.compile.fuse_one_step`)."""
+    fused = getattr(policy, "one_step_chunk", None)
+    if fused is not None and mode == SNAPFLOW_1:
+        return fused(observation, noise)
     context = policy.encode(observation)
     return euler_sample(lambda x, t, s: policy.velocity(x, t, s, context), noise, mode)
 

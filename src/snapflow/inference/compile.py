@@ -6,6 +6,10 @@ in :mod:`snapflow.inference.fast_paths`: ``compile``, ``compile-reduce-overhead`
 ``use_sampling_mode`` (LeRobot's own ``select_action`` / ``predict_action_chunk``). With ``reduce-overhead`` on a GPU
 each is captured in a CUDA graph; the prefix's outputs (the key/value cache the jump reads) are copied out of the
 graph's static buffers, which its next replay overwrites.
+
+:func:`fuse_one_step` compiles the whole one-step chunk, the prefix pass and the jump, as one graph
+(``policy.one_step_chunk``, which :func:`snapflow.flow.sample_actions` runs for SnapFlow 1-NFE): under
+``reduce-overhead`` one CUDA graph a chunk, nothing copied between the two.
 """
 
 from __future__ import annotations
@@ -53,6 +57,45 @@ def compile_max_autotune(policy: nn.Module) -> nn.Module:
     return compile_policy(policy, "max-autotune")
 
 
+def fuse_one_step(policy: nn.Module, mode: CompileMode = "reduce-overhead") -> nn.Module:
+    """Compile ``policy``'s one-step chunk, prefix pass and SnapFlow jump, as one graph, set as
+    ``policy.one_step_chunk(observation, noise)``; returns ``policy``.
+
+    The graph is traced through the policy's own (eager) methods: where :func:`compile_policy` has put compiled
+    ones on the instance, they step aside for the fused call, so that one graph holds both parts instead of two
+    compiled calls with a copy between them.
+    """
+    if mode not in COMPILE_MODES:
+        raise ValueError(f"unknown compile mode {mode!r}; choose one of {', '.join(COMPILE_MODES)}")
+    import torch
+
+    from snapflow.flow.modes import SNAPFLOW_1
+    from snapflow.flow.solver import euler_sample
+
+    methods = getattr(policy, "compiled_methods", DEFAULT_METHODS)
+    if not methods:  # already one graph (an ONNX export)
+        return policy
+
+    def chunk(observation: Any, noise: torch.Tensor) -> torch.Tensor:
+        context = policy.encode(observation)
+        return euler_sample(lambda x, t, s: policy.velocity(x, t, s, context), noise, SNAPFLOW_1)
+
+    fused = torch.compile(chunk, mode=mode, dynamic=False)
+
+    def one_step_chunk(observation: Any, noise: torch.Tensor) -> torch.Tensor:
+        stepped_aside = {name: policy.__dict__.pop(name) for name in methods if name in policy.__dict__}
+        try:
+            if mode != "reduce-overhead":
+                return fused(observation, noise)
+            torch.compiler.cudagraph_mark_step_begin()
+            return fused(observation, noise).clone()  # the graph's output buffer is overwritten by its next replay
+        finally:
+            policy.__dict__.update(stepped_aside)
+
+    policy.one_step_chunk = one_step_chunk
+    return policy
+
+
 def _kept_outputs(compiled: Callable[..., Any], mode: str) -> Callable[..., Any]:
     """Under CUDA graphs (``reduce-overhead``), the prefix's outputs copied out of the graph: the jump reads them,
     and may extend a cache in place, after the graph has been replayed again."""
@@ -74,6 +117,7 @@ __all__ = [
     "COMPILE_MODES",
     "DEFAULT_METHODS",
     "compile_policy",
+    "fuse_one_step",
     "compile_default",
     "compile_reduce_overhead",
     "compile_max_autotune",

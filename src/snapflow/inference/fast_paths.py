@@ -17,15 +17,19 @@ from dataclasses import dataclass
 from typing import Any
 
 from snapflow._lazy import resolve
+from snapflow.inference.deploy import DEPLOY_ACTION_BOUND  # plain Python: the module imports torch inside deploy()
 
 
 @dataclass(frozen=True)
 class FastPath:
-    """One fast path: ``function`` (``"module:name"``) makes a policy faster in place; ``description`` says how."""
+    """One fast path: ``function`` (``"module:name"``) makes a policy faster in place; ``description`` says how;
+    ``action_bound`` is the most it may move a one-step chunk's actions against the eager policy on the same inputs
+    (None: float rounding only, as compiling reorders arithmetic)."""
 
     name: str
     function: str
     description: str
+    action_bound: float | None = None
 
     def apply(self, policy: Any) -> Any:
         """Make ``policy`` faster in place; returns it."""
@@ -41,11 +45,11 @@ class FastPath:
 FAST_PATHS: dict[str, FastPath] = {}
 
 
-def register_fast_path(name: str, function: str, description: str) -> None:
+def register_fast_path(name: str, function: str, description: str, action_bound: float | None = None) -> None:
     """Add fast path ``name`` (see the module's description)."""
     if name in FAST_PATHS:
         raise ValueError(f"a fast path named {name!r} is registered already")
-    FAST_PATHS[name] = FastPath(name, function, description)
+    FAST_PATHS[name] = FastPath(name, function, description, action_bound)
 
 
 def fast_path(name: str) -> FastPath:
@@ -61,6 +65,13 @@ def apply_fast_path(policy: Any, name: str) -> Any:
     return fast_path(name).apply(policy)
 
 
+register_fast_path(
+    "deploy",
+    "snapflow.inference.deploy:deploy",
+    "the recommended one for a distilled student on a GPU: pi0 / pi0.5's vision tower in bfloat16, TF32, "
+    "compile-reduce-overhead, and the one-step chunk (prefix and jump) as one CUDA graph",
+    action_bound=DEPLOY_ACTION_BOUND,
+)
 register_fast_path(
     "compile",
     "snapflow.inference.compile:compile_default",

@@ -11,7 +11,7 @@ s travels as an argument, never as hook state, so gradient checkpointing recompu
 from __future__ import annotations
 
 import contextlib
-import importlib
+import sys
 import types
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator
@@ -19,6 +19,7 @@ from typing import Any, ClassVar
 
 import torch
 from torch import Tensor, nn
+from transformers import DynamicCache  # here, not in the pass: torch.compile breaks its graph at an import
 
 from snapflow.adapters.lerobot.rtc import rtc_processor_in_force, sample_with_rtc
 from snapflow.flow.modes import SamplingMode
@@ -51,8 +52,6 @@ def cache_for_one_pass(tensors: Any) -> Any:
     """
     if isinstance(tensors, dict):
         return {layer: dict(entry) for layer, entry in tensors.items()}
-    from transformers import DynamicCache
-
     return DynamicCache(tensors)
 
 
@@ -75,8 +74,9 @@ def frozen_prefix_pass(vlm: nn.Module) -> Iterator[None]:
 
 def modeling_module(model: nn.Module) -> types.ModuleType:
     """The LeRobot module that defines ``model``: its own helpers (sinusoid, masks) are used, whatever the
-    LeRobot version moved them to."""
-    return importlib.import_module(type(model).__module__)
+    LeRobot version moved them to. Read from ``sys.modules`` (the class is defined, so its module is loaded), which
+    torch.compile traces through, where an import would break its graph."""
+    return sys.modules[type(model).__module__]
 
 
 def lerobot_time_sampler(config: Any) -> BetaTimeSampler:
@@ -142,8 +142,12 @@ class LeRobotFlowPolicy(nn.Module, ABC):
         return [parameter for module in modules for parameter in module.parameters()]
 
     def prefix_pass(self, vlm: nn.Module) -> contextlib.AbstractContextManager:
-        """How the prefix runs: :func:`frozen_prefix_pass` unless ``train_prefix``, then as it is, with gradients."""
-        return contextlib.nullcontext() if self.train_prefix else frozen_prefix_pass(vlm)
+        """How the prefix runs: :func:`frozen_prefix_pass` unless ``train_prefix``, then as it is, with gradients;
+        as it is too where it is frozen already (no gradients, the VLM in eval mode: deployment), which keeps a
+        compiled prefix in one graph (torch.compile breaks its graph at a generator's context manager)."""
+        if self.train_prefix or (not torch.is_grad_enabled() and not vlm.training):
+            return contextlib.nullcontext()
+        return frozen_prefix_pass(vlm)
 
     @abstractmethod
     def model_inputs(self, batch: dict[str, Tensor]) -> tuple[Any, ...]:

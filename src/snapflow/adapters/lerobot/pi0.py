@@ -156,11 +156,13 @@ class PI0FlowPolicy(LeRobotFlowPolicy):
     def run_vision_in(self, dtype: torch.dtype) -> None:
         """Run the vision tower and its projector in ``dtype``. LeRobot keeps them in float32 under bfloat16 (its
         ``embed_image`` casts every image to float32); here the images are cast to ``dtype`` as they enter the
-        tower, and LeRobot casts the features back as before."""
+        tower, and LeRobot casts the features back as before. A second call for the same dtype changes nothing."""
         paligemma = self.policy.model.paligemma_with_expert.paligemma.model
+        if "get_image_features" in vars(paligemma) and next(paligemma.vision_tower.parameters()).dtype == dtype:
+            return
         paligemma.vision_tower.to(dtype)
         paligemma.multi_modal_projector.to(dtype)
-        image_features = paligemma.get_image_features
+        image_features = type(paligemma).get_image_features.__get__(paligemma)
 
         def get_image_features(pixel_values: Tensor, *args: Any, **kwargs: Any) -> Any:
             return image_features(pixel_values.to(dtype), *args, **kwargs)

@@ -78,7 +78,7 @@ def write_smolvlm(directory: str | Path, words: Iterable[str], size: SmolVLMSize
     SmolVLMConfig(
         vision_config=dict(
             hidden_size=size.vision_hidden,
-            intermediate_size=2 * size.vision_hidden,
+            intermediate_size=size.vision_intermediate or 2 * size.vision_hidden,
             num_hidden_layers=size.vision_layers,
             num_attention_heads=size.vision_heads,
             image_size=size.image_size,
@@ -87,7 +87,7 @@ def write_smolvlm(directory: str | Path, words: Iterable[str], size: SmolVLMSize
         text_config=dict(
             model_type="llama",
             hidden_size=size.text_hidden,
-            intermediate_size=2 * size.text_hidden,
+            intermediate_size=size.text_intermediate or 2 * size.text_hidden,
             num_hidden_layers=size.text_layers,
             num_attention_heads=size.text_heads,
             num_key_value_heads=size.text_kv_heads,

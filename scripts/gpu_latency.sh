@@ -1,0 +1,46 @@
+#!/usr/bin/env bash
+# Batch-1 latency on a GPU of the LeRobot architectures at full size (random weights: timing does not depend on the
+# values) on the recommended fast path, `deploy`: pi0.5 first from a cold start (an empty compile cache; a short
+# timing), then from a warm one (the cache the first run filled: a new process's start) with the full timing and
+# the profile; then SmolVLA (its VLM's config written locally at SmolVLM2-500M's size) and pi0, each from a cold start
+# (docs/results/latency-gpu-*/).
+#
+#   bash scripts/gpu_latency.sh [OUTPUT] [ARCHITECTURE ...]   # default outputs/latency-gpu; pi05 smolvla pi0
+#   SHORT=1 bash scripts/gpu_latency.sh OUTPUT                 # the chain on the CPU: the MLP, two repeats
+#   LIMIT=SECONDS ...                                          # the most one bench may take (default 400)
+#
+# Each bench writes OUTPUT/<architecture>-<device>[-cold]/ and its log beside it; a finished one is kept when the
+# script runs again. The compile cache is OUTPUT/compile-cache.
+set -uo pipefail
+out="${1:-outputs/latency-gpu}"
+shift $(($# > 0 ? 1 : 0))
+architectures=("${@:-pi05}")
+[ $# -gt 0 ] || architectures=(pi05 smolvla pi0)
+timing=()
+if [ "${SHORT:-0}" = 1 ]; then
+    architectures=(mlp) timing=(--warmup 1 --repeats 2 --no-profile)
+fi
+device=$(python3 -c 'import torch; print(torch.cuda.get_device_name().split()[1].lower() if torch.cuda.is_available() else "cpu")')
+mkdir -p "$out"
+
+bench() {  # FOLDER, then snapflow bench's arguments
+    local folder="$out/$1"
+    shift
+    [ -f "$folder/bench.json" ] && return 0
+    local began=$SECONDS
+    timeout "${LIMIT:-400}" python3 -m snapflow.cli bench "$@" --fast-path deploy --compile-cache "$out/compile-cache" \
+        --batch-sizes 1 --output "$folder" >"$folder.log" 2>&1
+    echo "$(basename "$folder"): exit $? after $((SECONDS - began)) s"
+}
+
+for architecture in "${architectures[@]}"; do
+    case "$architecture" in
+        pi05 | pi0) options=(--architecture "$architecture" --dtype bfloat16) ;;
+        smolvla) options=(--architecture smolvla --smolvlm full) ;;
+        *) options=(--architecture "$architecture") ;;
+    esac
+    if [ "$architecture" = "${architectures[0]}" ]; then  # the cold start, then the warm one
+        bench "$architecture-$device-cold" "${options[@]}" --warmup 2 --repeats 5 --no-profile
+    fi
+    bench "$architecture-$device" "${options[@]}" "${timing[@]}"
+done
