@@ -353,11 +353,13 @@ def test_a_pickle_in_place_of_the_weights_is_refused_and_never_run(checkpoint, t
 UNWRITABLE = "/sys/snapflow-test-output"  # sysfs refuses new files even to root: a real unwritable folder
 
 
-def _snapflow(*arguments: str, cwd: Path | None = None, missing: tuple[str, ...] = ()) -> subprocess.CompletedProcess:
+def _snapflow(
+    *arguments: str, cwd: Path | None = None, missing: tuple[str, ...] = (), planted: str = ""
+) -> subprocess.CompletedProcess:
     """``snapflow ARGUMENTS`` in a new interpreter; ``missing`` modules cannot be imported there, as if their extra
-    were not installed."""
+    were not installed; ``planted`` code runs first (a bug planted in the library)."""
     code = "".join(f"sys.modules[{module!r}] = None\n" for module in missing)
-    script = f"import sys\n{code}from snapflow.cli import main\nsys.exit(main(sys.argv[1:]))\n"
+    script = f"import sys\n{code}{planted}from snapflow.cli import main\nsys.exit(main(sys.argv[1:]))\n"
     return subprocess.run(
         [sys.executable, "-c", script, *arguments], capture_output=True, text=True, cwd=cwd, timeout=600
     )
@@ -471,6 +473,27 @@ def test_a_missing_extra_is_named_with_its_install_command(tmp_path, case):
     result = _snapflow(*arguments, "--output", str(output), "--no-progress", cwd=tmp_path, missing=(module,))
     _assert_refused(result, f'pip install "snapflow-vla[{module}]"')
     assert not output.exists()
+
+
+def test_a_planted_bug_shows_its_traceback_and_where_to_report_it_not_a_one_line_refusal(tmp_path):
+    """A ValueError from snapflow's own code, not from the user's input, is a bug: its traceback, then a line saying
+    so and where to report it, exit code 1 (a user's mistake is a named error: one line, exit code 2)."""
+    planted = (
+        "import snapflow.benchmark.bench as bench\n"
+        "def broken(*arguments, **options):\n"
+        "    raise ValueError('planted: an invariant of the library broke')\n"
+        "bench.run_bench = broken\n"
+    )
+    arguments = ["bench", "--architecture", "mlp", "--no-progress", "--output", str(tmp_path / "out")]
+    result = _snapflow(*arguments, cwd=tmp_path, planted=planted)
+    assert result.returncode == 1, result.stderr
+    assert "Traceback (most recent call last)" in result.stderr and "in broken" in result.stderr
+    assert "ValueError: planted: an invariant of the library broke" in result.stderr
+    last = result.stderr.strip().splitlines()[-1]
+    assert last.startswith(f"snapflow bench: this is a bug in snapflow {snapflow.__version__}, not a mistake in your")
+    assert "please report it, with the command you ran and the traceback above" in last
+    # the same command with the user's mistake instead stays one named line
+    _assert_refused(_snapflow("bench", "--architecture", "mlp", "--repeats", "0", cwd=tmp_path), "--repeats")
 
 
 @pytest.mark.parametrize(

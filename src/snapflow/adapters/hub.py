@@ -15,13 +15,15 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Literal
 
+from snapflow.errors import InvalidInputError
+
 # huggingface_hub's own rule for a repo id, narrowed to owner/name (every LeRobot policy and dataset has an owner)
 _REPO_ID = re.compile(r"\w([\w.-]*\w)?/\w([\w.-]*\w)?")
 # one request answers whether the hub is reachable; HF_HUB_ETAG_TIMEOUT (the user's, if set) bounds it
 PROBE_TIMEOUT_S = 5.0
 
 
-class HubError(ValueError):
+class HubError(InvalidInputError):
     """A Hugging Face Hub repo that cannot be used: the reason and the fix, in one line."""
 
 
@@ -47,7 +49,7 @@ def local_folder(text: str) -> Path | None:
     if path.is_dir():
         return path
     if path.exists():
-        raise ValueError(f"{text} is a file; give the folder that holds it")
+        raise InvalidInputError(f"{text} is a file; give the folder that holds it")
     if _is_repo_id(text) and not Path(text.split("/")[0]).is_dir():
         return None
     existing = next(

@@ -12,6 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from snapflow.errors import InvalidInputError
+
 
 @dataclass(frozen=True)
 class LeRobotPolicyType:
@@ -55,7 +57,7 @@ def register_lerobot_policy_type(declaration: LeRobotPolicyType) -> None:
 def lerobot_policy_type(name: str) -> LeRobotPolicyType:
     """The declared type ``name``, or a ValueError listing the declared ones."""
     if name not in LEROBOT_POLICY_TYPES:
-        raise ValueError(
+        raise InvalidInputError(
             f"snapflow distills LeRobot's {', '.join(sorted(LEROBOT_POLICY_TYPES))} policies, not {name!r}"
         )
     return LEROBOT_POLICY_TYPES[name]

@@ -17,6 +17,7 @@ from torch import Tensor, nn
 from snapflow.adapters.hub import check_source
 from snapflow.adapters.lerobot_types import lerobot_policy_type
 from snapflow.benchmark.architectures import architectures
+from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, SamplingMode
 from snapflow.flow.time_sampling import TimeSampler
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
@@ -137,7 +138,7 @@ def lerobot_subject(
     adapter.to(device)
     if dtype != torch.float32:
         if adapter.policy_type == "smolvla" or dtype != torch.bfloat16:
-            raise ValueError(
+            raise InvalidInputError(
                 f"LeRobot runs {adapter.policy_type} in {dtype} only through autocast; time it in float32, or pi0 / pi0.5 in bfloat16"
             )
         # LeRobot's own mixed precision: the VLM and expert in bfloat16, the layers it keeps in float32 kept
@@ -238,10 +239,12 @@ def make_subject(
     """The subject the CLI names: ``--policy`` (a built-in checkpoint, a distilled LeRobot folder, or a LeRobot hub id
     or folder) or ``--architecture`` (random weights at full size; ``minivla`` is the demo's policy)."""
     if (policy is None) == (architecture is None):
-        raise ValueError("give either --policy or --architecture")
+        raise InvalidInputError("give either --policy or --architecture")
     if architecture is not None:
         if architecture not in architectures():
-            raise ValueError(f"unknown architecture {architecture!r}; choose one of {', '.join(architectures())}")
+            raise InvalidInputError(
+                f"unknown architecture {architecture!r}; choose one of {', '.join(architectures())}"
+            )
         if architecture in POLICIES:
             return builtin_subject(
                 random_builtin_policy(architecture), f"{architecture} (random weights)", device, dtype

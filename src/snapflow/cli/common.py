@@ -20,6 +20,7 @@ from typing import Any, NoReturn
 
 from snapflow import install_command
 from snapflow.envs.factory import make_benchmark
+from snapflow.errors import InvalidInputError, SnapflowError
 from snapflow.inference.fast_paths import FAST_PATHS
 from snapflow.objective.options import PAPER_TARGET_STEPS
 from snapflow.objective.registry import methods, targets
@@ -56,6 +57,7 @@ COMPILE_FAST_PATHS = {
 }
 RECIPE_SUMMARIES = "; ".join(f"{name}: {recipe.summary}" for name, recipe in RECIPES.items())
 INTERRUPTED = 130  # what main returns after Ctrl-C: 128 + SIGINT, the status a shell shows for it
+BUG = 1  # what main returns after an error that is snapflow's, not the user's (Python's own status for it)
 
 
 class Parser(argparse.ArgumentParser):
@@ -135,12 +137,14 @@ def check_writable(output: str | Path) -> None:
     path = Path(output).absolute()
     existing = next(folder for folder in (path, *path.parents) if folder.exists())
     if not existing.is_dir():
-        raise ValueError(f"cannot write to {output}: {existing} is a file, not a folder; choose another --output")
+        raise InvalidInputError(
+            f"cannot write to {output}: {existing} is a file, not a folder; choose another --output"
+        )
     try:
         with tempfile.TemporaryFile(dir=existing):
             pass
     except OSError as error:
-        raise ValueError(
+        raise InvalidInputError(
             f"cannot write to {output}: {error.strerror.lower()} in {existing}; choose another --output"
         ) from None
 
@@ -338,8 +342,10 @@ def runs_kept(args: argparse.Namespace) -> str:
 
 
 def run_command(args: argparse.Namespace) -> int:
-    """Run the parsed command: its exit code; 2 after an error the user can fix, told in one line on stderr (a
-    missing extra with its install command); :data:`INTERRUPTED` after Ctrl-C, with what was kept."""
+    """Run the parsed command: its exit code; 2 after an error the user can fix (a :class:`SnapflowError`, a file
+    or folder the system refused, a missing extra with its install command), told in one line on stderr;
+    :data:`INTERRUPTED` after Ctrl-C, with what was kept; :data:`BUG` after anything else, a bug in snapflow, shown
+    with its traceback and where to report it."""
     prefix = f"snapflow {args.command}:"
     if args.threads:
         import torch
@@ -347,19 +353,46 @@ def run_command(args: argparse.Namespace) -> int:
         torch.set_num_threads(args.threads)
     try:
         return args.run(args)
-    except (ValueError, TypeError, FileNotFoundError, FileExistsError) as error:
+    except SnapflowError as error:
         print(f"{prefix} error: {error}", file=sys.stderr)
     except ModuleNotFoundError as error:
         module = (error.name or "").partition(".")[0]
         if module not in EXTRAS:
-            raise
+            return _report_bug(prefix)
         print(
             f"{prefix} error: this needs {module}, which is not installed: {install_command(EXTRAS[module])}",
             file=sys.stderr,
         )
-    except OSError as error:  # after the named cases above: a disk full, a folder made read-only mid-run, ...
+    except OSError as error:  # a path the system refused: missing, taken, read-only, a full disk, ...
         print(f"{prefix} error: {error.strerror or error}: {error.filename}", file=sys.stderr)
     except KeyboardInterrupt:
         print(f"{prefix} {args.interrupted(args)}", file=sys.stderr)
         return INTERRUPTED
+    except Exception:
+        return _report_bug(prefix)
     return 2
+
+
+def _report_bug(prefix: str) -> int:
+    """The traceback of the exception being handled, then a line saying it is snapflow's bug and where to report
+    it; returns :data:`BUG`."""
+    import traceback
+
+    from snapflow import DISTRIBUTION, __version__
+
+    traceback.print_exc()
+    print(
+        f"{prefix} this is a bug in snapflow {__version__}, not a mistake in your input: please report it, with the "
+        f"command you ran and the traceback above, {_where_to_report(DISTRIBUTION)}",
+        file=sys.stderr,
+    )
+    return BUG
+
+
+def _where_to_report(distribution: str) -> str:
+    """The project's issue tracker as its installed metadata names it, else its home page."""
+    from importlib.metadata import metadata
+
+    urls = dict(entry.split(", ", 1) for entry in metadata(distribution).get_all("Project-URL") or [])
+    url = urls.get("Issues") or urls.get("Homepage")
+    return f"at {url}" if url else f"to the maintainers of {distribution}"

@@ -21,6 +21,7 @@ from snapflow.cli.common import (
     training_interrupted,
     training_overrides,
 )
+from snapflow.errors import InvalidInputError
 from snapflow.objective.options import TEACHER_VELOCITIES
 from snapflow.objective.registry import OBJECTIVES
 from snapflow.training.config import TrainConfig
@@ -96,7 +97,9 @@ def run(args: argparse.Namespace) -> int:
     built_in = bool(args.teacher and args.data) and not (args.policy or args.dataset)
     lerobot = bool(args.policy and args.dataset) and not (args.teacher or args.data)
     if not (built_in or lerobot):
-        raise ValueError("give either --teacher and --data (a built-in policy) or --policy and --dataset (LeRobot)")
+        raise InvalidInputError(
+            "give either --teacher and --data (a built-in policy) or --policy and --dataset (LeRobot)"
+        )
     check_writable(args.output)
     if lerobot:
         return _distill_lerobot(args)
@@ -143,11 +146,13 @@ def _distill_lerobot(args: argparse.Namespace) -> int:
 
 def _write_student(args: argparse.Namespace) -> int:
     if not args.policy or args.dataset or args.teacher or args.data:
-        raise ValueError("--lerobot-train takes --policy and no dataset: lerobot-train reads the dataset")
+        raise InvalidInputError("--lerobot-train takes --policy and no dataset: lerobot-train reads the dataset")
     if args.keep_progress:
-        raise ValueError("--lerobot-train writes no training run, so it keeps no progress: lerobot-train checkpoints")
+        raise InvalidInputError(
+            "--lerobot-train writes no training run, so it keeps no progress: lerobot-train checkpoints"
+        )
     if given(training_overrides(args)):
-        raise ValueError(
+        raise InvalidInputError(
             f"--lerobot-train writes no training run: give {', '.join(given(training_overrides(args)))} to "
             "lerobot-train (--steps, --batch_size, --policy.optimizer_lr, ...)"
         )

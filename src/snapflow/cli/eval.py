@@ -21,6 +21,7 @@ from snapflow.cli.common import (
     tasks,
 )
 from snapflow.envs.factory import BENCHMARKS, DEFAULT_BENCHMARK, make_benchmark
+from snapflow.errors import InvalidInputError
 from snapflow.evaluation.config import N_ACT
 from snapflow.flow.modes import STANDARD_MODES, SamplingMode
 
@@ -146,9 +147,9 @@ def _policy_modes(entry: str, default: list[SamplingMode]) -> tuple[str, list[Sa
 
 def _eval_in_lerobot_env(args: argparse.Namespace) -> int:
     if len(args.policy) != 1:
-        raise ValueError("--lerobot-env evaluates one distilled LeRobot policy directory at a time")
+        raise InvalidInputError("--lerobot-env evaluates one distilled LeRobot policy directory at a time")
     if args.resume:
-        raise ValueError("--resume continues snapflow's own evaluator; a --lerobot-env evaluation runs whole")
+        raise InvalidInputError("--resume continues snapflow's own evaluator; a --lerobot-env evaluation runs whole")
     check_writable(args.output)
     from snapflow.evaluation.lerobot_env import evaluate_in_lerobot_env, lerobot_eval_table, write_lerobot_eval
 

@@ -9,6 +9,7 @@ from typing import Any
 
 from snapflow.adapters.lerobot_types import PLUGIN_LEROBOT, lerobot_loads_plugins
 from snapflow.cli.common import COUNT, NON_NEGATIVE, add_command
+from snapflow.errors import InvalidInputError
 
 
 def add_parser(subparsers: Any) -> None:
@@ -32,7 +33,7 @@ def add_parser(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     # a missing LeRobot is named with its install command by run_command
     if not lerobot_loads_plugins():
-        raise ValueError(
+        raise InvalidInputError(
             f"snapflow serve needs lerobot >= {PLUGIN_LEROBOT} (Python >= 3.12), whose tools load third-party "
             f"policy types; lerobot {version('lerobot')} is installed"
         )

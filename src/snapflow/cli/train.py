@@ -22,6 +22,7 @@ from snapflow.cli.common import (
     training_interrupted,
     training_overrides,
 )
+from snapflow.errors import InvalidInputError
 from snapflow.policies.factory import POLICIES
 from snapflow.training.config import TEACHER_TRAINING, VAL_FRACTION, TrainConfig
 
@@ -93,12 +94,14 @@ def add_parser(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if (args.policy_type in lerobot_teachers()) != bool(args.dataset) or bool(args.data) == bool(args.dataset):
-        raise ValueError(
+        raise InvalidInputError(
             f"give --data with a built-in policy ({', '.join(POLICIES)}) or --dataset with --policy-type "
             f"{' / '.join(lerobot_teachers())} (a LeRobotDataset)"
         )
     if args.dataset and args.policy_option:
-        raise ValueError("--policy-option sets a built-in policy's configuration; it does not apply to --dataset")
+        raise InvalidInputError(
+            "--policy-option sets a built-in policy's configuration; it does not apply to --dataset"
+        )
     check_writable(args.output)
     config = replace(TEACHER_TRAINING, **given(training_overrides(args)))
     if args.dataset:

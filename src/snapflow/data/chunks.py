@@ -9,6 +9,7 @@ import torch
 from torch import Tensor
 
 from snapflow.data.demonstrations import Demonstrations
+from snapflow.errors import InvalidInputError
 from snapflow.policies.processor import Processor
 
 
@@ -27,26 +28,28 @@ class ChunkData:
 
     def __init__(self, demonstrations: Demonstrations, episodes: list[int], processor: Processor) -> None:
         if not episodes:
-            raise ValueError("no episodes selected")
+            raise InvalidInputError("no episodes selected")
         if (
             demonstrations.states.shape[1] < processor.state_dim
             or demonstrations.actions.shape[1] != processor.action_dim
         ):
-            raise ValueError(
+            raise InvalidInputError(
                 f"demonstrations have state/action dims {demonstrations.states.shape[1]}/{demonstrations.actions.shape[1]}, "
                 f"the policy reads {processor.state_dim} state entries and writes {processor.action_dim} action dims"
             )
         size = processor.image_size
         if size and demonstrations.images is None:
-            raise ValueError("the policy uses images but the demonstrations hold none; collect with --image-size")
+            raise InvalidInputError(
+                "the policy uses images but the demonstrations hold none; collect with --image-size"
+            )
         if size and demonstrations.images.shape[1:3] != (size, size):
-            raise ValueError(
+            raise InvalidInputError(
                 f"the demonstrations' images are {demonstrations.images.shape[1]}x{demonstrations.images.shape[2]}, "
                 f"the policy expects {size}x{size}"
             )
         missing = [name for name in processor.extra_cameras if name not in demonstrations.extra_images]
         if missing:
-            raise ValueError(f"the policy reads cameras {missing} that the demonstrations hold no frames of")
+            raise InvalidInputError(f"the policy reads cameras {missing} that the demonstrations hold no frames of")
         self.demonstrations, self.processor = demonstrations, processor
         self.rows = demonstrations.rows(episodes)
         following = chunk_rows(demonstrations, self.rows, processor.chunk_length)

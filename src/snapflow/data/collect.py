@@ -18,6 +18,7 @@ from tqdm.auto import tqdm
 
 from snapflow.data.demonstrations import META_FILE, Demonstrations, Episode, check_action_noise
 from snapflow.envs.base import Benchmark, Environment, Expert
+from snapflow.errors import InvalidInputError
 from snapflow.reporting.locks import hold_run_lock
 
 EPISODES_PER_TASK = 30  # successful expert episodes per task (Meta-World has 50 training variations a task)
@@ -30,7 +31,7 @@ def check_collection(benchmark: Benchmark, tasks: list[str], episodes_per_task: 
     benchmark.check_tasks(tasks)
     available = benchmark.num_variations("train")
     if not 1 <= episodes_per_task <= available:
-        raise ValueError(
+        raise InvalidInputError(
             f"episodes_per_task must be in [1, {available}] ({benchmark.name}'s training variations), got {episodes_per_task}"
         )
     return available

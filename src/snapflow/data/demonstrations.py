@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from snapflow.envs.factory import DEFAULT_BENCHMARK
+from snapflow.errors import InvalidInputError
 from snapflow.policies.normalization import NormalizationStats
 from snapflow.reporting.files import atomic_write, write_json
 
@@ -45,7 +46,7 @@ class Episode:
     length: int
 
 
-class DemonstrationError(ValueError):
+class DemonstrationError(InvalidInputError):
     """A demonstration set that cannot be used, with the reason."""
 
 
@@ -227,7 +228,7 @@ def split_episodes(episode_tasks: list[str], val_fraction: float) -> tuple[list[
     """(training, held-out) episode indices: the last ``val_fraction`` of each task's episodes held out (at least
     one when a task has two), given each episode's task in order; the one rule for every dataset format."""
     if not 0 <= val_fraction < 1:
-        raise ValueError(f"the validation fraction must be in [0, 1), got {val_fraction}")
+        raise InvalidInputError(f"the validation fraction must be in [0, 1), got {val_fraction}")
     train, val = [], []
     for task in dict.fromkeys(episode_tasks):
         ids = [i for i, episode_task in enumerate(episode_tasks) if episode_task == task]
@@ -268,7 +269,7 @@ def check_action_noise(value: Any) -> float:
     """A collection's action noise (the standard deviation added to the executed actions) as a float: a number of at
     least 0, never a bool or NaN; a ``ValueError`` otherwise."""
     if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0:
-        raise ValueError(f"action_noise must be a number of at least 0, got {value!r}")
+        raise InvalidInputError(f"action_noise must be a number of at least 0, got {value!r}")
     return float(value)
 
 

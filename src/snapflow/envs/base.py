@@ -15,6 +15,8 @@ from typing import Protocol
 
 import numpy as np
 
+from snapflow.errors import InvalidInputError
+
 SPLITS = ("train", "eval")
 
 
@@ -118,12 +120,12 @@ class Benchmark(ABC):
         """``tasks`` if all are tasks of this benchmark, else a ValueError listing the valid ones."""
         unknown = [task for task in tasks if task not in self.tasks]
         if unknown:
-            raise ValueError(
+            raise InvalidInputError(
                 f"unknown {self.name} task(s) {unknown}; give a set ({', '.join(self.task_sets)}) or tasks of "
                 f"{list(self.tasks)}"
             )
         if not tasks:
-            raise ValueError("no task given")
+            raise InvalidInputError("no task given")
         return list(tasks)
 
     def resolve_tasks(self, value: str | Sequence[str]) -> list[str]:
@@ -142,7 +144,7 @@ class Benchmark(ABC):
             return self.extra_cameras
         unknown = [name for name in extra_cameras if name not in self.extra_cameras]
         if unknown:
-            raise ValueError(
+            raise InvalidInputError(
                 f"{self.name} has no camera(s) {unknown}: besides its main camera {self.camera!r} it renders "
                 f"{list(self.extra_cameras) or 'none'}"
             )
@@ -150,7 +152,7 @@ class Benchmark(ABC):
 
     def check_split(self, split: str) -> None:
         if split not in SPLITS:
-            raise ValueError(f"split must be one of {list(SPLITS)}, got {split!r}")
+            raise InvalidInputError(f"split must be one of {list(SPLITS)}, got {split!r}")
 
 
 __all__ = ["SPLITS", "Observation", "Environment", "Expert", "Benchmark"]

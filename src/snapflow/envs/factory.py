@@ -7,6 +7,7 @@ from collections.abc import Callable
 from snapflow.envs.base import Benchmark
 from snapflow.envs.libero import Libero
 from snapflow.envs.metaworld import MetaWorld
+from snapflow.errors import InvalidInputError
 
 BENCHMARKS: dict[str, Callable[[], Benchmark]] = {
     "metaworld": MetaWorld,
@@ -19,7 +20,7 @@ DEFAULT_BENCHMARK = "metaworld"
 def make_benchmark(name: str = DEFAULT_BENCHMARK) -> Benchmark:
     """The benchmark registered as ``name``, or a ValueError listing the known ones."""
     if name not in BENCHMARKS:
-        raise ValueError(f"unknown environment {name!r}; choose one of {', '.join(BENCHMARKS)}")
+        raise InvalidInputError(f"unknown environment {name!r}; choose one of {', '.join(BENCHMARKS)}")
     return BENCHMARKS[name]()
 
 

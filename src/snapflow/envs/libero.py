@@ -27,6 +27,7 @@ import numpy as np
 from snapflow.envs.base import Benchmark, Environment, Observation
 from snapflow.envs.libero_expert import LiberoExpert, NoExpertError, make_libero_expert, privileged_extras
 from snapflow.envs.rotations import quaternion_to_axis_angle
+from snapflow.errors import InvalidInputError
 
 SUITES: tuple[str, ...] = ("libero_spatial", "libero_object", "libero_goal", "libero_10")
 TASKS_PER_SUITE = 10
@@ -163,7 +164,7 @@ class LiberoEnv(Environment):
     def reset(self, variation: int, render: bool = True) -> Observation:
         available = Libero().num_variations(self.split)
         if not 0 <= variation < available:
-            raise ValueError(f"variation must be in [0, {available}), got {variation}")
+            raise InvalidInputError(f"variation must be in [0, {available}), got {variation}")
         # LIBERO's placement samplers draw from NumPy's global generator at every reset: the objects of a training
         # reset, and in both splits the fixtures (cabinet, stove), which an initial state does not hold, moved by up to
         # ~6 mm. Seeded by the variation, an episode's scene is the same for every policy run on it (and in every

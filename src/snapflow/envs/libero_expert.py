@@ -24,6 +24,7 @@ import numpy as np
 
 from snapflow.envs.base import Observation
 from snapflow.envs.rotations import axis_angle_to_quaternion, quaternion_multiply, rotation_between
+from snapflow.errors import InvalidInputError
 
 POSITION_SCALE = 0.05  # metres of target offset per unit of translation action (robosuite's OSC_POSE output_max)
 ROTATION_SCALE = 0.5  # radians per unit of rotation action
@@ -69,7 +70,7 @@ PUSH_OVERSHOOT = 0.015
 OBJECT_NAME = r"[a-z_]+_\d+"  # an object instance of a BDDL scene (plate_1); regions and sides end otherwise
 
 
-class NoExpertError(ValueError):
+class NoExpertError(InvalidInputError):
     """No scripted controller covers this task's goal."""
 
 

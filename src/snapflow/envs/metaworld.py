@@ -25,6 +25,7 @@ import numpy as np
 
 from snapflow.envs.base import Benchmark, Environment, Observation
 from snapflow.envs.via_points import ViaPointExpert, ViaPointTracker
+from snapflow.errors import InvalidInputError
 
 INSTRUCTIONS: dict[str, str] = {  # every Meta-World 3 task, in MT50's order
     "assembly-v3": "pick up the nut and place it onto the peg",
@@ -154,7 +155,7 @@ class MetaWorldEnv(Environment):
 
     def reset(self, variation: int, render: bool = True) -> Observation:
         if not 0 <= variation < len(self._variations):
-            raise ValueError(f"variation must be in [0, {len(self._variations)}), got {variation}")
+            raise InvalidInputError(f"variation must be in [0, {len(self._variations)}), got {variation}")
         self._env.set_task(self._variations[variation])
         state, _ = self._env.reset()
         self.steps = 0

@@ -15,6 +15,7 @@ import torch
 from tqdm.auto import tqdm
 
 from snapflow.envs.base import Benchmark, Environment, Observation
+from snapflow.errors import InvalidInputError
 from snapflow.evaluation.episode_log import EpisodeLog, FinishedWave
 from snapflow.evaluation.results import EpisodeResult
 from snapflow.flow.modes import SamplingMode
@@ -46,12 +47,12 @@ class ClosedLoopEvaluator:
         self.extra_cameras = benchmark.check_cameras(extra_cameras)
         available = benchmark.num_variations("eval")
         if not 1 <= episodes_per_task <= available:
-            raise ValueError(
+            raise InvalidInputError(
                 f"episodes per task must be in [1, {available}] ({benchmark.name}'s evaluation variations), got {episodes_per_task}"
             )
         max_envs = benchmark.max_envs if max_envs is None else max_envs
         if max_envs < 1:
-            raise ValueError(f"max_envs must be at least 1, got {max_envs}")
+            raise InvalidInputError(f"max_envs must be at least 1, got {max_envs}")
         self.benchmark, self.tasks, self.image_size = benchmark, tasks, image_size
         self.slots = [(task, variation) for task in tasks for variation in range(episodes_per_task)]
         self.envs_per_task = min(episodes_per_task, max(1, max_envs // len(tasks)))
@@ -92,10 +93,12 @@ class ClosedLoopEvaluator:
         finished wave is appended to it, and the waves it already holds are taken from it, not run again (nor
         recorded): the run goes on from the noise generator's state after the last of them."""
         if not 1 <= n_act <= processor.chunk_length:
-            raise ValueError(f"n_act must be in [1, {processor.chunk_length}] (the policy's chunk length), got {n_act}")
+            raise InvalidInputError(
+                f"n_act must be in [1, {processor.chunk_length}] (the policy's chunk length), got {n_act}"
+            )
         unrendered = [name for name in processor.extra_cameras if name not in self.extra_cameras]
         if unrendered:
-            raise ValueError(f"the policy reads camera(s) {unrendered} that this evaluator does not render")
+            raise InvalidInputError(f"the policy reads camera(s) {unrendered} that this evaluator does not render")
         policy.eval()
         generator = torch.Generator().manual_seed(seed)
         results: dict[int, EpisodeResult] = {}

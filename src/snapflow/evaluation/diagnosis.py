@@ -22,6 +22,7 @@ from snapflow.data.chunks import chunk_rows
 from snapflow.data.demonstrations import Demonstrations
 from snapflow.envs.base import Benchmark, Expert, Observation
 from snapflow.envs.factory import make_benchmark
+from snapflow.errors import InvalidInputError
 from snapflow.evaluation.closed_loop import ClosedLoopEvaluator
 from snapflow.evaluation.pipeline import Run, runs_evaluator, trained_benchmark
 from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, SamplingMode
@@ -242,7 +243,7 @@ def diagnose_student(
     (task,) = benchmark.check_tasks([task])
     data = data or student.training_data.get("path")
     if data is None:
-        raise ValueError(f"{student.path} does not name its demonstrations; pass --data")
+        raise InvalidInputError(f"{student.path} does not name its demonstrations; pass --data")
     runs = [
         (f"teacher {teacher_steps}-NFE", teacher, SamplingMode.parse(f"teacher-{teacher_steps}")),
         ("naive 1-NFE", teacher, NAIVE_1),

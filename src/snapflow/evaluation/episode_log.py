@@ -16,6 +16,7 @@ from typing import Any
 
 import torch
 
+from snapflow.errors import InvalidInputError
 from snapflow.evaluation.results import EpisodeResult
 from snapflow.reporting.files import write_text
 
@@ -59,12 +60,12 @@ class EpisodeLog:
         except (json.JSONDecodeError, KeyError, TypeError):
             written = None
         if written is None:
-            raise ValueError(f"{self.path} is not an episode log: remove it, or run without --resume")
+            raise InvalidInputError(f"{self.path} is not an episode log: remove it, or run without --resume")
         differs = sorted(
             key for key in self.identity.keys() | written.keys() if self.identity.get(key) != written.get(key)
         )
         if differs:
-            raise ValueError(
+            raise InvalidInputError(
                 f"{self.path} was written by another evaluation (it differs in {', '.join(differs)}): run without "
                 "--resume to start again, or choose another --output"
             )
@@ -74,7 +75,9 @@ class EpisodeLog:
                 waves.append(FinishedWave.from_dict(json.loads(line)))
             except (json.JSONDecodeError, KeyError, TypeError, ValueError):
                 if number < len(lines):  # only the last line may have been cut short
-                    raise ValueError(f"{self.path} is corrupt at line {number}: remove it to run again") from None
+                    raise InvalidInputError(
+                        f"{self.path} is corrupt at line {number}: remove it to run again"
+                    ) from None
                 # drop the cut line, so the next wave appends after a whole one
                 write_text(self.path, "\n".join(lines[:-1]) + "\n")
         return waves

@@ -17,6 +17,7 @@ from tqdm.auto import tqdm
 
 from snapflow.data.collect import expert_episode
 from snapflow.envs.base import Benchmark
+from snapflow.errors import InvalidInputError
 from snapflow.evaluation.results import EpisodeResult, SuccessCount, success_by_task
 from snapflow.reporting.files import write_json, write_text
 from snapflow.reporting.locks import hold_run_lock
@@ -32,7 +33,9 @@ def _check(benchmark: Benchmark, tasks: list[str], split: str, episodes_per_task
     benchmark.check_tasks(tasks)
     available = benchmark.num_variations(split)  # checks the split too
     if not 1 <= episodes_per_task <= available:
-        raise ValueError(f"episodes_per_task must be in [1, {available}] ({split} variations), got {episodes_per_task}")
+        raise InvalidInputError(
+            f"episodes_per_task must be in [1, {available}] ({split} variations), got {episodes_per_task}"
+        )
 
 
 @dataclass(frozen=True)
@@ -71,7 +74,7 @@ def expert_success(
     its own (spawned afresh: a simulator's memory is not handed back within a process)."""
     _check(benchmark, tasks, split, episodes_per_task)
     if workers < 1:
-        raise ValueError(f"workers must be at least 1, got {workers}")
+        raise InvalidInputError(f"workers must be at least 1, got {workers}")
     with tqdm(total=len(tasks), desc="scripted experts (tasks)", disable=not progress) as bar:
         if workers == 1:
             done = []

@@ -14,6 +14,7 @@ import torch
 from snapflow.adapters.lerobot.evaluation import LoadedLeRobotPolicy
 from snapflow.adapters.lerobot.libero import packaged_initial_states
 from snapflow.envs.libero import SUITES, Libero, suite_of
+from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SamplingMode
 from snapflow.inference.fast_paths import apply_fast_path
 from snapflow.policies.loaded import CheckpointError
@@ -30,14 +31,14 @@ def make_lerobot_env_config(env_type: str, task: str | None = None, image_size: 
 
     choices = sorted(EnvConfig.get_known_choices())
     if env_type not in choices:
-        raise ValueError(f"unknown LeRobot environment {env_type!r}; LeRobot knows {', '.join(choices)}")
+        raise InvalidInputError(f"unknown LeRobot environment {env_type!r}; LeRobot knows {', '.join(choices)}")
     options: dict[str, Any] = {"task": task} if task else {}
     if env_type == "libero":
         if task and task not in SUITES:
             named = [suite_of(name) for name in Libero().resolve_tasks(task)]
             suites = {suite for suite, _ in named}
             if len(suites) != 1:
-                raise ValueError(f"--env-task names tasks of one LIBERO suite at a time, got {sorted(suites)}")
+                raise InvalidInputError(f"--env-task names tasks of one LIBERO suite at a time, got {sorted(suites)}")
             options.update(task=suites.pop(), task_ids=[index for _, index in named])
         if image_size:
             options.update(observation_height=image_size, observation_width=image_size)
@@ -71,13 +72,15 @@ def evaluate_in_lerobot_env(
     from lerobot.scripts.lerobot_eval import eval_policy_all
 
     if episodes < 1 or n_envs < 1:
-        raise ValueError("episodes and n_envs must be at least 1")
+        raise InvalidInputError("episodes and n_envs must be at least 1")
     adapter = _open_lerobot_policy(policy_directory, modes)
     policy = adapter.policy
     chunk = policy.config.chunk_size
     n_action_steps = n_action_steps or policy.config.n_action_steps
     if not 1 <= n_action_steps <= chunk:
-        raise ValueError(f"n_action_steps must be between 1 and the policy's chunk size {chunk}, got {n_action_steps}")
+        raise InvalidInputError(
+            f"n_action_steps must be between 1 and the policy's chunk size {chunk}, got {n_action_steps}"
+        )
     policy.config.n_action_steps = n_action_steps
     device = device or ("cuda" if torch.cuda.is_available() else "cpu")
     policy.config.device = device
@@ -97,7 +100,7 @@ def evaluate_in_lerobot_env(
         try:
             environments = make_env(env_config, n_envs=n_envs)
         except ModuleNotFoundError as missing:
-            raise ValueError(_missing_env_package(env_type, env_config, missing)) from None
+            raise InvalidInputError(_missing_env_package(env_type, env_config, missing)) from None
     if max_episode_steps:
         for suite in environments.values():
             for vector_env in suite.values():

@@ -7,6 +7,8 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
+from snapflow.errors import InvalidInputError
+
 
 @dataclass(frozen=True)
 class SamplingMode:
@@ -21,7 +23,7 @@ class SamplingMode:
 
     def __post_init__(self) -> None:
         if self.num_steps < 1:
-            raise ValueError(f"num_steps must be at least 1, got {self.num_steps}")
+            raise InvalidInputError(f"num_steps must be at least 1, got {self.num_steps}")
 
     @property
     def name(self) -> str:
@@ -52,16 +54,16 @@ class SamplingMode:
         """Read ``teacher-N``, ``snapflow-N``, ``naive`` / ``naive-1`` (bare ``teacher`` = 10, ``snapflow`` = 1)."""
         match = re.fullmatch(r"(teacher|snapflow|naive)(?:-(\d+))?", name.strip().lower())
         if match is None:
-            raise ValueError(
+            raise InvalidInputError(
                 f"unknown sampling mode {name!r}; use teacher-N, snapflow-N or naive (e.g. teacher-10, snapflow-1)"
             )
         kind, steps = match.group(1), match.group(2)
         if kind == "naive":
             if steps not in (None, "1"):
-                raise ValueError(f"naive sampling is one step by definition, got {name!r}")
+                raise InvalidInputError(f"naive sampling is one step by definition, got {name!r}")
             return cls(1, jump=False)
         if steps is not None and int(steps) < 1:
-            raise ValueError(f"sampling mode {name!r} takes no step; a mode needs at least one")
+            raise InvalidInputError(f"sampling mode {name!r} takes no step; a mode needs at least one")
         default_steps = 10 if kind == "teacher" else 1
         return cls(int(steps) if steps else default_steps, jump=kind == "snapflow")
 

@@ -11,6 +11,8 @@ from typing import Protocol
 import torch
 from torch import Tensor
 
+from snapflow.errors import InvalidInputError
+
 
 class TimeSampler(Protocol):
     """Draws one flow-matching time per sample."""
@@ -43,9 +45,9 @@ class BetaTimeSampler:
 
     def __post_init__(self) -> None:
         if self.concentration <= 0:
-            raise ValueError(f"concentration must be positive, got {self.concentration}")
+            raise InvalidInputError(f"concentration must be positive, got {self.concentration}")
         if not 0 <= self.min_time < 1:
-            raise ValueError(f"min_time must be in [0, 1), got {self.min_time}")
+            raise InvalidInputError(f"min_time must be in [0, 1), got {self.min_time}")
 
     def __call__(
         self, batch_size: int, *, device: torch.device | str = "cpu", generator: torch.Generator | None = None

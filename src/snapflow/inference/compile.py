@@ -17,6 +17,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Literal, get_args
 
+from snapflow.errors import InvalidInputError
+
 if TYPE_CHECKING:
     from torch import nn
 
@@ -30,7 +32,7 @@ def compile_policy(policy: nn.Module, mode: CompileMode = "default") -> nn.Modul
     """Compile ``policy``'s prefix pass and velocity in place (``policy.compiled_methods``, by default
     ``encode`` and ``velocity``); returns ``policy``."""
     if mode not in COMPILE_MODES:
-        raise ValueError(f"unknown compile mode {mode!r}; choose one of {', '.join(COMPILE_MODES)}")
+        raise InvalidInputError(f"unknown compile mode {mode!r}; choose one of {', '.join(COMPILE_MODES)}")
     import torch  # here, not at import: the CLI lists the modes before torch loads
 
     methods = getattr(policy, "compiled_methods", DEFAULT_METHODS)
@@ -66,7 +68,7 @@ def fuse_one_step(policy: nn.Module, mode: CompileMode = "reduce-overhead") -> n
     compiled calls with a copy between them.
     """
     if mode not in COMPILE_MODES:
-        raise ValueError(f"unknown compile mode {mode!r}; choose one of {', '.join(COMPILE_MODES)}")
+        raise InvalidInputError(f"unknown compile mode {mode!r}; choose one of {', '.join(COMPILE_MODES)}")
     import torch
 
     from snapflow.flow.modes import SNAPFLOW_1

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from snapflow._lazy import resolve
+from snapflow.errors import InvalidInputError
 from snapflow.inference.deploy import DEPLOY_ACTION_BOUND  # plain Python: the module imports torch inside deploy()
 
 
@@ -55,7 +56,7 @@ def register_fast_path(name: str, function: str, description: str, action_bound:
 def fast_path(name: str) -> FastPath:
     """The registered fast path ``name``, or a ValueError listing the known ones."""
     if name not in FAST_PATHS:
-        raise ValueError(f"unknown fast path {name!r}; choose one of {', '.join(FAST_PATHS)}")
+        raise InvalidInputError(f"unknown fast path {name!r}; choose one of {', '.join(FAST_PATHS)}")
     return FAST_PATHS[name]
 
 

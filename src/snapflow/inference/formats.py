@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from snapflow._lazy import resolve
+from snapflow.errors import InvalidInputError
 
 
 @dataclass(frozen=True)
@@ -54,7 +55,7 @@ def register_export_format(name: str, file: str, exporter: str, runtime: str) ->
 def export_format(name: str) -> ExportFormat:
     """The registered format ``name``, or a ValueError listing the known ones."""
     if name not in EXPORT_FORMATS:
-        raise ValueError(f"unknown export format {name!r}; choose one of {', '.join(EXPORT_FORMATS)}")
+        raise InvalidInputError(f"unknown export format {name!r}; choose one of {', '.join(EXPORT_FORMATS)}")
     return EXPORT_FORMATS[name]
 
 

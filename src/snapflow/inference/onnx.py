@@ -19,6 +19,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SNAPFLOW_1
 from snapflow.flow.solver import euler_sample
 from snapflow.protocol import FlowPolicy
@@ -158,12 +159,12 @@ class OnnxOneStepPolicy(nn.Module):
         named = observation if isinstance(observation, dict) else {SINGLE: observation}
         missing = [name for name in self.input_names if name != "noise" and name not in named]
         if missing:
-            raise ValueError(f"{self.path} needs the observation entries {missing}")
+            raise InvalidInputError(f"{self.path} needs the observation entries {missing}")
         return observation
 
     def velocity(self, x_t: Tensor, t: Tensor, s: Tensor, context: dict[str, Any]) -> Tensor:
         if not (bool((t == 1).all()) and bool((s == 0).all())):
-            raise ValueError(
+            raise InvalidInputError(
                 f"{self.path} is a one-step graph: it answers only the jump from t = 1 to s = 0 (snapflow-1)"
             )
         return x_t - self.actions(context, x_t).to(x_t.dtype)

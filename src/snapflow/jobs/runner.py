@@ -37,6 +37,7 @@ from typing import Any, ClassVar
 import torch
 from tqdm.auto import tqdm
 
+from snapflow.errors import InvalidInputError
 from snapflow.reporting.files import write_json
 
 
@@ -215,7 +216,9 @@ def to_run(jobs: Iterable[Job]) -> list[Job]:
     def visit(job: Job, outputs_needed: bool) -> int:
         other = writers.setdefault(job.record_path, job)
         if other != job:
-            raise ValueError(f"{other.describe()} and {job.describe()} would write the same record {job.record_path}")
+            raise InvalidInputError(
+                f"{other.describe()} and {job.describe()} would write the same record {job.record_path}"
+            )
         if is_done(job):
             _copy_to_ledger(job)
             return -1
@@ -251,7 +254,7 @@ def run_jobs(
     A failed job stops the run with its own error (after the jobs already running have finished).
     """
     if workers < 1:
-        raise ValueError(f"workers must be at least 1, got {workers}")
+        raise InvalidInputError(f"workers must be at least 1, got {workers}")
     waiting = to_run(jobs)
     if not waiting:
         return {}

@@ -15,6 +15,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, TEACHER_10
 from snapflow.jobs.runner import Job, read_record, run_jobs
 from snapflow.jobs.toy import run_toy_experiment
@@ -63,7 +64,7 @@ def compare_targets(
     """Run what is not done (on ``workers`` processes of ``threads`` torch threads, by default cores / workers),
     then write ``comparison.json``, ``comparison.md`` and ``comparison.png``."""
     if not options or not seeds:
-        raise ValueError("compare at least one target option on at least one seed")
+        raise InvalidInputError("compare at least one target option on at least one seed")
     output_dir = Path(output_dir)
     jobs = {
         (option, seed): ToyJob(

@@ -18,6 +18,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from snapflow.errors import InvalidInputError
 from snapflow.flow.path import conditional_velocity, interpolate
 from snapflow.flow.time_sampling import TimeSampler
 from snapflow.protocol import Context, FlowPolicy, index_batch
@@ -77,16 +78,16 @@ class TwoBranchObjective(ABC):
 
     def _check_weights(self) -> None:
         if not 0.0 <= self.alpha <= 1.0:
-            raise ValueError(f"alpha must be in [0, 1], got {self.alpha}")
+            raise InvalidInputError(f"alpha must be in [0, 1], got {self.alpha}")
         if self.consistency_weight < 0:
-            raise ValueError(f"consistency_weight (lambda) must be non-negative, got {self.consistency_weight}")
+            raise InvalidInputError(f"consistency_weight (lambda) must be non-negative, got {self.consistency_weight}")
 
     def num_flow_matching(self, batch_size: int) -> int:
         """Fixed FM share of a batch: round(alpha * B), keeping both branches present when 0 < alpha < 1."""
         if self.alpha in (0.0, 1.0):
             return int(self.alpha) * batch_size
         if batch_size < 2:
-            raise ValueError(
+            raise InvalidInputError(
                 f"0 < alpha < 1 needs batches of at least 2 samples to fill both branches, got {batch_size}"
             )
         return min(max(math.floor(self.alpha * batch_size + 0.5), 1), batch_size - 1)

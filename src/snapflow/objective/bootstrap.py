@@ -21,6 +21,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from snapflow.errors import InvalidInputError
 from snapflow.flow.path import euler_step, interpolate
 from snapflow.flow.time_sampling import BetaTimeSampler, TimeSampler
 from snapflow.objective.base import OneStepRows, TwoBranchObjective, uniform
@@ -46,7 +47,7 @@ class BootstrappedSnapFlowObjective(TwoBranchObjective):
     def __post_init__(self) -> None:
         self._check_weights()
         if isinstance(self.target_steps, tuple | list):
-            raise ValueError(
+            raise InvalidInputError(
                 "a bootstrapped target grows by itself from 2 to target_steps Euler steps; give target_steps one power "
                 f"of two, not the schedule {list(self.target_steps)}"
             )
@@ -55,7 +56,9 @@ class BootstrappedSnapFlowObjective(TwoBranchObjective):
             or self.target_steps < 2
             or self.target_steps & (self.target_steps - 1)
         ):
-            raise ValueError(f"a bootstrapped target needs target_steps a power of two >= 2, got {self.target_steps!r}")
+            raise InvalidInputError(
+                f"a bootstrapped target needs target_steps a power of two >= 2, got {self.target_steps!r}"
+            )
 
     @property
     def levels(self) -> int:

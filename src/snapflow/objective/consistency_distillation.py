@@ -21,6 +21,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
+from snapflow.errors import InvalidInputError
 from snapflow.flow.path import broadcast_time, euler_step, interpolate
 from snapflow.flow.time_sampling import BetaTimeSampler, TimeSampler
 from snapflow.objective.base import OneStepRows, TwoBranchObjective, uniform
@@ -52,9 +53,9 @@ class ConsistencyDistillationObjective(TwoBranchObjective):
     def __post_init__(self) -> None:
         self._check_weights()
         if self.num_intervals < 1:
-            raise ValueError(f"num_intervals must be at least 1, got {self.num_intervals}")
+            raise InvalidInputError(f"num_intervals must be at least 1, got {self.num_intervals}")
         if not 0.0 <= self.ema_decay < 1.0:
-            raise ValueError(f"ema_decay must be in [0, 1), got {self.ema_decay}")
+            raise InvalidInputError(f"ema_decay must be in [0, 1), got {self.ema_decay}")
 
     @torch.no_grad()
     def _target_network(self, policy: FlowPolicy) -> nn.Module:

@@ -20,6 +20,7 @@ import torch
 from torch import Tensor
 from torch.nn.attention import SDPBackend, sdpa_kernel
 
+from snapflow.errors import InvalidInputError
 from snapflow.flow.path import broadcast_time, interpolate
 from snapflow.flow.time_sampling import BetaTimeSampler, TimeSampler
 from snapflow.objective.base import OneStepRows, TwoBranchObjective, uniform
@@ -46,7 +47,7 @@ class MeanFlowObjective(TwoBranchObjective):
     def __post_init__(self) -> None:
         self._check_weights()
         if self.adaptive_power < 0:
-            raise ValueError(f"adaptive_power must be non-negative, got {self.adaptive_power}")
+            raise InvalidInputError(f"adaptive_power must be non-negative, got {self.adaptive_power}")
 
     def one_step_rows(
         self,

@@ -12,6 +12,7 @@ from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING, Any
 
 from snapflow._lazy import resolve
+from snapflow.errors import InvalidInputError
 
 if TYPE_CHECKING:
     from snapflow.objective.base import TwoBranchObjective
@@ -91,7 +92,7 @@ def targets() -> tuple[str, ...]:
 def objective_type(name: str) -> ObjectiveType:
     """The registered objective ``name``, or a ValueError listing the known ones."""
     if name not in OBJECTIVES:
-        raise ValueError(f"unknown objective {name!r}; choose one of {', '.join(OBJECTIVES)}")
+        raise InvalidInputError(f"unknown objective {name!r}; choose one of {', '.join(OBJECTIVES)}")
     return OBJECTIVES[name]
 
 
@@ -105,7 +106,7 @@ def make_objective(name: str, **options: Any) -> TwoBranchObjective:
     objective checks its values itself."""
     unknown = sorted(set(options) - objective_options(name))
     if unknown:
-        raise ValueError(
+        raise InvalidInputError(
             f"the {name} objective takes no option {', '.join(unknown)}; its options are {sorted(objective_options(name))}"
         )
     return objective_type(name).objective_class(**options)

@@ -24,6 +24,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.path import conditional_velocity, euler_step, interpolate
 from snapflow.flow.solver import VelocityFn, euler_sample
@@ -110,14 +111,16 @@ class SnapFlowObjective(TwoBranchObjective):
     def __post_init__(self) -> None:
         self._check_weights()
         if not 0 <= self.intermediate_jumps <= 1:
-            raise ValueError(f"intermediate_jumps must be in [0, 1], got {self.intermediate_jumps}")
+            raise InvalidInputError(f"intermediate_jumps must be in [0, 1], got {self.intermediate_jumps}")
         if self.teacher_velocity_clamp is not None and self.teacher_velocity_clamp <= 0:
-            raise ValueError(f"teacher_velocity_clamp must be positive, got {self.teacher_velocity_clamp}")
+            raise InvalidInputError(f"teacher_velocity_clamp must be positive, got {self.teacher_velocity_clamp}")
         if self.teacher_velocity not in TEACHER_VELOCITIES:
-            raise ValueError(f"teacher_velocity must be one of {TEACHER_VELOCITIES}, got {self.teacher_velocity!r}")
+            raise InvalidInputError(
+                f"teacher_velocity must be one of {TEACHER_VELOCITIES}, got {self.teacher_velocity!r}"
+            )
         stages = target_stages(self.target_steps)
         if not stages or not all(isinstance(k, int) and k >= 1 for k in stages):
-            raise ValueError(
+            raise InvalidInputError(
                 f"target_steps must be a positive integer or a non-empty list of them, got {self.target_steps!r}"
             )
         object.__setattr__(self, "target_steps", stages[0] if len(stages) == 1 else stages)

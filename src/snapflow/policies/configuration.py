@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import MISSING, dataclass, fields
 from typing import Any, TypeVar
 
+from snapflow.errors import InvalidInputError
 from snapflow.reporting.records import as_record
 
 Config = TypeVar("Config", bound="PolicyConfig")
@@ -26,15 +27,15 @@ class PolicyConfig:
             value = getattr(self, field.name)
             if field.type == "tuple[str, ...]":
                 if not isinstance(value, (list, tuple)) or not all(isinstance(item, str) for item in value):
-                    raise ValueError(f"{name}.{field.name} must be a list of names, got {value!r}")
+                    raise InvalidInputError(f"{name}.{field.name} must be a list of names, got {value!r}")
                 object.__setattr__(self, field.name, tuple(value))
                 continue
             expected = {"int": int, "bool": bool, "str": str}[field.type]
             if not isinstance(value, expected) or (expected is int and isinstance(value, bool)):
-                raise ValueError(f"{name}.{field.name} must be {field.type}, got {value!r}")
+                raise InvalidInputError(f"{name}.{field.name} must be {field.type}, got {value!r}")
             minimum = field.metadata.get("minimum", 1)
             if expected is int and value < minimum:
-                raise ValueError(f"{name}.{field.name} must be at least {minimum}, got {value}")
+                raise InvalidInputError(f"{name}.{field.name} must be at least {minimum}, got {value}")
 
     def to_dict(self) -> dict[str, Any]:
         return as_record(self)
@@ -43,10 +44,10 @@ class PolicyConfig:
     def from_dict(cls: type[Config], data: dict[str, Any]) -> Config:
         unknown = sorted(set(data) - {field.name for field in fields(cls)})
         if unknown:
-            raise ValueError(f"unknown {cls.__name__} field(s) {unknown}")
+            raise InvalidInputError(f"unknown {cls.__name__} field(s) {unknown}")
         missing = sorted(field.name for field in fields(cls) if field.default is MISSING and field.name not in data)
         if missing:
-            raise ValueError(f"missing {cls.__name__} field(s) {missing}")
+            raise InvalidInputError(f"missing {cls.__name__} field(s) {missing}")
         return cls(**data)
 
 

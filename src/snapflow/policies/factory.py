@@ -12,6 +12,7 @@ from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING, Any
 
 from snapflow._lazy import resolve
+from snapflow.errors import InvalidInputError
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.minivla.configuration import MiniVLAConfig
 from snapflow.policies.mlp.configuration import MLPPolicyConfig
@@ -71,7 +72,7 @@ register_policy(
 def policy_type(name: str) -> PolicyType:
     """The registered policy ``name``, or a ValueError listing the known ones."""
     if name not in POLICIES:
-        raise ValueError(f"unknown policy {name!r}; the built-in policies are {', '.join(POLICIES)}")
+        raise InvalidInputError(f"unknown policy {name!r}; the built-in policies are {', '.join(POLICIES)}")
     return POLICIES[name]
 
 
@@ -90,7 +91,7 @@ def default_config(
     entry = policy_type(name)
     unknown = sorted(set(overrides) - {field.name for field in fields(entry.config_class)})
     if unknown:
-        raise ValueError(f"the {name} policy has no option {', '.join(unknown)}")
+        raise InvalidInputError(f"the {name} policy has no option {', '.join(unknown)}")
     return entry.processor_class.default_config(state_dim, action_dim, instructions, **overrides)
 
 

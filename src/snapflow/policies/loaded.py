@@ -8,11 +8,12 @@ from abc import ABC, abstractmethod
 from pathlib import Path
 from typing import Any
 
+from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
 from snapflow.inference.formats import export_record
 
 
-class CheckpointError(ValueError):
+class CheckpointError(InvalidInputError):
     """A policy that is missing, corrupt, does not match what it is loaded into, or is asked for what it cannot
     honestly run (a jump mode of a teacher, another mode of an export): the reason and what to do instead."""
 

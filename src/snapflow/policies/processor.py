@@ -14,6 +14,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from snapflow.errors import InvalidInputError
 from snapflow.policies.normalization import NormalizationStats
 
 
@@ -34,7 +35,9 @@ class Processor(ABC):
             ("action", stats.action_mean, config.action_dim),
         ):
             if len(values) != size:
-                raise ValueError(f"normalisation stats have {len(values)} {name} dimensions, the policy expects {size}")
+                raise InvalidInputError(
+                    f"normalisation stats have {len(values)} {name} dimensions, the policy expects {size}"
+                )
         self.state_mean, self.state_std = torch.tensor(stats.state_mean), torch.tensor(stats.state_std)
         self.action_mean, self.action_std = torch.tensor(stats.action_mean), torch.tensor(stats.action_std)
 
@@ -81,7 +84,7 @@ class Processor(ABC):
         """The leading ``state_dim`` entries of a batch of raw states (B, >= state_dim), normalised."""
         states = torch.as_tensor(np.asarray(states, dtype=np.float32))
         if states.ndim != 2 or states.shape[1] < self.state_dim:
-            raise ValueError(f"states must have shape (batch, >= {self.state_dim}), got {tuple(states.shape)}")
+            raise InvalidInputError(f"states must have shape (batch, >= {self.state_dim}), got {tuple(states.shape)}")
         return (states[:, : self.state_dim] - self.state_mean) / self.state_std
 
     @abstractmethod

@@ -20,6 +20,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path, PurePosixPath
 
+from snapflow.errors import InvalidInputError
 from snapflow.reporting.files import atomic_write, write_json
 
 MANIFEST = PurePosixPath("docs/results/archive.json")  # relative to the repository's root
@@ -28,7 +29,7 @@ ARCHIVED_GLOB = "*.safetensors"  # which files there are archived: every weight 
 RESTORE_COMMAND = "snapflow checkpoints restore"
 
 
-class ArchiveError(ValueError):
+class ArchiveError(InvalidInputError):
     """The archive cannot do what was asked: not a git checkout, a manifest that is corrupt, a commit not in this
     clone. The message says what to do."""
 

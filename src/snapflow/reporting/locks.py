@@ -15,11 +15,13 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from snapflow.errors import SnapflowError
+
 LOCK_FILE = ".snapflow.lock"
 _CHOOSE_ANOTHER_OUTPUT = "wait for it to finish or choose another --output"
 
 
-class RunLockedError(FileExistsError):
+class RunLockedError(SnapflowError, FileExistsError):
     """The folder is held by another live process (a FileExistsError: the CLI prints it as one line, exit code 2)."""
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from snapflow.errors import InvalidInputError
 from snapflow.reporting.records import added_option
 
 
@@ -37,11 +38,11 @@ class TrainConfig:
     def __post_init__(self) -> None:
         for name in ("steps", "batch_size", "log_every", "validate_every", "checkpoint_every", "keep_checkpoints"):
             if getattr(self, name) < 1:
-                raise ValueError(f"TrainConfig.{name} must be at least 1, got {getattr(self, name)}")
+                raise InvalidInputError(f"TrainConfig.{name} must be at least 1, got {getattr(self, name)}")
         if self.learning_rate <= 0:
-            raise ValueError(f"TrainConfig.learning_rate must be positive, got {self.learning_rate}")
+            raise InvalidInputError(f"TrainConfig.learning_rate must be positive, got {self.learning_rate}")
         if self.ema_decay is not None and not 0 < self.ema_decay < 1:
-            raise ValueError(f"TrainConfig.ema_decay must be between 0 and 1 (exclusive), got {self.ema_decay}")
+            raise InvalidInputError(f"TrainConfig.ema_decay must be between 0 and 1 (exclusive), got {self.ema_decay}")
 
     def learning_rate_at(self, step: int) -> float:
         """Linear warm-up, then cosine decay to ``min_learning_rate_ratio`` of the peak."""

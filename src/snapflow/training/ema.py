@@ -13,13 +13,15 @@ from contextlib import contextmanager
 import torch
 from torch import Tensor, nn
 
+from snapflow.errors import InvalidInputError
+
 
 class WeightAverage:
     """The average of ``parameters`` (by name), updated after each optimiser step."""
 
     def __init__(self, parameters: dict[str, nn.Parameter], decay: float) -> None:
         if not 0 < decay < 1:
-            raise ValueError(f"the average's decay must be between 0 and 1 (exclusive), got {decay}")
+            raise InvalidInputError(f"the average's decay must be between 0 and 1 (exclusive), got {decay}")
         self.parameters = parameters
         self.decay = decay
         self.average = {name: parameter.detach().clone() for name, parameter in parameters.items()}

@@ -22,6 +22,7 @@ from snapflow.adapters.lerobot.registry import wrap_policy
 from snapflow.adapters.lerobot.smolvlm import smolvla_config, token_budget, words_of, write_smolvlm
 from snapflow.adapters.lerobot_config import SmolVLMSize
 from snapflow.data.demonstrations import split_episodes
+from snapflow.errors import InvalidInputError
 from snapflow.objective.base import TwoBranchObjective
 from snapflow.objective.snapflow import SnapFlowObjective
 from snapflow.policies.loaded import CheckpointError
@@ -74,17 +75,17 @@ def check_dataset_features(config: Any, features: dict[str, Any], repo_id: str) 
     expected = {**config.input_features, **config.output_features}
     missing = sorted(set(expected) - set(features))
     if missing:
-        raise ValueError(f"the dataset {repo_id} lacks the policy's feature(s) {missing}")
+        raise InvalidInputError(f"the dataset {repo_id} lacks the policy's feature(s) {missing}")
     for key, feature in expected.items():
         shape = tuple(features[key]["shape"])
         if feature.type.name == "VISUAL":
             channels = shape[-1] if (features[key].get("names") or [None])[-1] == "channels" else shape[0]
             if channels != feature.shape[0]:
-                raise ValueError(
+                raise InvalidInputError(
                     f"{key}: the dataset's images have {channels} channels, the policy expects {feature.shape[0]}"
                 )
         elif shape != tuple(feature.shape):
-            raise ValueError(f"{key}: the dataset has shape {shape}, the policy expects {tuple(feature.shape)}")
+            raise InvalidInputError(f"{key}: the dataset has shape {shape}, the policy expects {tuple(feature.shape)}")
 
 
 def check_finite(dataset: Any, keys: list[str]) -> None:
@@ -97,7 +98,9 @@ def check_finite(dataset: Any, keys: list[str]) -> None:
         values = np.asarray(table[key], dtype=np.float64)
         bad = np.argwhere(~np.isfinite(values.reshape(len(values), -1)))
         if len(bad):
-            raise ValueError(f"{key} holds NaN or inf (first at frame {int(bad[0][0])}, dimension {int(bad[0][1])})")
+            raise InvalidInputError(
+                f"{key} holds NaN or inf (first at frame {int(bad[0][0])}, dimension {int(bad[0][1])})"
+            )
 
 
 def distill_lerobot(
@@ -124,9 +127,9 @@ def distill_lerobot(
     settings = settings or DistillSettings()
     config = config or paper_training()
     if not settings.freeze_prefix:
-        raise ValueError("LeRobot policies are distilled with their VLM frozen, as in the paper")
+        raise InvalidInputError("LeRobot policies are distilled with their VLM frozen, as in the paper")
     if settings.method != "snapflow" or not settings.target_time:
-        raise ValueError(
+        raise InvalidInputError(
             "LeRobot policies are distilled with SnapFlow and its target-time embedding; "
             "the baselines and the no-phi_s ablation run on the built-in policies (snapflow train --policy-type ...)"
         )
@@ -194,7 +197,7 @@ def train_smolvla_teacher(
         inputs = {key: feature for key, feature in features.items() if feature.type is not FeatureType.ACTION}
         outputs = {key: feature for key, feature in features.items() if feature.type is FeatureType.ACTION}
         if not any(feature.type is FeatureType.VISUAL for feature in inputs.values()):
-            raise ValueError(f"the dataset {repo_id} has no camera images; SmolVLA needs at least one")
+            raise InvalidInputError(f"the dataset {repo_id} has no camera images; SmolVLA needs at least one")
         tasks = list(metadata.tasks.index)
         vlm = (Path(output) / SMOLVLM_DIRECTORY).resolve()
         if not (vlm / "config.json").is_file():  # a resumed run keeps the tokenizer its checkpoints were trained with

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from snapflow.adapters.lerobot.plugin.configuration_snapflow import DISTILL_OPTIONS, SnapFlowSampling
+from snapflow.errors import InvalidInputError
 from snapflow.policies.loaded import CheckpointError
 from snapflow.sources import open_policy
 from snapflow.training.recipes import DistillSettings
@@ -25,9 +26,9 @@ def student_fields(settings: DistillSettings) -> dict[str, Any]:
     or target, the ablations, a schedule of target steps, a trained prefix) is refused by name."""
     held = {name: getattr(settings, name) for name in DISTILL_OPTIONS}
     if not isinstance(settings.target_steps, int):
-        raise ValueError("a LeRobot student's config holds one number of target steps, not a schedule")
+        raise InvalidInputError("a LeRobot student's config holds one number of target steps, not a schedule")
     if replace(settings, **{name: getattr(_FIXED, name) for name in DISTILL_OPTIONS}) != _FIXED:
-        raise ValueError(
+        raise InvalidInputError(
             "lerobot-train distils with SnapFlow's Euler target, phi_s, the model's marginal velocity and the VLM "
             f"frozen; only {', '.join(DISTILL_OPTIONS)} may differ from the paper's settings"
         )

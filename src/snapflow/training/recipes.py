@@ -11,6 +11,7 @@ from collections.abc import Mapping
 from dataclasses import MISSING, dataclass, fields, replace
 from typing import TYPE_CHECKING, Any
 
+from snapflow.errors import InvalidInputError
 from snapflow.objective.options import (
     PAPER_ALPHA,
     PAPER_CONSISTENCY_WEIGHT,
@@ -70,15 +71,15 @@ class DistillSettings:
     def objective_type(self) -> ObjectiveType:
         """The registered objective that ``method`` and ``target`` pick."""
         if self.target not in targets():
-            raise ValueError(f"unknown SnapFlow target {self.target!r}; choose one of {list(targets())}")
+            raise InvalidInputError(f"unknown SnapFlow target {self.target!r}; choose one of {list(targets())}")
         if self.method not in methods():
-            raise ValueError(f"unknown distillation method {self.method!r}; choose one of {list(methods())}")
+            raise InvalidInputError(f"unknown distillation method {self.method!r}; choose one of {list(methods())}")
         default_target = _DEFAULTS["target"]  # what a method without targets is picked at
         for entry in OBJECTIVES.values():
             if entry.method == self.method and (entry.target or default_target) == self.target:
                 return entry
         offering = [entry.method for entry in OBJECTIVES.values() if entry.target == self.target]
-        raise ValueError(f"the {self.target} target is an option of the {' and '.join(offering)} method only")
+        raise InvalidInputError(f"the {self.target} target is an option of the {' and '.join(offering)} method only")
 
     def _passed_options(self) -> dict[str, Any]:
         """The options the chosen objective is passed beyond alpha and lambda: each it declares that these settings
@@ -86,13 +87,13 @@ class DistillSettings:
         chosen = self.objective_type
         for name in self.objective_options:
             if name in _DEFAULTS:
-                raise ValueError(f"{name} is a setting of its own: set it, not objective_options[{name!r}]")
+                raise InvalidInputError(f"{name} is a setting of its own: set it, not objective_options[{name!r}]")
             if name not in chosen.options:
-                raise ValueError(f"{name} is not an option of the {chosen.name} objective")
+                raise InvalidInputError(f"{name} is not an option of the {chosen.name} objective")
         declared = {option for entry in OBJECTIVES.values() for option in entry.options}
         for name, default in _DEFAULTS.items():
             if name in declared and name not in chosen.options and getattr(self, name) != default:
-                raise ValueError(f"{name} is not an option of the {chosen.name} objective")
+                raise InvalidInputError(f"{name} is not an option of the {chosen.name} objective")
         held = {name: getattr(self, name) for name in chosen.options if name in _DEFAULTS}
         return {**held, **self.objective_options}
 
@@ -119,7 +120,9 @@ def parse_target_steps(text: str) -> int | tuple[int, ...]:
     try:
         steps = tuple(int(k) for k in text.split(","))
     except ValueError:
-        raise ValueError(f"target steps must be integers (8, or a schedule such as 2,4,8), got {text!r}") from None
+        raise InvalidInputError(
+            f"target steps must be integers (8, or a schedule such as 2,4,8), got {text!r}"
+        ) from None
     return steps[0] if len(steps) == 1 else steps
 
 
@@ -135,7 +138,7 @@ class TargetOption:
         """``euler:8``, ``euler:2,4,8`` (a schedule) or ``bootstrap:8``."""
         target, _, steps = text.partition(":")
         if target not in targets() or not steps:
-            raise ValueError(
+            raise InvalidInputError(
                 f"a target option reads TARGET:STEPS with TARGET in {list(targets())}, e.g. euler:8, euler:2,4,8 or bootstrap:8; got {text!r}"
             )
         return cls(target, parse_target_steps(steps))

@@ -14,6 +14,7 @@ import torch
 
 from snapflow.data.chunks import split_chunk_data
 from snapflow.data.demonstrations import Demonstrations
+from snapflow.errors import InvalidInputError
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
 from snapflow.objective.snapflow import SnapFlowObjective
 from snapflow.policies.checkpoint import BUILTIN_TIME_SAMPLER, load_policy, policy_metadata
@@ -55,7 +56,7 @@ def train_teacher(
     """Plain flow matching (alpha = 1) of the registered policy ``policy_config`` configures, on the demonstrations;
     normalisation from the training episodes. ``on_checkpoint``, ``keep_progress``: as :func:`~snapflow.training.trainer.train`'s."""
     if not 0 <= val_fraction < 1:
-        raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction}")
+        raise InvalidInputError(f"val_fraction must be in [0, 1), got {val_fraction}")
     demonstrations = Demonstrations.load(data)
     train_episodes, _ = demonstrations.split(val_fraction)
     processor = fit_processor(policy_config, demonstrations, train_episodes)

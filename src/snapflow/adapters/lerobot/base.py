@@ -22,6 +22,7 @@ from torch import Tensor, nn
 from transformers import DynamicCache  # here, not in the pass: torch.compile breaks its graph at an import
 
 from snapflow.adapters.lerobot.rtc import rtc_processor_in_force, sample_with_rtc
+from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.time_sampling import BetaTimeSampler
 from snapflow.nn.time_embedding import TargetTimeEmbedding
@@ -86,7 +87,7 @@ def lerobot_time_sampler(config: Any) -> BetaTimeSampler:
     alpha = getattr(config, "time_sampling_beta_alpha", 1.5)
     beta = getattr(config, "time_sampling_beta_beta", 1.0)
     if beta != 1.0:
-        raise ValueError(
+        raise InvalidInputError(
             f"this {config.type} samples times from Beta({alpha}, {beta}); snapflow samples Beta(a, 1) only"
         )
     return BetaTimeSampler(concentration=alpha, min_time=0.001)

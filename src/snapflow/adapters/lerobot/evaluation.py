@@ -34,6 +34,7 @@ from snapflow.adapters.lerobot.checkpoint import (
 )
 from snapflow.adapters.lerobot.dataset import IMAGE_PREFIX, STATE
 from snapflow.adapters.lerobot.registry import wrap_policy
+from snapflow.errors import InvalidInputError
 from snapflow.flow.time_sampling import BetaTimeSampler
 from snapflow.inference.formats import export_format, export_record
 from snapflow.policies.checkpoint import load_export
@@ -51,16 +52,16 @@ class LeRobotProcessor:
     def __init__(self, config: Any, preprocessor: Any, postprocessor: Any) -> None:
         cameras = list(config.image_features)
         if not cameras or config.robot_state_feature is None:
-            raise ValueError(
+            raise InvalidInputError(
                 f"snapflow's benchmarks give a state and cameras; this {config.type} reads cameras {cameras} "
                 f"and {'a' if config.robot_state_feature else 'no'} state"
             )
         sizes = {config.image_features[camera].shape[-1] for camera in cameras}
         if len(sizes) != 1:
-            raise ValueError(f"this {config.type} reads cameras of different sizes {sorted(sizes)}")
+            raise InvalidInputError(f"this {config.type} reads cameras of different sizes {sorted(sizes)}")
         (action,) = config.output_features.values()
         if action.shape[0] != config.max_action_dim:
-            raise ValueError(
+            raise InvalidInputError(
                 f"this {config.type} pads {action.shape[0]}-D actions to {config.max_action_dim}; "
                 "snapflow's evaluator needs max_action_dim equal to the action's width"
             )
@@ -100,7 +101,7 @@ class LeRobotProcessor:
         extra_images = extra_images or {}
         missing = [name for name in self.extra_cameras if name not in extra_images]
         if images is None or missing:
-            raise ValueError(
+            raise InvalidInputError(
                 f"this {self.config.type} reads cameras {[self.camera, *self._extra_cameras]}; evaluate with images "
                 f"rendered{f' (no frames of {missing})' if missing else ''}"
             )

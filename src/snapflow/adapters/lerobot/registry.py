@@ -12,6 +12,7 @@ from torch import nn
 from snapflow._lazy import resolve
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
 from snapflow.adapters.lerobot_types import lerobot_policy_type
+from snapflow.errors import InvalidInputError
 
 
 def adapter_class(policy_type: str) -> type[LeRobotFlowPolicy]:
@@ -19,7 +20,7 @@ def adapter_class(policy_type: str) -> type[LeRobotFlowPolicy]:
     adapter: type[LeRobotFlowPolicy] = resolve(lerobot_policy_type(policy_type).adapter)
     installed = version("lerobot")
     if Version(installed) < Version(adapter.minimum_lerobot):
-        raise ValueError(
+        raise InvalidInputError(
             f"snapflow's {policy_type} adapter needs lerobot >= {adapter.minimum_lerobot} (Python >= 3.12 for "
             f"lerobot >= 0.5); lerobot {installed} is installed"
         )

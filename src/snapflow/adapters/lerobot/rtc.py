@@ -25,6 +25,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.solver import euler_sample
 
@@ -39,7 +40,7 @@ def rtc_processor_in_force(model: Any) -> Any:
         return None
     mode = getattr(config, "mode", "guided")
     if str(getattr(mode, "value", mode)) != "guided":
-        raise ValueError(
+        raise InvalidInputError(
             f"RTC mode {mode!r} needs a policy trained with the previous chunk's prefix given; snapflow's students "
             "run guided RTC (teacher-N) and prefix inpainting (snapflow-N) only"
         )
@@ -101,7 +102,7 @@ def inpaint_prefix(
     """The chunk with the previous chunk's prefix inpainted: ``a + w * weights * (prev - a)``, the guided correction
     at weight ``w`` = ``guidance_weight`` (at most 1, see the module's docstring)."""
     if not 0 <= guidance_weight <= 1:
-        raise ValueError(f"a jump's guidance weight is between 0 and 1, got {guidance_weight}")
+        raise InvalidInputError(f"a jump's guidance weight is between 0 and 1, got {guidance_weight}")
     prev = padded_prefix(prev_chunk_left_over, actions)
     weights = prefix_weights(processor, prev_chunk_left_over, inference_delay, execution_horizon, actions.shape[1])
     return actions + guidance_weight * weights.to(actions) * (prev - actions)
@@ -135,7 +136,7 @@ def sample_with_rtc(
     if processor is None or prev_chunk_left_over is None:
         return euler_sample(velocity, noise, mode)
     if inference_delay is None:
-        raise ValueError("real-time chunking with a previous chunk needs inference_delay")
+        raise InvalidInputError("real-time chunking with a previous chunk needs inference_delay")
     if not mode.jump:
         return guided_euler(velocity, noise, mode, processor, prev_chunk_left_over, inference_delay, execution_horizon)
     actions = euler_sample(velocity, noise, mode)

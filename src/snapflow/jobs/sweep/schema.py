@@ -12,6 +12,7 @@ from typing import Any
 from snapflow.data.collect import EPISODES_PER_TASK
 from snapflow.data.demonstrations import check_action_noise
 from snapflow.envs.factory import DEFAULT_BENCHMARK, make_benchmark
+from snapflow.errors import InvalidInputError
 from snapflow.evaluation.config import N_ACT
 from snapflow.flow.modes import SamplingMode
 from snapflow.jobs.demo import EVAL_EPISODES
@@ -109,7 +110,7 @@ class SweepConfig:
             return known
         unknown = [name for name in names if name not in known]
         if unknown:
-            raise ValueError(f"{self.source}: no table {unknown[0]!r}; its tables are {known}")
+            raise InvalidInputError(f"{self.source}: no table {unknown[0]!r}; its tables are {known}")
         return list(names)
 
     def only(self, names: list[str] | None) -> SweepConfig:
@@ -136,13 +137,13 @@ class SweepConfig:
 
 def _checked(section: str, table: Any, allowed: set[str], required: frozenset[str] = frozenset()) -> dict[str, Any]:
     if not isinstance(table, dict):
-        raise ValueError(f"{section}: expected a table of keys, got {table!r}")
+        raise InvalidInputError(f"{section}: expected a table of keys, got {table!r}")
     unknown = sorted(set(table) - allowed)
     if unknown:
-        raise ValueError(f"{section}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+        raise InvalidInputError(f"{section}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
     missing = sorted(required - set(table))
     if missing:
-        raise ValueError(f"{section}: missing key(s) {missing}")
+        raise InvalidInputError(f"{section}: missing key(s) {missing}")
     return table
 
 
@@ -155,7 +156,7 @@ def _dataclass_from(section: str, base: Any, overrides: Any) -> Any:
     try:
         return replace(base, **overrides)
     except (TypeError, ValueError) as error:
-        raise ValueError(f"{section}: {error}") from None
+        raise InvalidInputError(f"{section}: {error}") from None
 
 
 def _seeds(section: str, value: Any) -> tuple[int, ...]:
@@ -164,14 +165,14 @@ def _seeds(section: str, value: Any) -> tuple[int, ...]:
         or not value
         or not all(isinstance(seed, int) and not isinstance(seed, bool) for seed in value)
     ):
-        raise ValueError(f"{section}: seeds must be a non-empty list of integers, got {value!r}")
+        raise InvalidInputError(f"{section}: seeds must be a non-empty list of integers, got {value!r}")
     return tuple(value)
 
 
 def _count(section: str, name: str, value: Any) -> int:
     """A count (episodes, actions per chunk, image size): an integer of at least 1, never a silent default."""
     if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-        raise ValueError(f"{section}: {name} must be an integer of at least 1, got {value!r}")
+        raise InvalidInputError(f"{section}: {name} must be an integer of at least 1, got {value!r}")
     return value
 
 
@@ -180,27 +181,27 @@ def _data(raw: Any) -> DataSpec:
     try:
         benchmark = make_benchmark(entry.get("env", DEFAULT_BENCHMARK))
     except (TypeError, ValueError) as error:
-        raise ValueError(f"[data] env: {error}") from None
+        raise InvalidInputError(f"[data] env: {error}") from None
     try:
         entry["tasks"] = tuple(benchmark.resolve_tasks(entry["tasks"]) if "tasks" in entry else benchmark.default_tasks)
     except (TypeError, ValueError) as error:
-        raise ValueError(f"[data] tasks: {error}") from None
+        raise InvalidInputError(f"[data] tasks: {error}") from None
     for name in ("episodes_per_task", "image_size"):
         if entry.get(name) is not None:
             _count("[data]", name, entry[name])
     if "extra_cameras" in entry:
         cameras = entry["extra_cameras"]
         if not isinstance(cameras, list) or not all(isinstance(name, str) for name in cameras):
-            raise ValueError(f"[data] extra_cameras must be a list of camera names, got {cameras!r}")
+            raise InvalidInputError(f"[data] extra_cameras must be a list of camera names, got {cameras!r}")
         try:
             entry["extra_cameras"] = benchmark.check_cameras(cameras)
         except ValueError as error:
-            raise ValueError(f"[data] extra_cameras: {error}") from None
+            raise InvalidInputError(f"[data] extra_cameras: {error}") from None
     if "action_noise" in entry:
         try:
             entry["action_noise"] = check_action_noise(entry["action_noise"])
         except ValueError as error:
-            raise ValueError(f"[data] {error}") from None
+            raise InvalidInputError(f"[data] {error}") from None
     return _dataclass_from("[data]", DataSpec(), entry)
 
 
@@ -210,7 +211,7 @@ def _policy(section: str, raw: Any, data: DataSpec) -> PolicyConfig:
     try:
         config_class = policy_type(name).config_class
     except (TypeError, ValueError) as error:
-        raise ValueError(f"{section}: {error}") from None
+        raise InvalidInputError(f"{section}: {error}") from None
     overrides = dict(_checked(section, raw, {"type"} | _field_names(config_class)))
     overrides.pop("type", None)
     benchmark = make_benchmark(data.env)
@@ -223,18 +224,18 @@ def _policy(section: str, raw: Any, data: DataSpec) -> PolicyConfig:
     try:
         return default_config(name, state_dim, action_dim, instructions, **overrides)
     except (TypeError, ValueError) as error:
-        raise ValueError(f"{section}: {error}") from None
+        raise InvalidInputError(f"{section}: {error}") from None
 
 
 def _recipe(section: str, name: Any) -> Recipe:
     if name not in RECIPES:
-        raise ValueError(f"{section}: unknown recipe {name!r}; choose one of {list(RECIPES)}")
+        raise InvalidInputError(f"{section}: unknown recipe {name!r}; choose one of {list(RECIPES)}")
     return RECIPES[name]
 
 
 def _runs(raw: Any, seeds: tuple[int, ...], data: DataSpec, recipe: str) -> dict[str, RunSpec]:
     if not isinstance(raw, dict):
-        raise ValueError(f"[runs]: expected a table of keys, got {raw!r}")
+        raise InvalidInputError(f"[runs]: expected a table of keys, got {raw!r}")
     runs: dict[str, RunSpec] = {}
     for name, entry in raw.items():
         section = f"[runs.{name}]"
@@ -242,10 +243,10 @@ def _runs(raw: Any, seeds: tuple[int, ...], data: DataSpec, recipe: str) -> dict
         run_seeds = _seeds(section, entry.get("seeds", list(seeds)))
         commit_checkpoint = entry.get("commit_checkpoint", False)
         if not isinstance(commit_checkpoint, bool):
-            raise ValueError(f"{section}: commit_checkpoint must be true or false, got {commit_checkpoint!r}")
+            raise InvalidInputError(f"{section}: commit_checkpoint must be true or false, got {commit_checkpoint!r}")
         if "teacher" in entry:
             if "policy" in entry:
-                raise ValueError(f"{section}: a student takes its policy from its teacher; remove 'policy'")
+                raise InvalidInputError(f"{section}: a student takes its policy from its teacher; remove 'policy'")
             base = _recipe(section, entry.get("recipe", recipe))
             train = _dataclass_from(f"{section} train", base.train, entry.get("train", {}))
             settings = _dataclass_from(f"{section} distill", base.distill, entry.get("distill", {}))
@@ -254,7 +255,7 @@ def _runs(raw: Any, seeds: tuple[int, ...], data: DataSpec, recipe: str) -> dict
             )
         else:
             if "distill" in entry or "recipe" in entry:
-                raise ValueError(f"{section}: 'distill' and 'recipe' need a 'teacher' to distill from")
+                raise InvalidInputError(f"{section}: 'distill' and 'recipe' need a 'teacher' to distill from")
             train = _dataclass_from(f"{section} train", TEACHER_TRAINING, entry.get("train", {}))
             policy = _policy(f"{section} policy", entry.get("policy", {}), data)
             runs[name] = RunSpec(name, run_seeds, train, policy, commit_checkpoint=commit_checkpoint)
@@ -262,25 +263,29 @@ def _runs(raw: Any, seeds: tuple[int, ...], data: DataSpec, recipe: str) -> dict
         if run.teacher is not None:
             teacher = runs.get(run.teacher)
             if teacher is None or teacher.teacher is not None:
-                raise ValueError(f"[runs.{run.name}]: teacher {run.teacher!r} is not a teacher run of this sweep")
+                raise InvalidInputError(
+                    f"[runs.{run.name}]: teacher {run.teacher!r} is not a teacher run of this sweep"
+                )
             if missing := sorted(set(run.seeds) - set(teacher.seeds)):
-                raise ValueError(f"[runs.{run.name}]: seeds {missing} have no {run.teacher!r} teacher")
+                raise InvalidInputError(f"[runs.{run.name}]: seeds {missing} have no {run.teacher!r} teacher")
     return runs
 
 
 def _other_sweep(section: str, path: Path, name: Any, data: DataSpec, loading: tuple[Path, ...]) -> SweepConfig:
     """The sweep config ``name`` (relative to ``path``'s folder) that a row reads, on the same benchmark and tasks."""
     if not isinstance(name, str):
-        raise ValueError(f"{section}: sweep must be the path of a sweep config, got {name!r}")
+        raise InvalidInputError(f"{section}: sweep must be the path of a sweep config, got {name!r}")
     other_path = path.parent / name
     if other_path.resolve() in loading:
-        raise ValueError(f"{section}: sweep {name!r} reads back a sweep that reads it; sweeps cannot read each other")
+        raise InvalidInputError(
+            f"{section}: sweep {name!r} reads back a sweep that reads it; sweeps cannot read each other"
+        )
     try:
         other = load_sweep(other_path, loading)
     except FileNotFoundError as error:
-        raise ValueError(f"{section}: {error}") from None
+        raise InvalidInputError(f"{section}: {error}") from None
     if (other.data.env, other.data.tasks) != (data.env, data.tasks):
-        raise ValueError(
+        raise InvalidInputError(
             f"{section}: sweep {name!r} runs on {other.data.env} {list(other.data.tasks)}, this one on {data.env} "
             f"{list(data.tasks)}: a row pairs with the table's only on the same benchmark and tasks"
         )
@@ -291,7 +296,7 @@ def _tables(
     path: Path, raw: Any, seeds: tuple[int, ...], runs: dict[str, RunSpec], data: DataSpec, loading: tuple[Path, ...]
 ) -> tuple[TableSpec, ...]:
     if not isinstance(raw, list):
-        raise ValueError(f"{path}: tables must be a list of [[tables]] entries")
+        raise InvalidInputError(f"{path}: tables must be a list of [[tables]] entries")
     tables = []
     allowed = {"name", "title", "rows", "seeds", "episodes_per_task", "n_act", "per_task", "x_label", "reference"}
     for index, entry in enumerate(raw):
@@ -299,7 +304,7 @@ def _tables(
         _checked(section, entry, allowed, frozenset({"name", "rows"}))
         table_seeds = _seeds(section, entry.get("seeds", list(seeds)))
         if not isinstance(entry["rows"], list):
-            raise ValueError(f"{section}: rows must be a list of {{ label, run, mode }} entries")
+            raise InvalidInputError(f"{section}: rows must be a list of {{ label, run, mode }} entries")
         rows = []
         for row in entry["rows"]:
             _checked(
@@ -315,22 +320,24 @@ def _tables(
             run = row_runs.get(row["run"])
             if run is None:
                 where = "" if other is None else f" of sweep {other.name!r}"
-                raise ValueError(
+                raise InvalidInputError(
                     f"{section}: row {row['label']!r} names unknown run {row['run']!r}{where}; runs: {sorted(row_runs)}"
                 )
             if missing := sorted(set(table_seeds) - set(run.seeds)):
-                raise ValueError(
+                raise InvalidInputError(
                     f"{section}: row {row['label']!r} needs seeds {missing} of run {run.name!r}, which has {list(run.seeds)}"
                 )
             try:
                 mode = SamplingMode.parse(row["mode"])
             except ValueError as error:
-                raise ValueError(f"{section}: row {row['label']!r}: {error}") from None
+                raise InvalidInputError(f"{section}: row {row['label']!r}: {error}") from None
             n_act = _count(f"{section}: row {row['label']!r}", "n_act", row.get("n_act", entry.get("n_act", N_ACT)))
             rows.append(RowSpec(row["label"], row["run"], mode, n_act, row.get("series"), row.get("x"), other))
         reference = entry.get("reference")
         if reference is not None and reference not in [row.label for row in rows]:
-            raise ValueError(f"{section}: reference {reference!r} is not one of its rows {[row.label for row in rows]}")
+            raise InvalidInputError(
+                f"{section}: reference {reference!r} is not one of its rows {[row.label for row in rows]}"
+            )
         tables.append(
             TableSpec(
                 entry["name"],
@@ -356,12 +363,12 @@ def load_sweep(path: str | Path, loading: tuple[Path, ...] = ()) -> SweepConfig:
     try:
         raw = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as error:
-        raise ValueError(f"{path}: not valid TOML: {error}") from None
+        raise InvalidInputError(f"{path}: not valid TOML: {error}") from None
     allowed = {"name", "title", "seeds", "output_dir", "results_dir", "data", "runs", "tables", "recipe"}
     _checked(str(path), raw, allowed, frozenset({"name", "runs", "tables"}))
     name = raw["name"]
     if not isinstance(name, str) or not re.fullmatch(r"[a-z0-9][a-z0-9._-]*", name):
-        raise ValueError(f"{path}: name must be lower-case letters, digits, '.', '_' or '-', got {name!r}")
+        raise InvalidInputError(f"{path}: name must be lower-case letters, digits, '.', '_' or '-', got {name!r}")
     seeds = _seeds(f"{path}", raw.get("seeds", [0]))
     data = _data(raw.get("data", {}))
     _recipe(str(path), raw.get("recipe", DEFAULT_RECIPE))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from snapflow.errors import InvalidInputError
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.reporting.records import added_option
 
@@ -57,23 +58,27 @@ class MiniVLAConfig(PolicyConfig):
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.image_encoder not in IMAGE_ENCODERS:
-            raise ValueError(f"MiniVLAConfig.image_encoder must be one of {IMAGE_ENCODERS}, got {self.image_encoder!r}")
+            raise InvalidInputError(
+                f"MiniVLAConfig.image_encoder must be one of {IMAGE_ENCODERS}, got {self.image_encoder!r}"
+            )
         if not self.use_image:
             return
         if self.image_encoder == "patch":
             if self.image_size % self.patch_size:
-                raise ValueError(
+                raise InvalidInputError(
                     f"MiniVLAConfig.image_size ({self.image_size}) must be a multiple of patch_size ({self.patch_size})"
                 )
             if self.extra_cameras:
-                raise ValueError("MiniVLAConfig: the patch image encoder reads one camera; use image_encoder='conv'")
+                raise InvalidInputError(
+                    "MiniVLAConfig: the patch image encoder reads one camera; use image_encoder='conv'"
+                )
         elif self.image_size % (8 * self.image_downsample):
-            raise ValueError(
+            raise InvalidInputError(
                 f"MiniVLAConfig.image_size ({self.image_size}) must be a multiple of 8 x image_downsample "
                 f"({8 * self.image_downsample}): the conv encoder halves it three times"
             )
         elif self.conv_width % NORM_GROUPS:
-            raise ValueError(
+            raise InvalidInputError(
                 f"MiniVLAConfig.conv_width ({self.conv_width}) must be a multiple of {NORM_GROUPS}: the conv encoder "
                 f"normalises its channels in {NORM_GROUPS} groups"
             )

@@ -11,6 +11,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from snapflow.errors import InvalidInputError
 from snapflow.policies.minivla.configuration import MiniVLAConfig
 from snapflow.policies.processor import Processor
 
@@ -59,13 +60,17 @@ class MiniVLAProcessor(Processor):
         batch = {"state": self.normalized_state(states), "tokens": tokens, "token_mask": token_mask}
         if self.config.use_image:
             if images is None:
-                raise ValueError("this policy was configured with use_image=True, so every observation needs an image")
+                raise InvalidInputError(
+                    "this policy was configured with use_image=True, so every observation needs an image"
+                )
             frames = {
                 "image": images,
                 **{f"image.{name}": (extra_images or {}).get(name) for name in self.extra_cameras},
             }
             for key, value in frames.items():
                 if value is None:
-                    raise ValueError(f"this policy reads camera {key.removeprefix('image.')!r}; no frames were given")
+                    raise InvalidInputError(
+                        f"this policy reads camera {key.removeprefix('image.')!r}; no frames were given"
+                    )
                 batch[key] = torch.as_tensor(np.asarray(value, dtype=np.uint8)).permute(0, 3, 1, 2).contiguous()
         return batch

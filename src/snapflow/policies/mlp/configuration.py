@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from snapflow.errors import InvalidInputError
 from snapflow.policies.configuration import PolicyConfig
 
 
@@ -25,4 +26,4 @@ class MLPPolicyConfig(PolicyConfig):
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.time_embedding_dim % 2:
-            raise ValueError(f"MLPPolicyConfig.time_embedding_dim must be even, got {self.time_embedding_dim}")
+            raise InvalidInputError(f"MLPPolicyConfig.time_embedding_dim must be even, got {self.time_embedding_dim}")

@@ -9,6 +9,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from snapflow.errors import InvalidInputError
 from snapflow.policies.mlp.configuration import MLPPolicyConfig
 from snapflow.policies.processor import Processor
 
@@ -20,7 +21,7 @@ class MLPProcessor(Processor):
 
     def __init__(self, config: MLPPolicyConfig, stats: Any, instructions: Sequence[str] = ()) -> None:
         if not instructions or config.observation_dim <= len(instructions):
-            raise ValueError(
+            raise InvalidInputError(
                 f"an MLP policy on an environment reads state entries and a one-hot of {len(instructions)} instruction(s): "
                 f"observation_dim {config.observation_dim} leaves no state entry"
             )
@@ -55,7 +56,7 @@ class MLPProcessor(Processor):
     ) -> Tensor:
         unknown = sorted(set(instructions) - set(self._index))
         if unknown:
-            raise ValueError(
+            raise InvalidInputError(
                 f"the MLP policy was trained on the instructions {list(self.instructions)}; it cannot read {unknown}"
             )
         one_hot = torch.zeros(len(instructions), len(self.instructions))

@@ -15,12 +15,13 @@ from snapflow.adapters.lerobot.base import LeRobotFlowPolicy, lerobot_time_sampl
 from snapflow.adapters.lerobot.plugin.configuration_snapflow import student_config_class
 from snapflow.adapters.lerobot.registry import adapter_class
 from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES, lerobot_policy_type
+from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SamplingMode
 from snapflow.objective.base import TwoBranchObjective
 from snapflow.objective.registry import make_objective
 
 
-class NotDistilledError(ValueError):
+class NotDistilledError(InvalidInputError):
     """A student whose config says it was never distilled was asked for the one-step jump."""
 
 
