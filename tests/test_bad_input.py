@@ -396,6 +396,11 @@ ARGUMENT_MISTAKES = {
     "no timed calls": (["bench", "--architecture", "mlp", "--repeats", "0"], "--repeats"),
     "no workers": (["sweep", "config.toml", "--workers", "0"], "--workers"),
     "mistyped mode": (["eval", "--policy", "run", "--modes", "snapflow-x"], "unknown sampling mode 'snapflow-x'"),
+    "a server open to the network without TLS": (["serve", "--host", "0.0.0.0"], "--host 0.0.0.0", "--tls-cert"),
+    "TLS without its client CA": (
+        ["serve", "--tls-cert", "c.pem", "--tls-key", "k.pem"],
+        "all three of --tls-cert, --tls-key and --tls-client-ca",
+    ),
     "resume in LeRobot's environment": (
         ["eval", "--policy", "run", "--lerobot-env", "pusht", "--resume"],
         "--resume continues snapflow's own evaluator",
@@ -415,7 +420,7 @@ ARGUMENT_MISTAKES = {
 def test_argument_mistakes_are_refused_in_one_line_before_torch_loads(tmp_path, case):
     arguments, *words = ARGUMENT_MISTAKES[case]
     output = tmp_path / "out"
-    if arguments[0] != "sweep":
+    if arguments[0] not in ("sweep", "serve"):  # the two commands that write no output folder
         arguments = [*arguments, "--output", str(output)]
     probe = tmp_path / "modules.txt"
     script = (

@@ -4,13 +4,18 @@ file) are refused by name, before they run, and the server goes on to serve a st
 
 from __future__ import annotations
 
+import contextlib
+import datetime
+import ipaddress
 import json
 import os
 import pickle
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -43,15 +48,15 @@ class CreatesAFile:
         return open, (str(self.path), "w")
 
 
-@pytest.fixture
-def server(tmp_path):
-    """``snapflow serve`` on a free loopback port, in a process of its own (LeRobot writes its logs/ into its
-    working directory); its port once it answers."""
+@contextlib.contextmanager
+def running_server(folder: Path, *options: str, channel: Callable[[str], Any] = grpc.insecure_channel):
+    """``snapflow serve OPTIONS`` on a free loopback port, in a process of its own started in ``folder`` (LeRobot
+    writes its logs/ into its working directory); its port once it answers on a channel made by ``channel``."""
     port = free_loopback_port()
     command = [str(Path(sys.executable).with_name("snapflow")), "serve", "--host", "127.0.0.1", "--port", str(port)]
     process = subprocess.Popen(
-        [*command, "--inference-latency", "0"],
-        cwd=tmp_path,
+        [*command, *options],
+        cwd=folder,
         env=os.environ,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
@@ -59,13 +64,19 @@ def server(tmp_path):
         text=True,
     )
     try:
-        with grpc.insecure_channel(f"127.0.0.1:{port}") as channel:
-            grpc.channel_ready_future(channel).result(timeout=120)
+        with channel(f"127.0.0.1:{port}") as ready:
+            grpc.channel_ready_future(ready).result(timeout=120)
         yield port
     finally:
         process.terminate()
         output, _ = process.communicate(timeout=30)
         print(output)  # shown on a failure: what the server logged
+
+
+@pytest.fixture
+def server(tmp_path):
+    with running_server(tmp_path, "--inference-latency", "0") as port:
+        yield port
 
 
 @pytest.mark.slow
@@ -116,3 +127,76 @@ def test_the_round_trip_benchmark_times_both_modes_under_the_floor_and_without_i
     ]
     assert all(row["chunks"] == 2 and 0 < row["median_ms"] <= row["p90_ms"] for row in result["rows"])
     assert "| 0 s | snapflow-1 |" in (tmp_path / "round_trip.md").read_text()
+
+
+def _certificate(name: str, key: Any, issuer: tuple[Any, str] | None = None, ip: str | None = None) -> Any:
+    """An X.509 certificate of ``name`` for ``key``, signed by ``issuer`` (its key and name), else by itself (a CA);
+    valid for ``ip`` where given."""
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes
+    from cryptography.x509.oid import NameOID
+
+    signer, issuer_name = issuer or (key, name)
+    now = datetime.datetime.now(datetime.UTC)
+    builder = (
+        x509.CertificateBuilder()
+        .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, name)]))
+        .issuer_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, issuer_name)]))
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - datetime.timedelta(minutes=5))
+        .not_valid_after(now + datetime.timedelta(days=1))
+        .add_extension(x509.BasicConstraints(ca=issuer is None, path_length=None), critical=True)
+    )
+    if ip:
+        builder = builder.add_extension(x509.SubjectAlternativeName([x509.IPAddress(ipaddress.ip_address(ip))]), False)
+    return builder.sign(signer, hashes.SHA256())
+
+
+def _write_mutual_tls(folder: Path) -> dict[str, Path]:
+    """A CA, a server certificate for 127.0.0.1 and a client certificate, both signed by the CA, as PEM files."""
+    from cryptography.hazmat.primitives import serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+
+    def pem_key(key: Any) -> bytes:
+        return key.private_bytes(
+            serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
+        )
+
+    keys = {name: ec.generate_private_key(ec.SECP256R1()) for name in ("ca", "server", "client")}
+    certificates = {
+        "ca": _certificate("snapflow test CA", keys["ca"]),
+        "server": _certificate("127.0.0.1", keys["server"], (keys["ca"], "snapflow test CA"), ip="127.0.0.1"),
+        "client": _certificate("robot", keys["client"], (keys["ca"], "snapflow test CA")),
+    }
+    files = {}
+    for name, certificate in certificates.items():
+        files[f"{name}.pem"] = folder / f"{name}.pem"
+        files[f"{name}.pem"].write_bytes(certificate.public_bytes(serialization.Encoding.PEM))
+        files[f"{name}-key.pem"] = folder / f"{name}-key.pem"
+        files[f"{name}-key.pem"].write_bytes(pem_key(keys[name]))
+    return files
+
+
+@pytest.mark.slow
+def test_over_mutual_tls_only_a_client_with_a_certificate_of_the_ca_is_served(tmp_path):
+    files = _write_mutual_tls(tmp_path)
+    ca = files["ca.pem"].read_bytes()
+    with_certificate = grpc.ssl_channel_credentials(
+        ca, files["client-key.pem"].read_bytes(), files["client.pem"].read_bytes()
+    )
+    options = ["--tls-cert", str(files["server.pem"]), "--tls-key", str(files["server-key.pem"])]
+    options += ["--tls-client-ca", str(files["ca.pem"])]
+
+    def secure(address: str) -> Any:
+        return grpc.secure_channel(address, with_certificate)
+
+    with running_server(tmp_path, *options, channel=secure) as port:
+        address = f"127.0.0.1:{port}"
+        with grpc.secure_channel(address, with_certificate) as channel:
+            services_pb2_grpc.AsyncInferenceStub(channel).Ready(services_pb2.Empty(), timeout=30)
+        # no client certificate, or no TLS at all (LeRobot's own client): the handshake fails, nothing is served
+        for refused in (grpc.secure_channel(address, grpc.ssl_channel_credentials(ca)), grpc.insecure_channel(address)):
+            with refused as channel, pytest.raises(grpc.RpcError) as failed:
+                services_pb2_grpc.AsyncInferenceStub(channel).Ready(services_pb2.Empty(), timeout=10)
+            assert failed.value.code() == grpc.StatusCode.UNAVAILABLE

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import pickle
 from concurrent import futures
+from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
@@ -27,6 +28,7 @@ import snapflow.adapters.lerobot.plugin  # noqa: F401 - registers the student ty
 from snapflow.adapters.lerobot import safe_pickle
 from snapflow.adapters.lerobot.student_folder import refuse_student_as_teacher
 from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES
+from snapflow.errors import InvalidInputError
 
 # LeRobot's server reads each message with its module's ``pickle.loads``: here that name reads through the protocol's
 # allow-list, so an observation that names any other callable is refused before it runs (what it sends back is ours)
@@ -54,27 +56,49 @@ class StudentPolicyServer(PolicyServer):
             context.abort(grpc.StatusCode.INVALID_ARGUMENT, str(refused))
 
 
-def start_server(config: PolicyServerConfig) -> tuple[grpc.Server, StudentPolicyServer]:
-    """LeRobot's policy server on ``config.host:config.port``, started, with snapflow's student types supported; the
-    gRPC server and the policy server it serves (as LeRobot's ``serve`` builds them)."""
+def tls_credentials(certificate: Path, key: Path, client_ca: Path) -> grpc.ServerCredentials:
+    """gRPC's TLS credentials of a server that proves itself with ``certificate`` / ``key`` and serves only clients
+    whose own certificate ``client_ca`` signed (mutual TLS: the clients are authenticated, and everything is
+    encrypted)."""
+    files = {"--tls-cert": certificate, "--tls-key": key, "--tls-client-ca": client_ca}
+    missing = [f"{flag} {path}" for flag, path in files.items() if not Path(path).is_file()]
+    if missing:
+        raise InvalidInputError(f"no such file: {', '.join(missing)}")
+    return grpc.ssl_server_credentials(
+        [(Path(key).read_bytes(), Path(certificate).read_bytes())],
+        root_certificates=Path(client_ca).read_bytes(),
+        require_client_auth=True,
+    )
+
+
+def start_server(
+    config: PolicyServerConfig, credentials: grpc.ServerCredentials | None = None
+) -> tuple[grpc.Server, StudentPolicyServer]:
+    """LeRobot's policy server on ``config.host:config.port``, started, with snapflow's student types supported,
+    over TLS where ``credentials`` are given (:func:`tls_credentials`); the gRPC server and the policy server it
+    serves (as LeRobot's ``serve`` builds them)."""
     for declared in LEROBOT_POLICY_TYPES.values():  # registered by the plugin import; now also supported
         if declared.student_type not in constants.SUPPORTED_POLICIES:
             constants.SUPPORTED_POLICIES.append(declared.student_type)  # the list LeRobot's server checks
     policy_server = StudentPolicyServer(config)
     server = grpc.server(futures.ThreadPoolExecutor(max_workers=4))
     services_pb2_grpc.add_AsyncInferenceServicer_to_server(policy_server, server)
-    server.add_insecure_port(f"{config.host}:{config.port}")
+    address = f"{config.host}:{config.port}"
+    if credentials is None:
+        server.add_insecure_port(address)
+    else:
+        server.add_secure_port(address, credentials)
     server.start()
     return server, policy_server
 
 
-def serve(config: PolicyServerConfig) -> None:
-    """Serve until interrupted."""
-    server, policy_server = start_server(config)
+def serve(config: PolicyServerConfig, credentials: grpc.ServerCredentials | None = None) -> None:
+    """Serve until interrupted (over TLS where ``credentials`` are given)."""
+    server, policy_server = start_server(config, credentials)
     policy_server.logger.info(
         f"snapflow: LeRobot's PolicyServer serving SnapFlow students on {config.host}:{config.port}"
     )
     server.wait_for_termination()
 
 
-__all__ = ["StudentPolicyServer", "start_server", "serve"]
+__all__ = ["StudentPolicyServer", "tls_credentials", "start_server", "serve"]
