@@ -33,6 +33,7 @@ from snapflow.jobs.sweep.planning import train_job
 from snapflow.jobs.sweep.results import write_results
 from snapflow.policies.minivla import MiniVLAConfig
 from snapflow.policies.mlp import MLPPolicyConfig
+from snapflow.reporting.machine import versions
 from snapflow.reporting.records import as_record
 from snapflow.training.config import TEACHER_TRAINING
 from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES
@@ -251,6 +252,7 @@ def test_job_settings_are_complete_and_keys_follow_the_dependencies(tmp_path):
         "config": evaluation.settings(),
         "dependencies": [student.key, student.data.key],
         "success": 1,
+        "versions": versions(),  # what it was made under: the simulators among them
     }
 
 

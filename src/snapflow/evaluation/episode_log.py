@@ -2,8 +2,9 @@
 
 One JSON line a wave, appended as the wave ends: its episodes, its wall time and the noise generator's state after
 it. A resumed run restores that state and starts at the next wave, so its results equal an uninterrupted run's. The
-first line is the run's identity (policy, mode, tasks, seed, ...); a file written by another run is refused, never
-mixed in. A line cut short by an interruption is dropped on reading."""
+first line is the run's identity (policy, mode, tasks, seed, ...) and the versions it started under; a file written by
+another run is refused, never mixed in, and one started under another simulator version is continued with a warning
+naming it. A line cut short by an interruption is dropped on reading."""
 
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ import torch
 from snapflow.errors import InvalidInputError
 from snapflow.evaluation.results import EpisodeResult
 from snapflow.reporting.files import write_text
+from snapflow.reporting.machine import versions, warn_simulator_differences
 
 
 @dataclass(frozen=True)
@@ -51,12 +53,13 @@ class EpisodeLog:
         if resume and self.path.is_file():
             self.finished = self._read()
         else:
-            write_text(self.path, json.dumps({"identity": self.identity}) + "\n")
+            write_text(self.path, json.dumps({"identity": self.identity, "versions": versions()}) + "\n")
 
     def _read(self) -> list[FinishedWave]:
         lines = self.path.read_text().splitlines()
         try:
-            written = json.loads(lines[0])["identity"] if lines else None
+            header = json.loads(lines[0]) if lines else {}
+            written = header["identity"] if lines else None
         except (json.JSONDecodeError, KeyError, TypeError):
             written = None
         if written is None:
@@ -69,6 +72,7 @@ class EpisodeLog:
                 f"{self.path} was written by another evaluation (it differs in {', '.join(differs)}): run without "
                 "--resume to start again, or choose another --output"
             )
+        warn_simulator_differences(header.get("versions"), f"{self.path}'s finished episodes")
         waves = []
         for number, line in enumerate(lines[1:], start=2):
             try:

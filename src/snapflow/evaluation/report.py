@@ -9,7 +9,7 @@ from snapflow.evaluation.results import EvaluationReport
 from snapflow.flow.modes import SamplingMode
 from snapflow.reporting.figures import pyplot, save_figure
 from snapflow.reporting.files import write_json, write_text
-from snapflow.reporting.machine import machine_description
+from snapflow.reporting.machine import machine_description, versions
 from snapflow.reporting.tables import markdown_table
 
 
@@ -150,6 +150,7 @@ def write_report(report: EvaluationReport, directory: str | Path) -> None:
     """``report.json``, ``report.md``, ``success.png`` and (with latency) ``latency.png`` in ``directory``."""
     directory = Path(directory)
     report.machine = report.machine or machine_description()
+    report.versions = report.versions or versions()
     write_json(directory / "report.json", report.to_dict())
     write_text(directory / "report.md", markdown_report(report))
     plot_success(report, directory / "success.png")

@@ -98,6 +98,7 @@ class EvaluationReport:
     timings: dict[str, float] = field(default_factory=dict)
     preset: dict[str, Any] = field(default_factory=dict)
     machine: str | None = None
+    versions: dict[str, str] = field(default_factory=dict)  # what it ran under (reporting.machine.versions)
 
     def intervals(self) -> dict[str, dict[str, float]]:
         """Per row: mean success (%), its 95% Wilson interval over the pooled episodes and, for every row after the
@@ -138,6 +139,8 @@ class EvaluationReport:
             report["preset"] = self.preset
         if self.machine:
             report["machine"] = self.machine
+        if self.versions:
+            report["versions"] = self.versions
         return report
 
 

@@ -39,6 +39,7 @@ from tqdm.auto import tqdm
 
 from snapflow.errors import InvalidInputError
 from snapflow.reporting.files import write_json
+from snapflow.reporting.machine import versions
 
 
 class Job(ABC):
@@ -109,8 +110,9 @@ def record(job: Job, results: dict[str, Any] | None = None) -> dict[str, Any]:
 
 def write_record(job: Job, results: dict[str, Any] | None = None) -> None:
     """Mark ``job`` finished with ``results``: what the runner does after ``job.run()`` returned them (the ledger's
-    copy first, so that a record in the run folder always has its copy)."""
-    entry = record(job, results)
+    copy first, so that a record in the run folder always has its copy). The record notes the versions it was made
+    under (:func:`snapflow.reporting.machine.versions`)."""
+    entry = {**record(job, results), "versions": versions()}
     if job.ledger_path is not None:
         write_json(job.ledger_path, entry)
     write_json(job.record_path, entry)

@@ -14,6 +14,7 @@ from snapflow.evaluation.results import EvaluationRow
 from snapflow.jobs.runner import is_recorded, read_record
 from snapflow.jobs.sweep.planning import eval_job, train_job
 from snapflow.jobs.sweep.schema import RowSpec, SweepConfig, TableSpec
+from snapflow.reporting.machine import warn_simulator_differences
 from snapflow.reporting.statistics import mean_std, paired_difference, wilson_interval
 from snapflow.training.trainer import HISTORY
 
@@ -117,7 +118,9 @@ def _evaluation(config: SweepConfig, table: TableSpec, row: RowSpec, seed: int) 
             f"{config.name}: table {table.name!r} is incomplete ({job.path} is missing or was made with other settings); "
             f"run the sweep {owner.source} first"
         )
-    return EvaluationRow.from_dict(read_record(job))
+    recorded = read_record(job)
+    warn_simulator_differences(recorded.get("versions"), f"{config.name}: {job.describe()}")
+    return EvaluationRow.from_dict(recorded)
 
 
 def _history(config: SweepConfig, run: str, seed: int) -> dict[str, Any]:
