@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import zlib
+
 import numpy as np
 import pytest
 
@@ -50,6 +52,26 @@ def test_a_noisy_collection_executes_the_experts_action_plus_its_noise_and_recor
     assert success and noisy.action_noise == 0.3 and clean.action_noise == 0.0
     steps = min(len(noisy.states), len(clean.states))
     assert np.abs(noisy.states[1:steps, :3] - clean.states[1:steps, :3]).max() > 1e-3, "the noise moved the hand"
+
+
+def test_a_second_set_of_demonstrations_starts_on_other_resets_or_draws_other_noise_and_says_so(tmp_path):
+    """--first-variation: the expert starts on later training variations; --noise-seed: other noise on the same
+    resets (seed 0 is the noise of every collection before it could be chosen); both saved with the set."""
+    benchmark, task = MetaWorld(), "reach-v3"
+    first = collect_demonstrations(benchmark, [task], 1, progress=False, action_noise=0.3)
+    later = collect_demonstrations(benchmark, [task], 1, progress=False, action_noise=0.3, first_variation=7)
+    reseeded = collect_demonstrations(benchmark, [task], 1, progress=False, action_noise=0.3, noise_seed=5)
+    assert later.episodes[0].variation >= 7 > first.episodes[0].variation == reseeded.episodes[0].variation
+    steps = min(len(first.states), len(reseeded.states))
+    assert np.abs(first.states[1:steps] - reseeded.states[1:steps]).max() > 1e-4, "another seed, another path"
+    again = noise_generator(task, 0).normal(size=3)
+    assert np.array_equal(again, np.random.default_rng([zlib.crc32(task.encode()), 0]).normal(size=3))
+    assert not np.array_equal(again, noise_generator(task, 0, seed=5).normal(size=3))
+    loaded = Demonstrations.load(later.save(tmp_path / "later"))
+    assert (loaded.first_variation, loaded.noise_seed) == (7, 0)
+    assert Demonstrations.load(reseeded.save(tmp_path / "reseeded")).noise_seed == 5
+    with pytest.raises(ValueError, match=r"must be in \[1, 3\] .* training variations from variation 47\)"):
+        collect_demonstrations(benchmark, [task], 4, progress=False, first_variation=47)
 
 
 @pytest.mark.parametrize("noise", [-0.1, float("nan")])
@@ -114,7 +136,7 @@ def test_the_collection_noise_travels_with_the_demonstrations_and_parts_of_diffe
     older.write_text(older.read_text().replace('"action_noise": 0.0,', ""))
     assert "action_noise" not in older.read_text() and Demonstrations.load(tmp_path / "older").action_noise == 0.0
     assert Demonstrations.concatenate([noisy, _demonstrations(action_noise=0.1)]).action_noise == 0.1
-    with pytest.raises(DemonstrationError, match="different action noise: 0.1 and 0.0"):
+    with pytest.raises(DemonstrationError, match=r"collected differently .*: \(0.1, 0, 0\) and \(0.0, 0, 0\)"):
         Demonstrations.concatenate([noisy, _demonstrations()])
 
 

@@ -15,6 +15,7 @@ from snapflow.data.chunks import ChunkData
 from snapflow.data.demonstrations import Demonstrations
 from snapflow.envs import factory
 from snapflow.envs.base import Benchmark, Environment, Observation
+from snapflow.errors import InvalidInputError
 from snapflow.evaluation.closed_loop import ClosedLoopEvaluator
 from snapflow.evaluation.episode_log import EpisodeLog
 from snapflow.evaluation.offline import offline_metrics
@@ -255,6 +256,20 @@ def test_more_episodes_than_max_envs_run_in_waves_on_the_same_environments_and_o
         assert np.allclose(np.stack(actions[slot]), expected[slot], atol=1e-6)
     with pytest.raises(ValueError, match="max_envs must be at least 1"):
         ClosedLoopEvaluator(scripted, ["reach-v3"], 1, max_envs=0)
+
+
+def test_episodes_start_from_the_first_variation_asked_for_and_past_the_last_are_refused(scripted, runs):
+    _, teacher, _ = runs
+    available = scripted.num_variations("eval")
+    evaluator = ClosedLoopEvaluator(scripted, list(SYNTHETIC_TASKS), 2, first_variation=available - 2)
+    run = evaluator.run(teacher.policy, teacher.processor, TEACHER_10, n_act=4, seed=3, progress=False)
+    evaluator.close()
+    # the same two slots a task, on the last two variations instead of the first two
+    assert [(r.task, r.variation) for r in run] == [
+        (task, variation) for task in SYNTHETIC_TASKS for variation in (available - 2, available - 1)
+    ]
+    with pytest.raises(InvalidInputError, match=rf"must be in \[1, 1\] .* variations from variation {available - 1}\)"):
+        ClosedLoopEvaluator(scripted, ["reach-v3"], 2, first_variation=available - 1)
 
 
 def test_offline_metrics_summarise_the_per_chunk_errors_of_fixed_draws(runs):

@@ -29,7 +29,7 @@ from snapflow.jobs.sweep import (
 )
 from snapflow.jobs.sweep.aggregate import TableResult
 from snapflow.jobs.sweep.markdown import markdown_blocks, tables_markdown
-from snapflow.jobs.sweep.planning import train_job
+from snapflow.jobs.sweep.planning import eval_job, train_job
 from snapflow.jobs.sweep.results import write_results
 from snapflow.policies.minivla import MiniVLAConfig
 from snapflow.policies.mlp import MLPPolicyConfig
@@ -254,6 +254,23 @@ def test_job_settings_are_complete_and_keys_follow_the_dependencies(tmp_path):
         "success": 1,
         "versions": versions(),  # what it was made under: the simulators among them
     }
+
+
+def test_a_table_may_evaluate_other_initial_states_without_touching_the_first_ones_records(tmp_path):
+    path = write_config(tmp_path)
+    config = load_sweep(path)
+    path.write_text(path.read_text().replace("per_task = true", "per_task = true\nfirst_variation = 10", 1))
+    moved = load_sweep(path)
+    assert [table.first_variation for table in moved.tables] == [10, 0]
+    row = moved.tables[0].rows[0]
+    first, later = eval_job(config, config.tables[0], row, 0), eval_job(moved, moved.tables[0], row, 0)
+    # the first variations keep their settings and path (every committed record stays valid); the others are theirs
+    assert "first_variation" not in first.settings() and first.path.name == "teacher-10_nact4_eps2.json"
+    assert later.settings() == {**first.settings(), "first_variation": 10} and later.first_variation == 10
+    assert later.path.name == "teacher-10_nact4_eps2_from10.json" and later.key != first.key
+    path.write_text(path.read_text().replace("first_variation = 10", "first_variation = -1"))
+    with pytest.raises(ValueError, match="first_variation must be an integer of at least 0, got -1"):
+        load_sweep(path)
 
 
 def test_a_teacher_policy_table_picks_a_built_in_policy_sized_for_the_data(tmp_path):

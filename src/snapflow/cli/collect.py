@@ -6,7 +6,16 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from snapflow.cli.common import COUNT, TASKS_HELP, add_command, add_output, check_writable, number, tasks
+from snapflow.cli.common import (
+    COUNT,
+    NON_NEGATIVE_COUNT,
+    TASKS_HELP,
+    add_command,
+    add_output,
+    check_writable,
+    number,
+    tasks,
+)
 from snapflow.data.collect import EPISODES_PER_TASK
 from snapflow.data.demonstrations import META_FILE, Demonstrations
 from snapflow.envs.factory import BENCHMARKS, DEFAULT_BENCHMARK, make_benchmark
@@ -42,6 +51,20 @@ def add_parser(subparsers: Any) -> None:
         help="execute each expert action plus Gaussian noise of this standard deviation, recording the expert's own "
         "(DART): demonstrations of the way back to the expert's path",
     )
+    parser.add_argument(
+        "--noise-seed",
+        type=NON_NEGATIVE_COUNT,
+        default=0,
+        help="with --action-noise, the seed of the noise (beside each task and reset's own): another seed, another "
+        "set of demonstrations from the same resets",
+    )
+    parser.add_argument(
+        "--first-variation",
+        type=NON_NEGATIVE_COUNT,
+        default=0,
+        help="each task's expert starts on its training variations (resets) from this one on: another set of "
+        "demonstrations beside one of the first variations (default: the first ones)",
+    )
     add_output(parser, None, "demonstrations directory (npz + meta.json)")
     parser.add_argument(
         "--lerobot-dataset",
@@ -76,10 +99,21 @@ def run(args: argparse.Namespace) -> int:
             args.image_size,
             cameras,
             args.action_noise,
+            args.noise_seed,
+            args.first_variation,
         )
     else:
         demonstrations = collect(
-            benchmark, chosen, args.episodes, args.output, args.image_size, progress, cameras, args.action_noise
+            benchmark,
+            chosen,
+            args.episodes,
+            args.output,
+            args.image_size,
+            progress,
+            cameras,
+            args.action_noise,
+            args.first_variation,
+            args.noise_seed,
         )
     if args.lerobot_dataset:
         write_lerobot_dataset(
@@ -108,6 +142,8 @@ def _check_same_collection(
     image_size: int | None,
     extra_cameras: tuple[str, ...],
     action_noise: float,
+    noise_seed: int,
+    first_variation: int,
 ) -> None:
     """Refuse demonstrations in ``output`` that another collection made: writing them would not give what the
     command asks for."""
@@ -121,10 +157,16 @@ def _check_same_collection(
         size,
         cameras,
         demonstrations.action_noise,
+        demonstrations.noise_seed,
+        demonstrations.first_variation,
     )
-    if found != (env, tasks, {episodes}, image_size, extra_cameras if image_size else (), action_noise):
+    asked = (env, tasks, {episodes}, image_size, extra_cameras if image_size else (), action_noise, noise_seed)
+    asked += (first_variation,)
+    if found != asked:
         other_cameras = f", other cameras {list(cameras)}" if cameras else ""
         noise = f", action noise {demonstrations.action_noise}" if demonstrations.action_noise else ""
+        noise += f" seed {demonstrations.noise_seed}" if demonstrations.noise_seed else ""
+        noise += f", from variation {demonstrations.first_variation}" if demonstrations.first_variation else ""
         raise FileExistsError(
             f"{output} already holds other demonstrations ({demonstrations.env}, {len(per_task)} tasks, "
             f"{sorted(set(per_task.values()))} episodes a task, images {size or 'none'}{other_cameras}{noise}); "

@@ -61,6 +61,13 @@ def add_parser(subparsers: Any) -> None:
     parser.add_argument("--tasks", help=TASKS_HELP)
     parser.add_argument("--episodes", type=COUNT, default=10, help="episodes per task")
     parser.add_argument(
+        "--first-variation",
+        type=NON_NEGATIVE_COUNT,
+        default=0,
+        help="each task's episodes start from its evaluation variations from this one on (LIBERO: its fixed "
+        "initial states, e.g. --first-variation 10 --episodes 10 runs states 10-19; default: the first ones)",
+    )
+    parser.add_argument(
         "--n-act",
         "--n-action-steps",
         type=COUNT,
@@ -120,6 +127,7 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         episode_logs=Path(args.output) / EPISODES,
         resume=args.resume,
+        first_variation=args.first_variation,
         **given({"n_act": args.n_act, "seed": args.seed}),
     )
     write_report(report, args.output)
@@ -150,6 +158,11 @@ def _eval_in_lerobot_env(args: argparse.Namespace) -> int:
         raise InvalidInputError("--lerobot-env evaluates one distilled LeRobot policy directory at a time")
     if args.resume:
         raise InvalidInputError("--resume continues snapflow's own evaluator; a --lerobot-env evaluation runs whole")
+    if args.first_variation:
+        raise InvalidInputError(
+            "--first-variation chooses the variations of snapflow's own evaluator; in LeRobot's environment, "
+            "episode k starts from the environment's own initial state k"
+        )
     check_writable(args.output)
     from snapflow.evaluation.lerobot_env import evaluate_in_lerobot_env, lerobot_eval_table, write_lerobot_eval
 

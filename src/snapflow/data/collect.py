@@ -24,15 +24,19 @@ from snapflow.reporting.locks import hold_run_lock
 EPISODES_PER_TASK = 30  # successful expert episodes per task (Meta-World has 50 training variations a task)
 
 
-def check_collection(benchmark: Benchmark, tasks: list[str], episodes_per_task: int, action_noise: float = 0.0) -> int:
-    """Refuse unknown tasks, more episodes than the benchmark has training variations (loading the simulator, so
-    a missing one is found here) and negative noise; returns that number of variations."""
+def check_collection(
+    benchmark: Benchmark, tasks: list[str], episodes_per_task: int, action_noise: float = 0.0, first_variation: int = 0
+) -> int:
+    """Refuse unknown tasks, more episodes than the benchmark has training variations from ``first_variation`` on
+    (loading the simulator, so a missing one is found here) and negative noise; returns that number of variations."""
     check_action_noise(action_noise)
     benchmark.check_tasks(tasks)
     available = benchmark.num_variations("train")
-    if not 1 <= episodes_per_task <= available:
+    if first_variation < 0 or not 1 <= episodes_per_task <= available - first_variation:
+        start = f" from variation {first_variation}" if first_variation else ""
         raise InvalidInputError(
-            f"episodes_per_task must be in [1, {available}] ({benchmark.name}'s training variations), got {episodes_per_task}"
+            f"episodes_per_task must be in [1, {available - first_variation}] ({benchmark.name}'s {available} "
+            f"training variations{start}), got {episodes_per_task}"
         )
     return available
 
@@ -72,10 +76,11 @@ def expert_episode(
     return episode
 
 
-def noise_generator(task: str, variation: int) -> np.random.Generator:
-    """The collection noise of one (task, variation): the same in any collection of that task, whichever tasks are
-    collected beside it and in whichever order."""
-    return np.random.default_rng([zlib.crc32(task.encode()), variation])
+def noise_generator(task: str, variation: int, seed: int = 0) -> np.random.Generator:
+    """The collection noise of one (task, variation): the same in any collection of that task with the same ``seed``,
+    whichever tasks are collected beside it and in whichever order; another seed, other noise."""
+    # seed 0: the noise of every collection made before a seed could be chosen
+    return np.random.default_rng([zlib.crc32(task.encode()), variation, *([seed] if seed else [])])
 
 
 def collect_demonstrations(
@@ -86,20 +91,25 @@ def collect_demonstrations(
     progress: bool = True,
     extra_cameras: Sequence[str] | None = None,
     action_noise: float = 0.0,
+    first_variation: int = 0,
+    noise_seed: int = 0,
 ) -> Demonstrations:
-    """Run each task's expert on successive training variations until ``episodes_per_task`` succeed; with
-    ``image_size``, the frames of the main camera and of the benchmark's ``extra_cameras`` (None: all of them) too;
-    with ``action_noise``, the executed actions perturbed (see the module's docstring)."""
-    available = check_collection(benchmark, tasks, episodes_per_task, action_noise)
+    """Run each task's expert on successive training variations from ``first_variation`` on until
+    ``episodes_per_task`` succeed; with ``image_size``, the frames of the main camera and of the benchmark's
+    ``extra_cameras`` (None: all of them) too; with ``action_noise``, the executed actions perturbed (see the module's
+    docstring) by noise drawn with ``noise_seed``. A second set of demonstrations beside a first is another
+    ``first_variation`` (other resets) or another ``noise_seed`` (other noise on the same resets)."""
+    available = check_collection(benchmark, tasks, episodes_per_task, action_noise, first_variation)
     states, actions, images, extra_images, episodes = [], [], [], {}, []
     bar = tqdm(total=len(tasks) * episodes_per_task, desc="collecting expert demonstrations", disable=not progress)
     for task in tasks:
         env, expert = benchmark.make_env(task, "train", image_size, extra_cameras), benchmark.make_expert(task)
         kept = 0
-        for variation in range(available):
+        for variation in range(first_variation, available):
             if kept == episodes_per_task:
                 break
-            episode = expert_episode(env, expert, variation, action_noise, noise_generator(task, variation))
+            noise = noise_generator(task, variation, noise_seed)
+            episode = expert_episode(env, expert, variation, action_noise, noise)
             if episode.success:
                 start = sum(kept_episode.length for kept_episode in episodes)
                 episodes.append(Episode(task, variation, start, len(episode.actions)))
@@ -112,7 +122,9 @@ def collect_demonstrations(
                 bar.update()
         env.close()
         if kept < episodes_per_task:
-            raise RuntimeError(f"the {task} expert succeeded on only {kept} of {available} variations")
+            raise RuntimeError(
+                f"the {task} expert succeeded on only {kept} of {available - first_variation} variations"
+            )
     bar.close()
     episode_index = np.concatenate([np.full(e.length, i, dtype=np.int64) for i, e in enumerate(episodes)])
     return Demonstrations(
@@ -125,6 +137,8 @@ def collect_demonstrations(
         benchmark.name,
         {name: np.stack(frames) for name, frames in extra_images.items()},
         action_noise,
+        noise_seed,
+        first_variation,
     )
 
 
@@ -137,17 +151,28 @@ def collect(
     progress: bool = True,
     extra_cameras: Sequence[str] | None = None,
     action_noise: float = 0.0,
+    first_variation: int = 0,
+    noise_seed: int = 0,
 ) -> Demonstrations:
     """:func:`collect_demonstrations`, saved to ``output`` (never over earlier demonstrations), which is held from the first
     episode to the last file: another process collecting into it is refused with
     :class:`~snapflow.reporting.locks.RunLockedError`."""
-    check_collection(benchmark, tasks, episodes_per_task, action_noise)  # before the output folder is created
+    # before the output folder is created
+    check_collection(benchmark, tasks, episodes_per_task, action_noise, first_variation)
     benchmark.check_cameras(extra_cameras)
     with hold_run_lock(output, "snapflow collect"):
         if (Path(output) / META_FILE).is_file():
             raise FileExistsError(f"{output} already holds demonstrations; choose another --output")
         demonstrations = collect_demonstrations(
-            benchmark, tasks, episodes_per_task, image_size, progress, extra_cameras, action_noise
+            benchmark,
+            tasks,
+            episodes_per_task,
+            image_size,
+            progress,
+            extra_cameras,
+            action_noise,
+            first_variation,
+            noise_seed,
         )
         demonstrations.save(output)
     return demonstrations

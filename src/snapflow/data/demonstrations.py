@@ -62,6 +62,8 @@ class Demonstrations:
     extra_images: dict[str, np.ndarray] = field(default_factory=dict)  # other cameras' frames, by camera name
     # the noise on the executed actions they were collected with (DART; the actions held are the experts' own)
     action_noise: float = 0.0
+    noise_seed: int = 0  # the seed of that noise, beside each (task, variation)'s own (collect.noise_generator)
+    first_variation: int = 0  # the training variation (reset) each task's collection started from
 
     def __post_init__(self) -> None:
         self.validate()
@@ -138,6 +140,8 @@ class Demonstrations:
                 "has_images": self.images is not None,
                 "extra_cameras": list(self.extra_images),
                 "action_noise": self.action_noise,
+                "noise_seed": self.noise_seed,
+                "first_variation": self.first_variation,
                 "instructions": self.instructions,
                 "episodes": [asdict(e) for e in self.episodes],
                 "stats": asdict(self.stats()),
@@ -159,9 +163,14 @@ class Demonstrations:
                 )
             if (part.images is None) != (first.images is None):
                 raise DemonstrationError("some parts hold camera frames and others do not")
-            if part.action_noise != first.action_noise:
+            collected, other = (
+                (part.action_noise, part.noise_seed, part.first_variation),
+                (first.action_noise, first.noise_seed, first.first_variation),
+            )
+            if collected != other:
                 raise DemonstrationError(
-                    f"parts were collected with different action noise: {first.action_noise} and {part.action_noise}"
+                    f"parts were collected differently (action noise, its seed, first variation): {other} and "
+                    f"{collected}"
                 )
         episodes, offset = [], 0
         for part in parts:
@@ -178,6 +187,8 @@ class Demonstrations:
             first.env,
             {name: np.concatenate([part.extra_images[name] for part in parts]) for name in first.extra_images},
             first.action_noise,
+            first.noise_seed,
+            first.first_variation,
         )
 
     @classmethod
@@ -221,6 +232,9 @@ class Demonstrations:
             _env(meta.get("env", DEFAULT_BENCHMARK), meta_path),
             {key.removeprefix(f"{IMAGES}."): array for key, array in loaded.items() if key.startswith(f"{IMAGES}.")},
             _action_noise(meta.get("action_noise", 0.0), meta_path),  # absent: collected before noise existed
+            # absent: collected before they could be chosen
+            _count(meta.get("noise_seed", 0), "noise_seed", meta_path),
+            _count(meta.get("first_variation", 0), "first_variation", meta_path),
         )
 
 
@@ -271,6 +285,12 @@ def check_action_noise(value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0:
         raise InvalidInputError(f"action_noise must be a number of at least 0, got {value!r}")
     return float(value)
+
+
+def _count(value: Any, name: str, source: Path) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise DemonstrationError(f"{source}: {name} must be an integer of at least 0, got {value!r}")
+    return value
 
 
 def _action_noise(value: Any, source: Path) -> float:

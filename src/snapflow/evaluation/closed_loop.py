@@ -27,7 +27,8 @@ from snapflow.protocol import FlowPolicy
 class ClosedLoopEvaluator:
     """Runs every (task, episode) slot of the benchmark's evaluation split, for one policy and mode per ``run``.
 
-    Each task gets ``max_envs // len(tasks)`` environments (at least one), made at the first run and kept for the
+    A task's episodes start from its evaluation variations ``first_variation`` on (LIBERO's fixed initial states, in
+    order). Each task gets ``max_envs // len(tasks)`` environments (at least one), made at the first run and kept for the
     next ones: episodes run in waves of that many variations per task, every task side by side, the noise drawn
     from one generator across waves. Results depend on ``max_envs`` only when a task has more episodes than that.
     The environments render ``image_size`` frames from the benchmark's main camera and ``extra_cameras`` alone: the
@@ -42,19 +43,24 @@ class ClosedLoopEvaluator:
         image_size: int | None = None,
         max_envs: int | None = None,
         extra_cameras: Sequence[str] = (),
+        first_variation: int = 0,
     ) -> None:
         benchmark.check_tasks(tasks)
         self.extra_cameras = benchmark.check_cameras(extra_cameras)
         available = benchmark.num_variations("eval")
-        if not 1 <= episodes_per_task <= available:
+        if first_variation < 0 or not 1 <= episodes_per_task <= available - first_variation:
+            start = f" from variation {first_variation}" if first_variation else ""
             raise InvalidInputError(
-                f"episodes per task must be in [1, {available}] ({benchmark.name}'s evaluation variations), got {episodes_per_task}"
+                f"episodes per task must be in [1, {available - first_variation}] ({benchmark.name}'s {available} "
+                f"evaluation variations{start}), got {episodes_per_task}"
             )
         max_envs = benchmark.max_envs if max_envs is None else max_envs
         if max_envs < 1:
             raise InvalidInputError(f"max_envs must be at least 1, got {max_envs}")
         self.benchmark, self.tasks, self.image_size = benchmark, tasks, image_size
-        self.slots = [(task, variation) for task in tasks for variation in range(episodes_per_task)]
+        # the variations from first_variation on (LIBERO: its fixed initial states), the first ones unless told
+        variations = range(first_variation, first_variation + episodes_per_task)
+        self.slots = [(task, variation) for task in tasks for variation in variations]
         self.envs_per_task = min(episodes_per_task, max(1, max_envs // len(tasks)))
         # wave -> (slot, environment index) pairs, task-major as the slots: one wave is the old all-at-once loop
         self.waves = [

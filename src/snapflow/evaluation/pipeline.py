@@ -47,12 +47,18 @@ def labelled_runs(policies: Mapping[str, tuple[OpenedPolicy, Sequence[SamplingMo
 
 
 def runs_evaluator(
-    runs: list[Run], benchmark: Benchmark, tasks: list[str], episodes_per_task: int
+    runs: list[Run], benchmark: Benchmark, tasks: list[str], episodes_per_task: int, first_variation: int = 0
 ) -> ClosedLoopEvaluator:
-    """The closed-loop evaluator of ``runs``: frames of the first policy's size, from the cameras any of them reads."""
+    """The closed-loop evaluator of ``runs``: frames of the first policy's size, from the cameras any of them reads,
+    on each task's evaluation variations from ``first_variation`` on."""
     cameras = dict.fromkeys(name for _, loaded, _ in runs for name in loaded.processor.extra_cameras)
     return ClosedLoopEvaluator(
-        benchmark, tasks, episodes_per_task, runs[0][1].processor.image_size, extra_cameras=tuple(cameras)
+        benchmark,
+        tasks,
+        episodes_per_task,
+        runs[0][1].processor.image_size,
+        extra_cameras=tuple(cameras),
+        first_variation=first_variation,
     )
 
 
@@ -80,19 +86,23 @@ def evaluate(
     timing: bool = True,
     episode_logs: str | Path | None = None,
     resume: bool = False,
+    first_variation: int = 0,
 ) -> EvaluationReport:
     """Closed-loop success, offline metrics (when ``data`` is given) and, with ``timing``, batch-1 latency for each
     (label, policy, mode); latency speedups are relative to the first entry. A jump mode (``snapflow-N``) on a
     policy never distilled is refused before anything runs. With ``episode_logs``, each run's finished waves of
     episodes are appended to a file there as they end (:class:`EpisodeLog`); with ``resume`` too, the waves already
-    logged by the same evaluation are read back, not run again."""
+    logged by the same evaluation are read back, not run again. Each task's episodes start from its evaluation
+    variations ``first_variation`` on (LIBERO's fixed initial states)."""
     for _, loaded, mode in runs:
         loaded.check_mode(mode)
-    evaluator = runs_evaluator(runs, benchmark, tasks, episodes_per_task)
+    evaluator = runs_evaluator(runs, benchmark, tasks, episodes_per_task, first_variation)
     demonstrations = Demonstrations.load(data) if data is not None else None
     held_out: dict[Path, ChunkData | None] = {}  # per checkpoint: its modes share one set of held-out chunks
     digests: dict[Path, str] = {}  # per checkpoint: its modes' logs share one digest of its weights
-    report = EvaluationReport(benchmark.name, list(tasks), episodes_per_task, n_act, {})
+    report = EvaluationReport(
+        benchmark.name, list(tasks), episodes_per_task, n_act, {}, first_variation=first_variation
+    )
     try:
         for index, (label, loaded, mode) in enumerate(runs):
             log = None
@@ -109,6 +119,8 @@ def evaluate(
                     "envs_per_task": evaluator.envs_per_task,
                     "n_act": n_act,
                     "seed": seed,
+                    # only where set: a log written before the option existed is one of the first variations
+                    **({"first_variation": first_variation} if first_variation else {}),
                 }
                 log = EpisodeLog(Path(episode_logs) / _log_name(index, label), identity, resume)
             earlier = sum(wave.seconds for wave in log.finished) if log is not None else 0.0

@@ -99,6 +99,7 @@ class EvaluationReport:
     preset: dict[str, Any] = field(default_factory=dict)
     machine: str | None = None
     versions: dict[str, str] = field(default_factory=dict)  # what it ran under (reporting.machine.versions)
+    first_variation: int = 0  # each task's episodes ran on its evaluation variations from this one on
 
     def intervals(self) -> dict[str, dict[str, float]]:
         """Per row: mean success (%), its 95% Wilson interval over the pooled episodes and, for every row after the
@@ -127,6 +128,7 @@ class EvaluationReport:
             "env": self.env,
             "tasks": self.tasks,
             "episodes_per_task": self.episodes_per_task,
+            "first_variation": self.first_variation,
             "n_act": self.n_act,
             "rows": {label: row.to_dict() for label, row in self.rows.items()},
             "intervals": self.intervals(),

@@ -100,9 +100,13 @@ class TableResult:
     seeds: list[int]
     x_label: str | None
     rows: list[SweepRow]
+    first_variation: int = 0  # each task's episodes from this evaluation variation on
 
     def to_dict(self) -> dict[str, Any]:
-        return {**asdict(self), "rows": [row.to_dict() for row in self.rows]}
+        table = {**asdict(self), "rows": [row.to_dict() for row in self.rows]}
+        if not self.first_variation:  # the tables written before it could be chosen: the first variations
+            del table["first_variation"]
+        return table
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> TableResult:
@@ -198,7 +202,15 @@ def table_results(config: SweepConfig, table: TableSpec) -> TableResult:
                 sweep=None if row.sweep is None else row.sweep.name,
             )
         )
-    return TableResult(table.name, table.title, table.episodes_per_task, list(table.seeds), table.x_label, rows)
+    return TableResult(
+        table.name,
+        table.title,
+        table.episodes_per_task,
+        list(table.seeds),
+        table.x_label,
+        rows,
+        table.first_variation,
+    )
 
 
 __all__ = ["OfflineSummary", "Difference", "SweepRow", "TableResult", "table_results"]

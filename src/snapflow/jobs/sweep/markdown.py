@@ -22,6 +22,12 @@ def _interval_cells(row: SweepRow) -> list[str]:
     return [interval, f"{difference.mean:+.1f} ({difference.low:+.1f}, {difference.high:+.1f})"]
 
 
+def _variations(result: TableResult) -> str:
+    """Which evaluation variations, where not the first ones (the tables' captions before they could be chosen)."""
+    first = result.first_variation
+    return f"; evaluation variations {first}-{first + result.episodes_per_task - 1} of each task" if first else ""
+
+
 def markdown_rows(config: SweepConfig, result: TableResult, command: str) -> str:
     """The table with its caption (how it was made, wall times) and footnotes."""
     rows = result.rows
@@ -29,7 +35,7 @@ def markdown_rows(config: SweepConfig, result: TableResult, command: str) -> str
     train_minutes = [np.mean(row.training_s) / 60 for row in rows]
     caption = (
         f"**{result.title}** ({config.title}). `{command}`; seeds {', '.join(map(str, result.seeds))}; "
-        f"{result.episodes_per_task} episodes per task ({episodes} per seed and row); "
+        f"{result.episodes_per_task} episodes per task ({episodes} per seed and row{_variations(result)}); "
         f"wall time: evaluation {sum(row.evaluation_s for row in rows) / 60:.1f} min for the table, training "
         f"{min(train_minutes):.1f}-{max(train_minutes):.1f} min per policy (teacher included)."
     )

@@ -218,6 +218,7 @@ class EvalJob(Job):
     episodes_per_task: int
     path: Path
     ledger: Path | None = None
+    first_variation: int = 0  # each task's episodes from this evaluation variation on
 
     def settings(self) -> dict[str, Any]:
         return {
@@ -226,6 +227,8 @@ class EvalJob(Job):
             "episodes_per_task": self.episodes_per_task,
             "seed": self.policy.seed,
             "offline_samples": OFFLINE_SAMPLES,
+            # only where set: the records made before it could be chosen are of the first variations
+            **({"first_variation": self.first_variation} if self.first_variation else {}),
         }
 
     @property
@@ -265,6 +268,7 @@ class EvalJob(Job):
             timing=False,
             episode_logs=self.episodes_dir,
             resume=True,
+            first_variation=self.first_variation,
         )
         return report.rows[self.mode.name].to_dict()
 
@@ -299,9 +303,10 @@ def eval_job(config: SweepConfig, table: TableSpec, row: RowSpec, seed: int) -> 
     """The evaluation behind one cell (row, seed) of a table of ``config``: the row's own sweep's, where it reads
     another's."""
     owner = row.owner(config)
-    path = owner.eval_path(row.run, seed, row.mode, row.n_act, table.episodes_per_task)
+    first = table.first_variation
+    path = owner.eval_path(row.run, seed, row.mode, row.n_act, table.episodes_per_task, first)
     policy = train_job(owner, row.run, seed)
-    return EvalJob(policy, row.mode, row.n_act, table.episodes_per_task, path, owner.ledger_path(path))
+    return EvalJob(policy, row.mode, row.n_act, table.episodes_per_task, path, owner.ledger_path(path), first)
 
 
 def jobs(config: SweepConfig) -> list[Job]:

@@ -83,6 +83,7 @@ class TableSpec:
     per_task: bool = False
     x_label: str | None = None
     reference: str | None = None  # the row every other is compared with, paired (default: the first)
+    first_variation: int = 0  # each task's episodes on its evaluation variations from this one on (LIBERO's states)
 
     @property
     def reference_row(self) -> RowSpec:
@@ -126,8 +127,13 @@ class SweepConfig:
         """Where one task's demonstrations are collected before :attr:`data_dir` puts them together."""
         return self.output_dir / "collect" / task
 
-    def eval_path(self, run: str, seed: int, mode: SamplingMode, n_act: int, episodes_per_task: int) -> Path:
-        return self.output_dir / "evals" / run / f"seed-{seed}" / f"{mode.name}_nact{n_act}_eps{episodes_per_task}.json"
+    def eval_path(
+        self, run: str, seed: int, mode: SamplingMode, n_act: int, episodes_per_task: int, first_variation: int = 0
+    ) -> Path:
+        # from the first variation, the name evaluations had before another could be chosen
+        start = f"_from{first_variation}" if first_variation else ""
+        name = f"{mode.name}_nact{n_act}_eps{episodes_per_task}{start}.json"
+        return self.output_dir / "evals" / run / f"seed-{seed}" / name
 
     def ledger_path(self, record: Path) -> Path:
         """Where the committed copy of the record at ``record`` (inside :attr:`output_dir`) is kept: under the
@@ -298,7 +304,8 @@ def _tables(
     if not isinstance(raw, list):
         raise InvalidInputError(f"{path}: tables must be a list of [[tables]] entries")
     tables = []
-    allowed = {"name", "title", "rows", "seeds", "episodes_per_task", "n_act", "per_task", "x_label", "reference"}
+    allowed = {"name", "title", "rows", "seeds", "episodes_per_task", "first_variation", "n_act", "per_task"}
+    allowed |= {"x_label", "reference"}
     for index, entry in enumerate(raw):
         section = f"[[tables]] #{index + 1}"
         _checked(section, entry, allowed, frozenset({"name", "rows"}))
@@ -348,9 +355,16 @@ def _tables(
                 entry.get("per_task", False),
                 entry.get("x_label"),
                 reference,
+                _first_variation(section, entry.get("first_variation", 0)),
             )
         )
     return tuple(tables)
+
+
+def _first_variation(section: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise InvalidInputError(f"{section}: first_variation must be an integer of at least 0, got {value!r}")
+    return value
 
 
 def load_sweep(path: str | Path, loading: tuple[Path, ...] = ()) -> SweepConfig:
