@@ -17,6 +17,11 @@
 #   KEEP=DIR ...                                          # keep the teacher's and the student's latest checkpoints
 #                                                         # in DIR/teacher and DIR/student (to commit): another
 #                                                         # machine's run continues from them
+#   DART=1 ...                                            # libero: demonstrations with noise 0.1 on the executed
+#                                                         # actions (both cameras), a 20,000-step teacher with a
+#                                                         # weight average: what took MiniVLA's teacher to 89%
+#   SEED=N ...                                            # the training seed (default 0); another seed's teacher
+#                                                         # and student go to teacher-seedN/ and student-seedN/
 #
 # Run it again after an interruption: finished stages are kept, training resumes from its last checkpoint and the
 # evaluation from its last finished wave of episodes.
@@ -30,9 +35,15 @@ case "$bench" in
     libero) env=libero tasks=libero_spatial short_tasks=libero_spatial_0 ;;
     *) echo "BENCH must be mt10 or libero, got $bench" >&2; exit 2 ;;
 esac
+collect=()
 if [ "${SHORT:-0}" = 1 ]; then
     tasks=$short_tasks demos=2 image=32 seen=32 size=tiny
     teacher=(--steps 4 --batch-size 4 --checkpoint-every 2) student=(--steps 2 --batch-size 4) episodes=1
+elif [ "$bench" = libero ] && [ "${DART:-0}" = 1 ]; then
+    # DART demonstrations (as libero-spatial-dart.toml's, with the wrist camera too), four times the budget
+    demos=50 image=128 seen=64 size=small episodes=10 collect=(--action-noise 0.1)
+    teacher=(--steps 20000 --batch-size 32 --learning-rate 3e-4 --ema-decay 0.999 --checkpoint-every 500)
+    student=(--steps 2000 --batch-size 32 --learning-rate 3e-5 --warmup-steps 50 --checkpoint-every 500)
 elif [ "$bench" = libero ]; then
     # the LIBERO sweeps' demonstrations (128 px), which SmolVLA reads at 64; the paper's 10 initial states a task
     demos=50 image=128 seen=64 size=small episodes=10
@@ -44,40 +55,46 @@ else
     student=(--steps 2000 --batch-size 32 --learning-rate 3e-5 --warmup-steps 50 --checkpoint-every 500)
 fi
 
+seed="${SEED:-0}"
+suffix=$([ "$seed" = 0 ] || echo "-seed$seed")  # seed 0 keeps the folders it always had
+teacher+=(--seed "$seed") student+=(--seed "$seed")
 data="${DATA:-$out/data}"
 [ -f "$out/lerobot/meta/info.json" ] || {
     [ -f "$data/meta.json" ] || rm -rf "$data"  # an interrupted collection saved nothing; start it again
     # demonstrations already in $data are written as the dataset, not collected again
     snapflow collect --env "$env" --tasks "$tasks" --episodes "$demos" --image-size "$image" --output "$data" \
-        --lerobot-dataset "$out/lerobot" "${options[@]}"
+        --lerobot-dataset "$out/lerobot" "${collect[@]}" "${options[@]}"
 }
-[ -f "$out/teacher/lerobot_policy/snapflow.json" ] ||
+[ -f "$out/teacher$suffix/lerobot_policy/snapflow.json" ] ||
     snapflow train --policy-type smolvla --smolvlm "$size" --image-size "$seen" --dataset "$out/lerobot" \
-        --output "$out/teacher" --resume ${KEEP:+--keep-progress "$KEEP/teacher"} "${teacher[@]}" "${options[@]}"
-[ -f "$out/student/lerobot_policy/snapflow.json" ] ||
-    snapflow distill --policy "$out/teacher/lerobot_policy" --dataset "$out/lerobot" --recipe snapflow \
-        --output "$out/student" --resume ${KEEP:+--keep-progress "$KEEP/student"} "${student[@]}" "${options[@]}"
-[ -f "$out/eval/report.json" ] ||
-    snapflow eval --policy "$out/teacher/lerobot_policy=teacher-10,naive" "$out/student/lerobot_policy=snapflow-1" \
-        --env "$env" --tasks "$tasks" --episodes "$episodes" --data "$data" --output "$out/eval" --resume "${options[@]}"
+        --output "$out/teacher$suffix" --resume ${KEEP:+--keep-progress "$KEEP/teacher$suffix"} "${teacher[@]}" \
+        "${options[@]}"
+[ -f "$out/student$suffix/lerobot_policy/snapflow.json" ] ||
+    snapflow distill --policy "$out/teacher$suffix/lerobot_policy" --dataset "$out/lerobot" --recipe snapflow \
+        --output "$out/student$suffix" --resume ${KEEP:+--keep-progress "$KEEP/student$suffix"} "${student[@]}" \
+        "${options[@]}"
+[ -f "$out/eval$suffix/report.json" ] ||
+    snapflow eval --policy "$out/teacher$suffix/lerobot_policy=teacher-10,naive" \
+        "$out/student$suffix/lerobot_policy=snapflow-1" --env "$env" --tasks "$tasks" --episodes "$episodes" \
+        --data "$data" --output "$out/eval$suffix" --resume "${options[@]}"
 if [ "$bench" = libero ]; then
     # the student again, in LeRobot's own LIBERO environment, on the same initial states: one environment per
     # episode (LeRobot's environment k starts from initial state k, and moves on by itself after a success), one
     # task at a time (a LIBERO environment with cameras holds ~850 MB)
     plugins=$(python -c 'from snapflow.adapters.lerobot_types import lerobot_loads_plugins as f; print(int(f()))')
     for task in $(python -c "from snapflow.envs.factory import make_benchmark; print(*make_benchmark('libero').resolve_tasks('$tasks'))"); do
-        [ -f "$out/lerobot-eval/$task/report.json" ] || [ -f "$out/lerobot-eval/$task/eval_info.json" ] || {
+        [ -f "$out/lerobot-eval$suffix/$task/report.json" ] || [ -f "$out/lerobot-eval$suffix/$task/eval_info.json" ] || {
             if [ "$plugins" = 1 ]; then  # LeRobot's lerobot-eval itself, with the package's initial states
-                rm -rf "$out/lerobot-eval/$task.tmp"
-                python -m snapflow.adapters.lerobot.libero --policy.path="$out/student/lerobot_policy" \
+                rm -rf "$out/lerobot-eval$suffix/$task.tmp"
+                python -m snapflow.adapters.lerobot.libero --policy.path="$out/student$suffix/lerobot_policy" \
                     --policy.device=cpu --policy.n_action_steps=4 --env.type=libero --env.task=libero_spatial --env.task_ids="[${task##*_}]" \
                     --env.observation_height="$image" --env.observation_width="$image" \
-                    --eval.n_episodes="$episodes" --eval.batch_size="$episodes" --eval.use_async_envs=false --output_dir="$out/lerobot-eval/$task.tmp"
-                mv "$out/lerobot-eval/$task.tmp" "$out/lerobot-eval/$task"
+                    --eval.n_episodes="$episodes" --eval.batch_size="$episodes" --eval.use_async_envs=false --output_dir="$out/lerobot-eval$suffix/$task.tmp"
+                mv "$out/lerobot-eval$suffix/$task.tmp" "$out/lerobot-eval$suffix/$task"
             else
-                snapflow eval --lerobot-env libero --env-task "$task" --policy "$out/student/lerobot_policy" \
+                snapflow eval --lerobot-env libero --env-task "$task" --policy "$out/student$suffix/lerobot_policy" \
                     --modes snapflow-1 --episodes "$episodes" --n-envs "$episodes" --n-action-steps 4 \
-                    --output "$out/lerobot-eval/$task" "${options[@]}"
+                    --output "$out/lerobot-eval$suffix/$task" "${options[@]}"
             fi
         }
     done
