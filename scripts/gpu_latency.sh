@@ -11,6 +11,16 @@
 #
 # Each bench writes OUTPUT/<architecture>-<device>[-cold]/ and its log beside it; a finished one is kept when the
 # script runs again. The compile cache is OUTPUT/compile-cache.
+#
+# On a lent GPU machine (Python 3.12, torch, transformers and the rest already there, nothing to download), carry
+# what it lacks as wheels fetched here into a git-excluded .whl/ (54 MB), install them there, and run from src/:
+#   python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+#       --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 -d .whl \
+#       lerobot==0.6.1 draccus==0.11.6 mergedeep==1.3.4 toml==0.10.2 gymnasium==1.4.0 farama-notifications \
+#       datasets==4.8.5 dill==0.4.1 multiprocess==0.70.19 termcolor==3.3.0 transformers==5.5.4 tokenizers==0.22.2 \
+#       av==15.1.0
+#   (there) python3 -m pip install -q --no-index --no-deps --target /tmp/site .whl/*.whl
+#           PYTHONPATH=/tmp/site:$PWD/src bash scripts/gpu_latency.sh /tmp/lat pi05
 set -uo pipefail
 out="${1:-outputs/latency-gpu}"
 shift $(($# > 0 ? 1 : 0))
