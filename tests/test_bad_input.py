@@ -585,5 +585,5 @@ def test_ctrl_c_says_what_was_kept(tmp_path):
     collect = [sys.executable, "-m", "snapflow.cli", "collect", "--tasks", "reach-v3", "--output", str(output)]
     process = _start_interruptible([*collect, "--no-progress"])
     line = _interrupt_when(process, lambda: (output / ".snapflow.lock").exists())
-    assert "no demonstrations were saved" in line and "checkpoint" not in line, line
+    assert "each task finished so far is kept in" in line and "the same command collects the others" in line, line
     assert not (output / "meta.json").exists()

@@ -160,3 +160,29 @@ def test_collecting_into_a_folder_another_process_holds_is_refused_before_any_ep
         with pytest.raises(RunLockedError, match=rf"\(pid {holder.pid}, snapflow collect\)"):
             collect(MetaWorld(), ["reach-v3"], 1, output, progress=False)
     assert [path.name for path in output.iterdir()] == [".snapflow.lock"], "nothing collected, nothing written"
+
+
+def test_an_interrupted_collection_goes_on_from_the_tasks_it_saved_and_equals_an_uninterrupted_one(tmp_path):
+    """Each task's demonstrations are kept as the task ends; the same call collects only the others, and the set it
+    puts together equals one collected without a stop (seeded resets and noise). A part of another collection is
+    refused."""
+    from snapflow.data.collect import PARTS, collect
+
+    benchmark, tasks = MetaWorld(), ["reach-v3", "button-press-topdown-v3"]
+    whole = collect(benchmark, tasks, 1, tmp_path / "whole", progress=False, action_noise=0.1)
+    assert not (tmp_path / "whole" / PARTS).exists(), "the parts go once they are put together"
+    # a stop after the first task: its part is saved, the second is not
+    first = collect_demonstrations(benchmark, tasks[:1], 1, progress=False, action_noise=0.1)
+    first.save(tmp_path / "resumed" / PARTS / tasks[0])
+    calls = []
+    original = MetaWorld.make_expert
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(MetaWorld, "make_expert", lambda self, task: calls.append(task) or original(self, task))
+        resumed = collect(benchmark, tasks, 1, tmp_path / "resumed", progress=False, action_noise=0.1)
+    assert calls == [tasks[1]], "only the task not saved is collected"
+    assert resumed.episodes == whole.episodes and np.array_equal(resumed.states, whole.states)
+    assert np.array_equal(resumed.actions, whole.actions)
+    other = collect_demonstrations(benchmark, tasks[:1], 1, progress=False)  # no noise: another collection
+    other.save(tmp_path / "mixed" / PARTS / tasks[0])
+    with pytest.raises(ValueError, match=r"\.parts/reach-v3 holds a task of another collection"):
+        collect(benchmark, tasks, 1, tmp_path / "mixed", progress=False, action_noise=0.1)

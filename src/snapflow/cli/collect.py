@@ -16,7 +16,7 @@ from snapflow.cli.common import (
     number,
     tasks,
 )
-from snapflow.data.collect import EPISODES_PER_TASK
+from snapflow.data.collect import EPISODES_PER_TASK, PARTS
 from snapflow.data.demonstrations import META_FILE, Demonstrations
 from snapflow.envs.factory import BENCHMARKS, DEFAULT_BENCHMARK, make_benchmark
 
@@ -184,4 +184,7 @@ def _interrupted(args: argparse.Namespace) -> str:
             f"interrupted; the demonstrations are saved in {args.output}, no LeRobotDataset was written "
             "(the same command writes it from them)"
         )
-    return f"interrupted; no demonstrations were saved in {args.output}"
+    return (
+        f"interrupted; each task finished so far is kept in {Path(args.output) / PARTS}: the same command collects "
+        "the others and puts them together"
+    )

@@ -8,6 +8,7 @@ collection puts such states in the data, each labelled with how the expert steer
 
 from __future__ import annotations
 
+import shutil
 import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -142,6 +143,10 @@ def collect_demonstrations(
     )
 
 
+#: where :func:`collect` keeps each finished task's demonstrations until all are put together
+PARTS = ".parts"
+
+
 def collect(
     benchmark: Benchmark,
     tasks: list[str],
@@ -154,32 +159,67 @@ def collect(
     first_variation: int = 0,
     noise_seed: int = 0,
 ) -> Demonstrations:
-    """:func:`collect_demonstrations`, saved to ``output`` (never over earlier demonstrations), which is held from the first
-    episode to the last file: another process collecting into it is refused with
-    :class:`~snapflow.reporting.locks.RunLockedError`."""
+    """:func:`collect_demonstrations`, saved to ``output`` (never over earlier demonstrations), which is held from the
+    first episode to the last file: another process collecting into it is refused with
+    :class:`~snapflow.reporting.locks.RunLockedError`.
+
+    Task by task: each finished task's demonstrations are saved in ``output/.parts/<task>`` as it ends, and the same
+    call after an interruption collects only the tasks not saved there (every reset and its noise are seeded, so the
+    result equals an uninterrupted run's); the parts are put together in ``output`` once all are there."""
     # before the output folder is created
     check_collection(benchmark, tasks, episodes_per_task, action_noise, first_variation)
     benchmark.check_cameras(extra_cameras)
+    settings = (episodes_per_task, image_size, action_noise, first_variation, noise_seed)
     with hold_run_lock(output, "snapflow collect"):
         if (Path(output) / META_FILE).is_file():
             raise FileExistsError(f"{output} already holds demonstrations; choose another --output")
-        demonstrations = collect_demonstrations(
-            benchmark,
-            tasks,
-            episodes_per_task,
-            image_size,
-            progress,
-            extra_cameras,
-            action_noise,
-            first_variation,
-            noise_seed,
-        )
+        parts = []
+        for task in tasks:
+            folder = Path(output) / PARTS / task
+            if (folder / META_FILE).is_file():  # written last: the part is whole
+                part = Demonstrations.load(folder)
+                _check_part(part, folder, benchmark.name, settings, extra_cameras)
+            else:
+                part = collect_demonstrations(
+                    benchmark,
+                    [task],
+                    episodes_per_task,
+                    image_size,
+                    progress,
+                    extra_cameras,
+                    action_noise,
+                    first_variation,
+                    noise_seed,
+                )
+                part.save(folder)
+            parts.append(part)
+        demonstrations = Demonstrations.concatenate(parts)
         demonstrations.save(output)
+        shutil.rmtree(Path(output) / PARTS)
     return demonstrations
+
+
+def _check_part(
+    part: Demonstrations,
+    folder: Path,
+    env: str,
+    settings: tuple[int, int | None, float, int, int],
+    extra_cameras: Sequence[str] | None,
+) -> None:
+    """Refuse a task's saved part that another collection made: going on from it would mix two collections."""
+    size = part.images.shape[1] if part.images is not None else None
+    found = (len(part.episodes), size, part.action_noise, part.first_variation, part.noise_seed)
+    cameras = list(part.extra_images)
+    if part.env != env or found != settings or (extra_cameras is not None and cameras != list(extra_cameras)):
+        raise InvalidInputError(
+            f"{folder} holds a task of another collection ({part.env}; episodes, image size, action noise, first "
+            f"variation, noise seed: {found}; cameras {cameras}): remove it, or choose another --output"
+        )
 
 
 __all__ = [
     "EPISODES_PER_TASK",
+    "PARTS",
     "ExpertEpisode",
     "check_collection",
     "expert_episode",
