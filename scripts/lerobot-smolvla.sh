@@ -60,8 +60,8 @@ suffix=$([ "$seed" = 0 ] || echo "-seed$seed")  # seed 0 keeps the folders it al
 teacher+=(--seed "$seed") student+=(--seed "$seed")
 data="${DATA:-$out/data}"
 [ -f "$out/lerobot/meta/info.json" ] || {
-    [ -f "$data/meta.json" ] || rm -rf "$data"  # an interrupted collection saved nothing; start it again
-    # demonstrations already in $data are written as the dataset, not collected again
+    # demonstrations already in $data are written as the dataset, not collected again; an interrupted collection's
+    # finished tasks (in $data/.parts) are kept and the others collected
     snapflow collect --env "$env" --tasks "$tasks" --episodes "$demos" --image-size "$image" --output "$data" \
         --lerobot-dataset "$out/lerobot" "${collect[@]}" "${options[@]}"
 }
