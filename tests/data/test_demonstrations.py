@@ -34,6 +34,7 @@ def test_stored_demonstration_replays_to_success(tmp_path):
     assert len(stats.state_mean) == STATE_DIM and min(stats.state_std) > 0
 
 
+@pytest.mark.slow
 def test_a_noisy_collection_executes_the_experts_action_plus_its_noise_and_records_the_experts_own():
     """DART: replayed with the noise of its (task, variation), each recorded step is the state the simulator reached
     and the expert's action there; the noise took the arm off the noise-free path, and the expert still succeeded."""
@@ -54,6 +55,7 @@ def test_a_noisy_collection_executes_the_experts_action_plus_its_noise_and_recor
     assert np.abs(noisy.states[1:steps, :3] - clean.states[1:steps, :3]).max() > 1e-3, "the noise moved the hand"
 
 
+@pytest.mark.slow
 def test_a_second_set_of_demonstrations_starts_on_other_resets_or_draws_other_noise_and_says_so(tmp_path):
     """--first-variation: the expert starts on later training variations; --noise-seed: other noise on the same
     resets (seed 0 is the noise of every collection before it could be chosen); both saved with the set."""
@@ -162,6 +164,7 @@ def test_collecting_into_a_folder_another_process_holds_is_refused_before_any_ep
     assert [path.name for path in output.iterdir()] == [".snapflow.lock"], "nothing collected, nothing written"
 
 
+@pytest.mark.slow
 def test_an_interrupted_collection_goes_on_from_the_tasks_it_saved_and_equals_an_uninterrupted_one(tmp_path):
     """Each task's demonstrations are kept as the task ends; the same call collects only the others, and the set it
     puts together equals one collected without a stop (seeded resets and noise). A part of another collection is
