@@ -79,6 +79,14 @@ def one_step_actions(subject: BenchSubject) -> torch.Tensor:
     return sample_actions(subject.policy, subject.observation, subject.noise, subject.one_step).float()
 
 
+# torch.compile's counters a first chunk reads: the graphs it made, and its on-disk cache's hits and misses
+_FIRST_CHUNK_COUNTERS = (
+    ("stats", "unique_graphs"),
+    ("inductor", "fxgraph_cache_hit"),
+    ("inductor", "fxgraph_cache_miss"),
+)
+
+
 def time_first_chunk(subject: BenchSubject, fast_path: str) -> FirstChunk:
     """Apply ``fast_path`` to the subject's policy and time its first one-step chunk (compilation and graph capture
     included) against the eager policy's chunk on the same inputs; count the graphs torch.compile made for it and
@@ -87,19 +95,19 @@ def time_first_chunk(subject: BenchSubject, fast_path: str) -> FirstChunk:
     from torch._inductor.runtime.cache_dir_utils import cache_dir
 
     eager = one_step_actions(subject)
-    before = (counters["stats"]["unique_graphs"], counters["inductor"]["fxgraph_cache_hit"])
-    misses = counters["inductor"]["fxgraph_cache_miss"]
+    before = {counter: counters[group][counter] for group, counter in _FIRST_CHUNK_COUNTERS}
     apply_fast_path(subject.policy, fast_path)
     began = time.perf_counter()
     fast = one_step_actions(subject)
     seconds = time.perf_counter() - began  # .float() has synchronised with the device
+    graphs, hits, misses = (counters[group][counter] - before[counter] for group, counter in _FIRST_CHUNK_COUNTERS)
     return FirstChunk(
         seconds,
         (fast - eager).abs().max().item(),
         FAST_PATHS[fast_path].action_bound,
-        counters["stats"]["unique_graphs"] - before[0],
-        counters["inductor"]["fxgraph_cache_hit"] - before[1],
-        counters["inductor"]["fxgraph_cache_miss"] - misses,
+        graphs,
+        hits,
+        misses,
         cache_dir(),
     )
 

@@ -212,10 +212,7 @@ def parameter_dtypes(module: nn.Module, depth: int = 3) -> dict[str, dict[str, i
     groups: dict[str, dict[str, int]] = {}
 
     def visit(prefix: str, child: nn.Module, level: int) -> None:
-        counts: dict[str, int] = {}
-        for parameter in child.parameters():
-            name = str(parameter.dtype).removeprefix("torch.")
-            counts[name] = counts.get(name, 0) + parameter.numel()
+        counts = parameter_totals(child)
         if not counts:
             return
         if len(counts) > 1 and level < depth and any(True for _ in child.children()):

@@ -160,8 +160,8 @@ def _check_same_collection(
         demonstrations.noise_seed,
         demonstrations.first_variation,
     )
-    asked = (env, tasks, {episodes}, image_size, extra_cameras if image_size else (), action_noise, noise_seed)
-    asked += (first_variation,)
+    cameras_asked = extra_cameras if image_size else ()
+    asked = (env, tasks, {episodes}, image_size, cameras_asked, action_noise, noise_seed, first_variation)
     if found != asked:
         other_cameras = f", other cameras {list(cameras)}" if cameras else ""
         noise = f", action noise {demonstrations.action_noise}" if demonstrations.action_noise else ""
