@@ -14,6 +14,7 @@ from snapflow.cli import main
 from snapflow.jobs.runner import is_done
 from snapflow.jobs.toy_compare import ToyJob, compare_targets
 from snapflow.jobs.toy_config import ToyConfig
+from snapflow.reporting.machine import versions
 from snapflow.training.recipes import TargetOption
 
 RESULTS = Path(__file__).resolve().parents[2] / "docs" / "results"
@@ -72,7 +73,8 @@ def test_toy_compare_writes_a_table_per_target_reuses_finished_runs_and_reruns_s
     assert first["ratio_to_first_mean"] == 1.0 and len(first["distance_per_seed"]) == 2
     assert [row["teacher_passes_per_row"] for row in summary["rows"]] == [2.0, 3.0, 2.0]
     run = json.loads((tmp_path / "runs" / "euler-2-4" / "seed-1.json").read_text())
-    assert list(run) == ["config", "energy_distance", "distill_step_s"]
+    assert list(run) == ["config", "energy_distance", "distill_step_s", "versions"]
+    assert run["versions"] == versions(), "each run notes the versions it was made under"
     assert run["config"] == json.loads(json.dumps(asdict(replace(base, seed=1, target_steps=(2, 4)))))
     assert schedule["distance_per_seed"][1] == run["energy_distance"]["snapflow-1"]
     assert summary["teacher-10"]["per_seed"][1] == run["energy_distance"]["teacher-10"], (
