@@ -13,14 +13,19 @@
 # script runs again. The compile cache is OUTPUT/compile-cache.
 #
 # On a lent GPU machine (Python 3.12, torch, transformers and the rest already there, nothing to download), carry
-# what it lacks as wheels fetched here into a git-excluded .whl/ (54 MB), install them there, and run from src/:
+# what it lacks as wheels fetched here into a git-excluded .whl/ (55 MB), snapflow's own among them (run from src/
+# alone it has no version to read), and install them there:
 #   python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
 #       --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 -d .whl \
 #       lerobot==0.6.1 draccus==0.11.6 mergedeep==1.3.4 toml==0.10.2 gymnasium==1.4.0 farama-notifications \
 #       datasets==4.8.5 dill==0.4.1 multiprocess==0.70.19 termcolor==3.3.0 transformers==5.5.4 tokenizers==0.22.2 \
-#       av==15.1.0
+#       av==15.1.0 num2words==0.5.14
+#   python -m pip wheel --no-deps --no-build-isolation -w .whl .
 #   (there) python3 -m pip install -q --no-index --no-deps --target /tmp/site .whl/*.whl
-#           PYTHONPATH=/tmp/site:$PWD/src bash scripts/gpu_latency.sh /tmp/lat pi05
+#           PYTHONPATH=/tmp/site bash scripts/gpu_latency.sh /tmp/lat pi05
+# On an H200 (2026-11-27) pi0.5's cold bench ran past 280 s (model built on the GPU, then the one-step graph and the
+# teacher's graphs compiled) and the warm one took 165 s; SmolVLA at full size and pi0 each ran past 125-150 s cold:
+# give LIMIT 400 or more, and one architecture per 10-minute call.
 set -uo pipefail
 out="${1:-outputs/latency-gpu}"
 shift $(($# > 0 ? 1 : 0))
@@ -39,8 +44,9 @@ bench() {  # FOLDER, then snapflow bench's arguments
     [ -f "$folder/bench.json" ] && return 0
     local began=$SECONDS
     timeout "${LIMIT:-400}" python3 -m snapflow.cli bench "$@" --fast-path deploy --compile-cache "$out/compile-cache" \
-        --batch-sizes 1 --output "$folder" >"$folder.log" 2>&1
-    echo "$(basename "$folder"): exit $? after $((SECONDS - began)) s"
+        --batch-sizes 1 --no-progress --output "$folder" >"$folder.log" 2>&1
+    local status=$?  # 124: stopped at LIMIT
+    echo "${folder##*/}: exit $status after $((SECONDS - began)) s"
 }
 
 for architecture in "${architectures[@]}"; do
