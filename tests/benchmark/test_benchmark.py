@@ -167,11 +167,11 @@ def test_bench_cli_times_a_built_in_architecture_and_writes_every_result_file(ar
     expected = random_builtin_policy(architecture)
     assert report["details"]["parameters"] == sum(parameter.numel() for parameter in expected.policy.parameters())
     assert report["details"]["config"] == expected.processor.config.to_dict()
-    assert report["details"]["dtypes"] == {"(all)": {"float32": report["details"]["parameters"]}}
     assert report["dtype"] == {
         "requested": "float32",
         "inputs": "float32",
         "parameters": {"float32": report["details"]["parameters"]},
+        "groups": {"(all)": {"float32": report["details"]["parameters"]}},
     }
     assert "weights " in (output / "bench.md").read_text()
     assert "profile_table" not in report
@@ -235,6 +235,12 @@ def test_parameter_dtypes_lists_the_groups_that_run_in_each_precision():
     assert parameter_dtypes(model) == {"(all)": {"float32": 9 + 16 + 5}}
     model[1][1].to(torch.bfloat16)  # a policy that keeps some layers in another precision
     assert parameter_dtypes(model) == {"0": {"float32": 9}, "1.0": {"float32": 16}, "1.1": {"bfloat16": 5}}
+    wrapped = nn.Sequential(nn.Sequential(model))  # an adapter around its policy spends no level of the depth
+    assert parameter_dtypes(wrapped, depth=2) == {
+        "0.0.0": {"float32": 9},
+        "0.0.1.0": {"float32": 16},
+        "0.0.1.1": {"bfloat16": 5},
+    }
 
 
 def test_a_bfloat16_built_in_policy_is_timed_in_bfloat16(tmp_path):
@@ -242,7 +248,7 @@ def test_a_bfloat16_built_in_policy_is_timed_in_bfloat16(tmp_path):
     extra = ["--batch-sizes", "1", "--distill-batch-sizes", "2,3"]
     assert main([*arguments, "--no-profile", *extra, "--output", str(tmp_path)]) == 0
     report = json.loads((tmp_path / "bench.json").read_text())
-    assert set(report["details"]["dtypes"]["(all)"]) == {"bfloat16"}
+    assert set(report["dtype"]["groups"]["(all)"]) == {"bfloat16"}
     # the dtype asked for, and what ran: here the same
     assert report["dtype"]["requested"] == "bfloat16" and set(report["dtype"]["parameters"]) == {"bfloat16"}
     assert "M bfloat16 (asked: bfloat16)" in (tmp_path / "bench.md").read_text()

@@ -18,7 +18,7 @@ import torch
 from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES
 from snapflow.benchmark.latency import Timing, measure_latency, time_round_robin
 from snapflow.benchmark.report import BenchReport, FirstChunk, OneStepProfile, Throughput
-from snapflow.benchmark.subjects import BenchSubject, parameter_totals
+from snapflow.benchmark.subjects import BenchSubject, parameter_dtypes, parameter_totals
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.solver import sample_actions
 from snapflow.inference.fast_paths import FAST_PATHS, apply_fast_path
@@ -154,6 +154,7 @@ def run_bench(
             "requested": str(subject.dtype).removeprefix("torch."),
             "inputs": str(subject.noise.dtype).removeprefix("torch."),
             "parameters": parameter_totals(subject.policy),
+            "groups": parameter_dtypes(subject.policy),  # after the fast path, as timed
         },
         fast_path,
         latency,

@@ -85,9 +85,9 @@ class BenchReport:
     ``latency`` are None where they were not measured."""
 
     subject: str
-    details: dict[str, Any]  # the subject's (policy type, sizes, parameters by module group and dtype, ...)
+    details: dict[str, Any]  # the subject's (policy type, sizes, ...)
     machine: dict[str, Any]
-    dtype: dict[str, Any]  # the dtype asked for, the inputs' and the parameters' count per dtype (what runs)
+    dtype: dict[str, Any]  # the dtype asked for, the inputs', the parameters' count per dtype and per module group
     fast_path: str | None  # the registered name of the fast path timed (snapflow.inference.fast_paths), or None
     latency: LatencyReport
     first_chunk: FirstChunk | None = None  # the fast path's first chunk, where one is timed
@@ -175,7 +175,7 @@ def _latency_markdown(report: BenchReport) -> str:
 
 
 def _dtypes_markdown(report: BenchReport) -> str | None:
-    groups = report.details.get("dtypes", {})
+    groups = report.dtype.get("groups", {})
     if len(groups) <= 1:
         return None
     rows = [

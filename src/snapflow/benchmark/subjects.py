@@ -47,7 +47,8 @@ class BenchSubject:
     only_modes: tuple[SamplingMode, ...] | None = None
     #: the flow-matching times it trains on (the cost of a distillation step draws them)
     time_sampler: TimeSampler = BUILTIN_TIME_SAMPLER
-    #: the dtype it was asked to run in (what runs is in ``details["dtypes"]``: a policy may keep layers in float32)
+    #: the dtype it was asked to run in (what runs, as timed, is in the report's ``dtype``: a policy may keep layers
+    #: in float32, and a fast path may change them)
     dtype: torch.dtype = torch.float32
 
 
@@ -72,7 +73,6 @@ def builtin_subject(
         noise,
         {
             "parameters": _parameter_count(policy),
-            "dtypes": parameter_dtypes(policy),
             "policy_type": loaded.policy_type,
             "config": processor.config.to_dict(),
             **({loaded.export["format"]: loaded.export} if loaded.exported else {}),
@@ -155,7 +155,6 @@ def lerobot_subject(
         {
             "parameters": _parameter_count(adapter),
             "expert_parameters": expert,
-            "dtypes": parameter_dtypes(inner),
             "policy_type": adapter.policy_type,
             "chunk_size": config.chunk_size,
             "tokens": config.tokenizer_max_length,
@@ -208,16 +207,19 @@ def parameter_totals(module: nn.Module) -> dict[str, int]:
 def parameter_dtypes(module: nn.Module, depth: int = 3) -> dict[str, dict[str, int]]:
     """Parameter count per dtype of each module group (the module's children down to ``depth`` levels, where a
     group's parameters are not all of one dtype, its children are listed instead): what actually runs in which
-    precision, which a single dtype would hide (LeRobot keeps some layers in float32 under bfloat16)."""
+    precision, which a single dtype would hide (LeRobot keeps some layers in float32 under bfloat16). A module whose
+    only content is one child (an adapter around its policy) is walked through without spending a level."""
     groups: dict[str, dict[str, int]] = {}
 
     def visit(prefix: str, child: nn.Module, level: int) -> None:
         counts = parameter_totals(child)
         if not counts:
             return
-        if len(counts) > 1 and level < depth and any(True for _ in child.children()):
-            for name, grandchild in child.named_children():
-                visit(f"{prefix}.{name}" if prefix else name, grandchild, level + 1)
+        children = list(child.named_children())
+        if len(counts) > 1 and level < depth and children:
+            wrapper = len(children) == 1 and not any(True for _ in child.parameters(recurse=False))
+            for name, grandchild in children:
+                visit(f"{prefix}.{name}" if prefix else name, grandchild, level + (not wrapper))
             own = {str(p.dtype).removeprefix("torch."): 0 for p in child.parameters(recurse=False)}
             for parameter in child.parameters(recurse=False):
                 own[str(parameter.dtype).removeprefix("torch.")] += parameter.numel()
