@@ -87,13 +87,15 @@ def evaluate(
     episode_logs: str | Path | None = None,
     resume: bool = False,
     first_variation: int = 0,
+    val_fraction: float | None = None,
 ) -> EvaluationReport:
     """Closed-loop success, offline metrics (when ``data`` is given) and, with ``timing``, batch-1 latency for each
     (label, policy, mode); latency speedups are relative to the first entry. A jump mode (``snapflow-N``) on a
     policy never distilled is refused before anything runs. With ``episode_logs``, each run's finished waves of
     episodes are appended to a file there as they end (:class:`EpisodeLog`); with ``resume`` too, the waves already
     logged by the same evaluation are read back, not run again. Each task's episodes start from its evaluation
-    variations ``first_variation`` on (LIBERO's fixed initial states)."""
+    variations ``first_variation`` on (LIBERO's fixed initial states). The offline metrics read the share of each
+    task's episodes a policy's training held out, or ``val_fraction`` where given (a trainer that records none)."""
     for _, loaded, mode in runs:
         loaded.check_mode(mode)
     evaluator = runs_evaluator(runs, benchmark, tasks, episodes_per_task, first_variation)
@@ -135,7 +137,9 @@ def evaluate(
             )
             if demonstrations is not None:
                 if loaded.path not in held_out:
-                    _, val_episodes = demonstrations.split(loaded.val_fraction)
+                    _, val_episodes = demonstrations.split(
+                        loaded.val_fraction if val_fraction is None else val_fraction
+                    )
                     held_out[loaded.path] = (
                         ChunkData(demonstrations, val_episodes, loaded.processor) if val_episodes else None
                     )

@@ -6,14 +6,19 @@ own trainer, optimiser, Accelerate, logging and hub push (the student type's ``f
 
 from __future__ import annotations
 
+import os
+import shutil
+import subprocess
+import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 from snapflow.adapters.lerobot.plugin.configuration_snapflow import DISTILL_OPTIONS, SnapFlowSampling
-from snapflow.errors import InvalidInputError
+from snapflow.errors import InvalidInputError, SnapflowError
 from snapflow.policies.loaded import CheckpointError
 from snapflow.sources import open_policy
+from snapflow.training.config import TrainConfig
 from snapflow.training.recipes import DistillSettings
 
 # what lerobot-train runs beyond the settings a student's config holds: the paper's method as snapflow distils a
@@ -75,4 +80,96 @@ def write_student(
     return output
 
 
-__all__ = ["config_settings", "student_fields", "write_student"]
+#: where ``lerobot-train`` leaves its last checkpoint's policy, inside its ``--output_dir``
+LAST_CHECKPOINT = Path("checkpoints") / "last" / "pretrained_model"
+
+
+def lerobot_train_arguments(config: TrainConfig, training_episodes: list[int] | None) -> list[str]:
+    """``config`` as ``lerobot-train`` flags (its AdamW, warm-up and cosine decay to ``min_learning_rate_ratio`` of
+    the peak, clipping, checkpoints, logs; ``training_episodes``: the dataset's episodes it trains on, None for all).
+    What LeRobot's trainer has no flag for (a weight average, mixed precision from here) is refused by name."""
+    if config.ema_decay is not None or config.mixed_precision != "no":
+        raise InvalidInputError(
+            "lerobot-train keeps no weight average and takes its precision from Accelerate's own launch: give a "
+            "lerobot-train student ema_decay unset and mixed_precision 'no'"
+        )
+    arguments = [
+        f"--steps={config.steps}",
+        f"--batch_size={config.batch_size}",
+        f"--seed={config.seed}",
+        f"--save_freq={config.checkpoint_every}",
+        f"--log_freq={config.log_every}",
+        f"--policy.optimizer_lr={config.learning_rate}",
+        f"--policy.optimizer_weight_decay={config.weight_decay}",
+        f"--policy.optimizer_grad_clip_norm={config.grad_clip}",
+        f"--policy.scheduler_warmup_steps={config.warmup_steps}",
+        f"--policy.scheduler_decay_steps={config.steps}",
+        f"--policy.scheduler_decay_lr={config.learning_rate * config.min_learning_rate_ratio}",
+    ]
+    if training_episodes is not None:
+        arguments.append(f"--dataset.episodes=[{','.join(str(episode) for episode in training_episodes)}]")
+    return arguments
+
+
+def run_lerobot_train(
+    student: str | Path,
+    dataset_root: str | Path,
+    repo_id: str,
+    output: str | Path,
+    config: TrainConfig,
+    training_episodes: list[int] | None = None,
+    device: str = "cpu",
+    threads: int | None = None,
+) -> Path:
+    """Distil the student folder ``student`` (:func:`write_student`'s) with LeRobot's own ``lerobot-train``, run as a
+    subprocess of this interpreter's environment, into ``output``; an interrupted run resumes from its last
+    checkpoint. Returns the distilled policy's folder (``output/checkpoints/last/pretrained_model``). ``threads``:
+    the torch threads of the subprocess (``OMP_NUM_THREADS``)."""
+    from snapflow.adapters.lerobot_types import PLUGIN_LEROBOT, lerobot_loads_plugins
+
+    if not lerobot_loads_plugins():
+        raise InvalidInputError(f"lerobot-train imports snapflow's student types from lerobot {PLUGIN_LEROBOT} on")
+    output = Path(output)
+    last = output / LAST_CHECKPOINT
+    if (last / "train_config.json").is_file():  # LeRobot's own resume: its saved config, optimiser and step
+        arguments = [f"--config_path={last / 'train_config.json'}", "--resume=true"]
+    else:
+        if output.exists():  # started, but stopped before its first checkpoint: nothing to resume
+            shutil.rmtree(output)
+        arguments = [
+            f"--policy.path={student}",
+            f"--dataset.repo_id={repo_id}",
+            f"--dataset.root={dataset_root}",
+            f"--output_dir={output}",
+            "--num_workers=0",
+            "--wandb.enable=false",
+            f"--policy.device={device}",
+            "--policy.push_to_hub=false",
+            *lerobot_train_arguments(config, training_episodes),
+        ]
+    environment = {**os.environ, "HF_HUB_OFFLINE": "1", **({"OMP_NUM_THREADS": str(threads)} if threads else {})}
+    log = output.parent / f"{output.name}.log"  # beside the run: lerobot-train refuses an output_dir that exists
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with log.open("a") as written:  # a resumed run's lines follow the interrupted one's
+        status = subprocess.run(
+            [str(Path(sys.executable).with_name("lerobot-train")), *arguments],
+            env=environment,
+            stdin=subprocess.DEVNULL,
+            stdout=written,
+            stderr=subprocess.STDOUT,
+        ).returncode
+    if status != 0:
+        raise SnapflowError(
+            f"lerobot-train exited {status}; its output is in {log}, ending:\n{log.read_text()[-3000:]}"
+        )
+    return last
+
+
+__all__ = [
+    "LAST_CHECKPOINT",
+    "config_settings",
+    "lerobot_train_arguments",
+    "run_lerobot_train",
+    "student_fields",
+    "write_student",
+]

@@ -7,11 +7,13 @@ an interrupted sweep keeps the tasks it finished."""
 from __future__ import annotations
 
 import shutil
+import time
 from contextlib import ExitStack
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, ClassVar
 
+from snapflow.adapters.lerobot_config import SMOLVLM_SIZES
 from snapflow.data.collect import collect
 from snapflow.data.demonstrations import Demonstrations
 from snapflow.envs.factory import make_benchmark
@@ -19,18 +21,21 @@ from snapflow.evaluation.config import OFFLINE_SAMPLES
 from snapflow.evaluation.pipeline import evaluate
 from snapflow.flow.modes import SamplingMode
 from snapflow.jobs.runner import Job, record, run_jobs, to_run
-from snapflow.jobs.sweep.schema import DataSpec, RowSpec, SweepConfig, TableSpec
-from snapflow.policies.checkpoint import load_policy, resolve_checkpoint
+from snapflow.jobs.sweep.schema import TRAINERS, DataSpec, LeRobotSpec, RowSpec, SweepConfig, TableSpec
+from snapflow.policies.checkpoint import resolve_checkpoint
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import policy_type_of
 from snapflow.reporting.locks import hold_run_lock
 from snapflow.reporting.records import as_record
+from snapflow.sources import open_policy
 from snapflow.training.checkpoint import install_checkpoint, keep_checkpoint, read_kept
 from snapflow.training.config import VAL_FRACTION, TrainConfig
 from snapflow.training.recipes import DistillSettings
 from snapflow.training.stages import distill, train_teacher
 
 RECORD = "job.json"  # a collect or train job's record, inside the folder it fills
+LEROBOT_REPO_ID = "local/lerobot"  # the LeRobotDataset's name: it is read from its folder, never from a hub
+LEROBOT_TRAIN_DIRECTORY = "lerobot-train"  # a lerobot-train student's run, inside its run folder
 
 
 class FolderJob(Job):
@@ -103,6 +108,37 @@ class DataJob(FolderJob):
 
 
 @dataclass(frozen=True)
+class LeRobotDatasetJob(FolderJob):
+    """The sweep's demonstrations written as a LeRobotDataset (LeRobot's own writer), which its LeRobot runs read."""
+
+    kind: ClassVar[str] = "lerobot-dataset"
+    sweep: str
+    directory: Path
+    data: DataJob
+
+    def settings(self) -> dict[str, Any]:
+        return {"repo_id": LEROBOT_REPO_ID}
+
+    @property
+    def dependencies(self) -> tuple[Job, ...]:
+        return (self.data,)
+
+    def run(self) -> dict[str, Any]:
+        from snapflow.adapters.lerobot.dataset import write_lerobot_dataset
+
+        shutil.rmtree(self.directory, ignore_errors=True)  # an interrupted write: LeRobot's writer wants a new folder
+        benchmark = make_benchmark(self.data.data.env)
+        demonstrations = Demonstrations.load(self.data.directory)
+        write_lerobot_dataset(
+            demonstrations, self.directory, LEROBOT_REPO_ID, benchmark.fps, benchmark.camera, progress=False
+        )
+        return {}
+
+    def describe(self) -> str:
+        return f"{self.sweep}: demonstrations as a LeRobotDataset"
+
+
+@dataclass(frozen=True)
 class TrainJob(FolderJob):
     """A teacher (``policy``: flow matching on the data) or a student (``teacher`` and ``distill``), in ``directory``.
 
@@ -120,26 +156,50 @@ class TrainJob(FolderJob):
     distill: DistillSettings | None = None
     ledger: Path | None = None
     kept: Path | None = None  # where its checkpoint is kept to be committed (its run's ``commit_checkpoint``)
+    lerobot: LeRobotSpec | None = None  # a LeRobot teacher's settings
+    trainer: str = TRAINERS[0]  # a LeRobot student's trainer
+    dataset: LeRobotDatasetJob | None = None  # what a LeRobot run (teacher or student) trains on
 
     @property
     def seed(self) -> int:
         return self.train.seed
 
     @property
+    def policy_path(self) -> Path:
+        """Where the trained policy is, as :func:`snapflow.sources.open_policy` opens it: the run folder of a
+        built-in policy, the LeRobot policy folder a LeRobot run exports, or ``lerobot-train``'s last checkpoint."""
+        if self.dataset is None:
+            return self.directory
+        if self.trainer == "lerobot-train":
+            from snapflow.training.lerobot_student import LAST_CHECKPOINT
+
+            return self.directory / LEROBOT_TRAIN_DIRECTORY / LAST_CHECKPOINT
+        from snapflow.training.lerobot import EXPORT_DIRECTORY
+
+        return self.directory / EXPORT_DIRECTORY
+
+    @property
     def ledger_path(self) -> Path | None:
         return self.ledger
 
     def settings(self) -> dict[str, Any]:
+        if self.lerobot is not None:
+            return {"lerobot": as_record(self.lerobot), "train": as_record(self.train), "val_fraction": VAL_FRACTION}
         if self.teacher is None:
             policy = {"type": policy_type_of(self.policy).name, **self.policy.to_dict()}
             return {"policy": policy, "train": as_record(self.train), "val_fraction": VAL_FRACTION}
-        return {"distill": as_record(self.distill), "train": as_record(self.train)}  # held-out episodes: the teacher's
+        # held-out episodes: the teacher's; the trainer only where it is not snapflow's (the records made before)
+        trainer = {"trainer": self.trainer} if self.trainer != TRAINERS[0] else {}
+        return {"distill": as_record(self.distill), "train": as_record(self.train), **trainer}
 
     @property
     def dependencies(self) -> tuple[Job, ...]:
-        return (self.data,) if self.teacher is None else (self.data, self.teacher)
+        needs = (self.data,) if self.dataset is None else (self.data, self.dataset)
+        return needs if self.teacher is None else (*needs, self.teacher)
 
     def run(self) -> dict[str, Any]:
+        if self.dataset is not None:
+            return self._run_lerobot()
         keep = self._keep_progress if self.kept is not None else None
         if self.teacher is None:
             state = train_teacher(
@@ -166,6 +226,76 @@ class TrainJob(FolderJob):
         if self.kept is not None:
             self._keep(resolve_checkpoint(self.directory), finished=True)
         return {"step": state["step"], "wall_time_s": state["wall_time_s"]}  # the tables' training cost
+
+    def _run_lerobot(self) -> dict[str, Any]:
+        """A LeRobot teacher from scratch, or its student by snapflow's trainer or by ``lerobot-train``. The kept
+        checkpoint (``commit_checkpoint``) is the trainer's own ``keep_progress``: a fresh machine resumes from it."""
+        from snapflow.training.lerobot import distill_lerobot, train_smolvla_teacher
+
+        assert self.dataset is not None
+        dataset = self.dataset.directory
+        if self.trainer == "lerobot-train":
+            return self._run_lerobot_train()
+        if self.lerobot is not None:
+            spec = self.lerobot
+            size = SMOLVLM_SIZES[spec.smolvlm]
+            if spec.image_size is not None:
+                size = replace(size, image_size=spec.image_size)
+            state = train_smolvla_teacher(
+                dataset,
+                LEROBOT_REPO_ID,
+                self.directory,
+                self.train,
+                size,
+                spec.chunk_size,
+                spec.n_action_steps,
+                VAL_FRACTION,
+                resume=True,
+                progress=False,
+                keep_progress=self.kept,
+            )
+        else:
+            assert self.teacher is not None
+            state = distill_lerobot(
+                str(self.teacher.policy_path),
+                dataset,
+                LEROBOT_REPO_ID,
+                self.directory,
+                self.train,
+                self.distill,
+                resume=True,
+                progress=False,
+                keep_progress=self.kept,
+            )
+        return {"step": state["step"], "wall_time_s": state["wall_time_s"]}
+
+    def _run_lerobot_train(self) -> dict[str, Any]:
+        """The teacher written as its student type, then ``lerobot-train`` on the training episodes (the teacher's
+        held-out ones stay out)."""
+        import torch
+
+        from snapflow.training.lerobot_student import run_lerobot_train, write_student
+
+        assert self.teacher is not None and self.dataset is not None
+        began = time.perf_counter()
+        teacher = str(self.teacher.policy_path)
+        student = self.directory / "student"
+        if not (student / "config.json").is_file():
+            shutil.rmtree(student, ignore_errors=True)
+            write_student(teacher, student, self.distill)
+        # the dataset's episodes are the demonstrations' in their order: the teacher's split holds the same ones out
+        training_episodes, _ = Demonstrations.load(self.data.directory).split(VAL_FRACTION)
+        run_lerobot_train(
+            student,
+            self.dataset.directory,
+            LEROBOT_REPO_ID,
+            self.directory / LEROBOT_TRAIN_DIRECTORY,
+            self.train,
+            training_episodes,
+            "cuda" if torch.cuda.is_available() else "cpu",
+            torch.get_num_threads(),
+        )
+        return {"step": self.train.steps, "wall_time_s": time.perf_counter() - began}
 
     def _keep_progress(self, checkpoint: Path) -> None:
         self._keep(checkpoint, finished=False)
@@ -254,7 +384,7 @@ class EvalJob(Job):
 
     def run(self) -> dict[str, Any]:
         collected = self.policy.data
-        loaded = load_policy(self.policy.directory)
+        loaded = open_policy(str(self.policy.policy_path))
         # the runner clears the log of a run with other settings, so what is left is this evaluation's to resume
         report = evaluate(
             [(self.mode.name, loaded, self.mode)],
@@ -269,6 +399,8 @@ class EvalJob(Job):
             episode_logs=self.episodes_dir,
             resume=True,
             first_variation=self.first_variation,
+            # lerobot-train records no held-out share: it trained on its teacher's split, every run's here
+            val_fraction=VAL_FRACTION if self.policy.trainer == "lerobot-train" else None,
         )
         return report.rows[self.mode.name].to_dict()
 
@@ -287,15 +419,31 @@ def data_job(config: SweepConfig) -> DataJob:
 
 
 def train_job(config: SweepConfig, run: str, seed: int) -> TrainJob:
-    """Run ``run`` of the sweep on ``seed``, a student with its teacher's job of the same seed."""
+    """Run ``run`` of the sweep on ``seed``, a student with its teacher's job of the same seed; a LeRobot run (a
+    LeRobot teacher or its student) reads the demonstrations as a LeRobotDataset."""
     spec = config.runs[run]
     teacher = train_job(config, spec.teacher, seed) if spec.teacher is not None else None
     train = replace(spec.train, seed=seed)
     directory = config.run_dir(run, seed)
     ledger = config.ledger_path(directory / RECORD)
     kept = ledger.parent / "checkpoint" if spec.commit_checkpoint else None
+    data = data_job(config)
+    lerobot = spec.lerobot is not None or (teacher is not None and teacher.dataset is not None)
+    dataset = LeRobotDatasetJob(config.name, config.lerobot_dataset_dir, data) if lerobot else None
     return TrainJob(
-        config.name, run, directory, data_job(config), train, spec.policy, teacher, spec.distill, ledger, kept
+        config.name,
+        run,
+        directory,
+        data,
+        train,
+        spec.policy,
+        teacher,
+        spec.distill,
+        ledger,
+        kept,
+        spec.lerobot,
+        spec.trainer,
+        dataset,
     )
 
 
@@ -321,7 +469,8 @@ def jobs(config: SweepConfig) -> list[Job]:
         for seed in table.seeds
     ]
     trains = [train for job in evals for train in (job.policy.teacher, job.policy) if train is not None]
-    return list(dict.fromkeys([*data.parts, data, *trains, *evals]))
+    datasets = [train.dataset for train in trains if train.dataset is not None]
+    return list(dict.fromkeys([*data.parts, data, *datasets, *trains, *evals]))
 
 
 def plan(config: SweepConfig) -> list[Job]:
@@ -358,6 +507,7 @@ __all__ = [
     "RECORD",
     "CollectJob",
     "DataJob",
+    "LeRobotDatasetJob",
     "TrainJob",
     "EvalJob",
     "data_job",

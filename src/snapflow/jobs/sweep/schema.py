@@ -9,6 +9,8 @@ from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
+from snapflow.adapters.lerobot_config import SMOLVLM_SIZES
+from snapflow.adapters.lerobot_types import lerobot_teachers
 from snapflow.data.collect import EPISODES_PER_TASK
 from snapflow.data.demonstrations import check_action_noise
 from snapflow.envs.factory import DEFAULT_BENCHMARK, make_benchmark
@@ -41,6 +43,24 @@ class DataSpec:
 
 
 @dataclass(frozen=True)
+class LeRobotSpec:
+    """A LeRobot policy trained from scratch on the sweep's demonstrations, written as a LeRobotDataset: ``snapflow
+    train --policy-type <policy_type>``'s settings (SmolVLA over a SmolVLM of size ``smolvlm`` reading the frames at
+    ``image_size``, None: that size's own)."""
+
+    policy_type: str = "smolvla"
+    smolvlm: str = "small"
+    image_size: int | None = None
+    chunk_size: int = 8
+    n_action_steps: int = 4
+
+
+#: how a student of a LeRobot teacher is distilled: snapflow's trainer (``snapflow distill``) or LeRobot's own
+#: (``lerobot-train`` on the teacher written as its ``snapflow_<type>`` student)
+TRAINERS = ("snapflow", "lerobot-train")
+
+
+@dataclass(frozen=True)
 class RunSpec:
     """A teacher (``teacher is None``: flow matching on the data, ``policy`` resolved) or a student distilled from
     one; ``train.seed`` is replaced by each of ``seeds``."""
@@ -54,6 +74,8 @@ class RunSpec:
     # its checkpoint kept beside its ledger record, to be committed: the latest while it trains, the policy once it
     # has finished, so a fresh machine continues the run, or distils and evaluates it, instead of training it again
     commit_checkpoint: bool = False
+    lerobot: LeRobotSpec | None = None  # a LeRobot teacher (``policy`` is then None); its students are LeRobot's too
+    trainer: str = TRAINERS[0]  # a LeRobot teacher's student: which trainer distils it
 
 
 @dataclass(frozen=True)
@@ -122,6 +144,11 @@ class SweepConfig:
     @property
     def data_dir(self) -> Path:
         return self.output_dir / "data"
+
+    @property
+    def lerobot_dataset_dir(self) -> Path:
+        """The demonstrations written as a LeRobotDataset, which the LeRobot runs train on."""
+        return self.output_dir / "lerobot"
 
     def collect_dir(self, task: str) -> Path:
         """Where one task's demonstrations are collected before :attr:`data_dir` puts them together."""
@@ -233,6 +260,21 @@ def _policy(section: str, raw: Any, data: DataSpec) -> PolicyConfig:
         raise InvalidInputError(f"{section}: {error}") from None
 
 
+def _lerobot(section: str, raw: Any) -> LeRobotSpec:
+    """A LeRobot teacher's settings, its type one LeRobot trains from scratch here and its SmolVLM a known size."""
+    spec = _dataclass_from(section, LeRobotSpec(), raw)
+    if spec.policy_type not in lerobot_teachers():
+        raise InvalidInputError(
+            f"{section}: policy_type must be one LeRobot trains from scratch here, {list(lerobot_teachers())}; "
+            f"got {spec.policy_type!r}"
+        )
+    if spec.smolvlm not in SMOLVLM_SIZES:
+        raise InvalidInputError(f"{section}: smolvlm must be one of {list(SMOLVLM_SIZES)}, got {spec.smolvlm!r}")
+    for name in ("chunk_size", "n_action_steps", *(("image_size",) if spec.image_size is not None else ())):
+        _count(section, name, getattr(spec, name))
+    return spec
+
+
 def _recipe(section: str, name: Any) -> Recipe:
     if name not in RECIPES:
         raise InvalidInputError(f"{section}: unknown recipe {name!r}; choose one of {list(RECIPES)}")
@@ -245,24 +287,56 @@ def _runs(raw: Any, seeds: tuple[int, ...], data: DataSpec, recipe: str) -> dict
     runs: dict[str, RunSpec] = {}
     for name, entry in raw.items():
         section = f"[runs.{name}]"
-        _checked(section, entry, {"teacher", "policy", "train", "distill", "seeds", "recipe", "commit_checkpoint"})
+        allowed = {
+            "teacher",
+            "policy",
+            "lerobot",
+            "trainer",
+            "train",
+            "distill",
+            "seeds",
+            "recipe",
+            "commit_checkpoint",
+        }
+        _checked(section, entry, allowed)
         run_seeds = _seeds(section, entry.get("seeds", list(seeds)))
         commit_checkpoint = entry.get("commit_checkpoint", False)
         if not isinstance(commit_checkpoint, bool):
             raise InvalidInputError(f"{section}: commit_checkpoint must be true or false, got {commit_checkpoint!r}")
         if "teacher" in entry:
-            if "policy" in entry:
+            if "policy" in entry or "lerobot" in entry:
                 raise InvalidInputError(f"{section}: a student takes its policy from its teacher; remove 'policy'")
             base = _recipe(section, entry.get("recipe", recipe))
             train = _dataclass_from(f"{section} train", base.train, entry.get("train", {}))
             settings = _dataclass_from(f"{section} distill", base.distill, entry.get("distill", {}))
+            trainer = entry.get("trainer", TRAINERS[0])
+            if trainer not in TRAINERS:
+                raise InvalidInputError(f"{section}: trainer must be one of {list(TRAINERS)}, got {trainer!r}")
+            if trainer != TRAINERS[0] and commit_checkpoint:
+                raise InvalidInputError(
+                    f"{section}: a {trainer} student keeps its own checkpoints; remove commit_checkpoint"
+                )
             runs[name] = RunSpec(
-                name, run_seeds, train, teacher=entry["teacher"], distill=settings, commit_checkpoint=commit_checkpoint
+                name,
+                run_seeds,
+                train,
+                teacher=entry["teacher"],
+                distill=settings,
+                commit_checkpoint=commit_checkpoint,
+                trainer=trainer,
             )
         else:
-            if "distill" in entry or "recipe" in entry:
-                raise InvalidInputError(f"{section}: 'distill' and 'recipe' need a 'teacher' to distill from")
+            if "distill" in entry or "recipe" in entry or "trainer" in entry:
+                raise InvalidInputError(
+                    f"{section}: 'distill', 'recipe' and 'trainer' need a 'teacher' to distill from"
+                )
             train = _dataclass_from(f"{section} train", TEACHER_TRAINING, entry.get("train", {}))
+            if "lerobot" in entry:
+                if "policy" in entry:
+                    raise InvalidInputError(f"{section}: give 'policy' (a built-in policy) or 'lerobot', not both")
+                lerobot = _lerobot(f"{section} lerobot", entry["lerobot"])
+                runs[name] = RunSpec(name, run_seeds, train, commit_checkpoint=commit_checkpoint, lerobot=lerobot)
+                continue
             policy = _policy(f"{section} policy", entry.get("policy", {}), data)
             runs[name] = RunSpec(name, run_seeds, train, policy, commit_checkpoint=commit_checkpoint)
     for run in runs.values():
@@ -274,6 +348,10 @@ def _runs(raw: Any, seeds: tuple[int, ...], data: DataSpec, recipe: str) -> dict
                 )
             if missing := sorted(set(run.seeds) - set(teacher.seeds)):
                 raise InvalidInputError(f"[runs.{run.name}]: seeds {missing} have no {run.teacher!r} teacher")
+            if run.trainer != TRAINERS[0] and teacher.lerobot is None:
+                raise InvalidInputError(
+                    f"[runs.{run.name}]: trainer {run.trainer!r} distils a LeRobot teacher; {run.teacher!r} is built in"
+                )
     return runs
 
 
@@ -399,4 +477,4 @@ def load_sweep(path: str | Path, loading: tuple[Path, ...] = ()) -> SweepConfig:
     )
 
 
-__all__ = ["DataSpec", "RunSpec", "RowSpec", "TableSpec", "SweepConfig", "load_sweep"]
+__all__ = ["TRAINERS", "DataSpec", "LeRobotSpec", "RunSpec", "RowSpec", "TableSpec", "SweepConfig", "load_sweep"]

@@ -1,0 +1,133 @@
+"""A sweep of LeRobot runs: a SmolVLA teacher trained from scratch on the sweep's demonstrations written as a
+LeRobotDataset, its students distilled by snapflow's trainer and by LeRobot's ``lerobot-train``, every row evaluated
+by snapflow's evaluator (planning: fast; a tiny sweep run for real: slow, LeRobot >= 0.5)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from snapflow.adapters.lerobot_types import PLUGIN_LEROBOT, lerobot_loads_plugins
+from snapflow.cli import main
+from snapflow.jobs.sweep import TrainJob, jobs, load_sweep
+from snapflow.jobs.sweep.planning import LeRobotDatasetJob, train_job
+
+TINY_TRAIN = "{ steps = 4, batch_size = 4, warmup_steps = 1, log_every = 2, validate_every = 4, checkpoint_every = 2 }"
+
+
+def write_config(directory: Path, runs: str = "") -> Path:
+    path = directory / "smolvla.toml"
+    path.write_text(f"""
+name = "smolvla"
+seeds = [0]
+output_dir = "{(directory / "runs").as_posix()}"
+results_dir = "{(directory / "results").as_posix()}"
+
+[data]
+tasks = ["reach-v3", "button-press-topdown-v3"]
+episodes_per_task = 3
+image_size = 32
+
+[runs.teacher]
+lerobot = {{ smolvlm = "tiny", image_size = 32, chunk_size = 4, n_action_steps = 2 }}
+train = {TINY_TRAIN}
+[runs.distilled]
+teacher = "teacher"
+train = {TINY_TRAIN}
+[runs.lerobot-train]
+teacher = "teacher"
+trainer = "lerobot-train"
+train = {{ steps = 2, batch_size = 4, warmup_steps = 1, log_every = 1, checkpoint_every = 2 }}
+{runs}
+[[tables]]
+name = "headline"
+episodes_per_task = 1
+per_task = true
+rows = [
+  {{ label = "teacher 10-NFE", run = "teacher", mode = "teacher-10" }},
+  {{ label = "naive 1-NFE", run = "teacher", mode = "naive" }},
+  {{ label = "SnapFlow 1-NFE, lerobot-train", run = "lerobot-train", mode = "snapflow-1" }},
+  {{ label = "SnapFlow 1-NFE, snapflow distill", run = "distilled", mode = "snapflow-1" }},
+]
+""")
+    return path
+
+
+def test_a_lerobot_teacher_and_its_students_train_on_the_demonstrations_written_once_as_a_lerobot_dataset(tmp_path):
+    config = load_sweep(write_config(tmp_path))
+    planned = jobs(config)
+    datasets = [job for job in planned if isinstance(job, LeRobotDatasetJob)]
+    assert len(datasets) == 1 and datasets[0].directory == tmp_path / "runs" / "lerobot"
+    trains = {job.run_name: job for job in planned if isinstance(job, TrainJob)}
+    assert all(job.dataset == datasets[0] and datasets[0] in job.dependencies for job in trains.values())
+    teacher, distilled, by_lerobot = trains["teacher"], trains["distilled"], trains["lerobot-train"]
+    assert planned.index(datasets[0]) < planned.index(teacher) < planned.index(by_lerobot)
+    assert teacher.settings()["lerobot"] == {
+        "policy_type": "smolvla",
+        "smolvlm": "tiny",
+        "image_size": 32,
+        "chunk_size": 4,
+        "n_action_steps": 2,
+    }
+    # where each trained policy is, as open_policy reads it
+    assert teacher.policy_path == teacher.directory / "lerobot_policy"
+    assert distilled.policy_path == distilled.directory / "lerobot_policy"
+    assert by_lerobot.policy_path == by_lerobot.directory / "lerobot-train/checkpoints/last/pretrained_model"
+    # the trainer is part of a student's key where it is LeRobot's; snapflow's own keeps the records made before it
+    assert by_lerobot.settings()["trainer"] == "lerobot-train" and "trainer" not in distilled.settings()
+    assert train_job(config, "lerobot-train", 0).key != train_job(config, "distilled", 0).key
+
+
+@pytest.mark.parametrize(
+    ("runs", "message"),
+    [
+        ('[runs.other]\nlerobot = { smolvlm = "huge" }\n', "[runs.other] lerobot: smolvlm must be one of"),
+        ('[runs.other]\nlerobot = { policy_type = "pi0" }\n', "policy_type must be one LeRobot trains from scratch"),
+        ("[runs.other]\nlerobot = { chunk_size = 0 }\n", "chunk_size must be an integer of at least 1, got 0"),
+        ('[runs.other]\nlerobot = {}\npolicy = { type = "mlp" }\n', "give 'policy' (a built-in policy) or 'lerobot'"),
+        ('[runs.other]\ntrainer = "lerobot-train"\n', "'trainer' need a 'teacher' to distill from"),
+        ('[runs.other]\nteacher = "teacher"\ntrainer = "accelerate"\n', "trainer must be one of"),
+        (
+            '[runs.built-in]\n[runs.other]\nteacher = "built-in"\ntrainer = "lerobot-train"\n',
+            "trainer 'lerobot-train' distils a LeRobot teacher; 'built-in' is built in",
+        ),
+        (
+            '[runs.other]\nteacher = "teacher"\ntrainer = "lerobot-train"\ncommit_checkpoint = true\n',
+            "a lerobot-train student keeps its own checkpoints",
+        ),
+    ],
+)
+def test_a_bad_lerobot_run_is_refused_with_its_section_named(tmp_path, capsys, runs, message):
+    path = write_config(tmp_path, runs)
+    assert main(["sweep", str(path), "--report-only", "--no-progress"]) == 2
+    error = capsys.readouterr().err
+    assert message in error and "Traceback" not in error
+
+
+@pytest.mark.slow
+@pytest.mark.lerobot
+@pytest.mark.skipif(
+    not lerobot_loads_plugins(),
+    reason=f"lerobot-train imports snapflow's student types from lerobot {PLUGIN_LEROBOT} on",
+)
+def test_a_tiny_smolvla_sweep_trains_distils_by_both_trainers_and_evaluates_every_row(tmp_path):
+    config_path = write_config(tmp_path)
+    assert main(["sweep", str(config_path), "--workers", "1", "--threads", "1", "--no-progress"]) == 0
+    runs = tmp_path / "runs"
+    assert (runs / "lerobot" / "meta" / "info.json").is_file()
+    student = json.loads(
+        (runs / "lerobot-train/seed-0/lerobot-train/checkpoints/last/pretrained_model/config.json").read_text()
+    )
+    assert student["type"] == "snapflow_smolvla" and student["distilled"] is True
+    assert student["distill_consistency_weight"] == 3.0, "snapflow's recipe, as the sweep's default"
+    trained_on = json.loads(
+        (runs / "lerobot-train/seed-0/lerobot-train/checkpoints/last/pretrained_model/train_config.json").read_text()
+    )
+    assert trained_on["dataset"]["episodes"] == [0, 1, 3, 4], "the teacher's held-out episode of each task stays out"
+    assert "consistency_loss" in (runs / "lerobot-train/seed-0/lerobot-train.log").read_text()
+    headline = json.loads((tmp_path / "results" / "results.json").read_text())["tables"]["headline"]["rows"]
+    assert [row["episodes"] for row in headline] == [2, 2, 2, 2]
+    for row in headline:
+        assert 0 <= row["success_mean"] <= 100 and row["offline"]["mse"] >= 0
