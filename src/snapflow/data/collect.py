@@ -32,14 +32,7 @@ def check_collection(
     (loading the simulator, so a missing one is found here) and negative noise; returns that number of variations."""
     check_action_noise(action_noise)
     benchmark.check_tasks(tasks)
-    available = benchmark.num_variations("train")
-    if first_variation < 0 or not 1 <= episodes_per_task <= available - first_variation:
-        start = f" from variation {first_variation}" if first_variation else ""
-        raise InvalidInputError(
-            f"episodes_per_task must be in [1, {available - first_variation}] ({benchmark.name}'s {available} "
-            f"training variations{start}), got {episodes_per_task}"
-        )
-    return available
+    return benchmark.check_episodes("train", episodes_per_task, first_variation)
 
 
 @dataclass

@@ -150,6 +150,18 @@ class Benchmark(ABC):
             )
         return tuple(dict.fromkeys(extra_cameras))
 
+    def check_episodes(self, split: str, episodes_per_task: int, first_variation: int = 0) -> int:
+        """Refuse more episodes a task than ``split`` has variations from ``first_variation`` on (each episode starts
+        on its own); returns the number of variations of the split."""
+        available = self.num_variations(split)  # checks the split too
+        if first_variation < 0 or not 1 <= episodes_per_task <= available - first_variation:
+            start = f" from variation {first_variation}" if first_variation else ""
+            raise InvalidInputError(
+                f"episodes per task must be in [1, {available - first_variation}] ({self.name}'s {available} "
+                f"{'training' if split == 'train' else 'evaluation'} variations{start}), got {episodes_per_task}"
+            )
+        return available
+
     def check_split(self, split: str) -> None:
         if split not in SPLITS:
             raise InvalidInputError(f"split must be one of {list(SPLITS)}, got {split!r}")

@@ -47,13 +47,7 @@ class ClosedLoopEvaluator:
     ) -> None:
         benchmark.check_tasks(tasks)
         self.extra_cameras = benchmark.check_cameras(extra_cameras)
-        available = benchmark.num_variations("eval")
-        if first_variation < 0 or not 1 <= episodes_per_task <= available - first_variation:
-            start = f" from variation {first_variation}" if first_variation else ""
-            raise InvalidInputError(
-                f"episodes per task must be in [1, {available - first_variation}] ({benchmark.name}'s {available} "
-                f"evaluation variations{start}), got {episodes_per_task}"
-            )
+        benchmark.check_episodes("eval", episodes_per_task, first_variation)
         max_envs = benchmark.max_envs if max_envs is None else max_envs
         if max_envs < 1:
             raise InvalidInputError(f"max_envs must be at least 1, got {max_envs}")

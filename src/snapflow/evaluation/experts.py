@@ -31,11 +31,7 @@ EXPERTS_MD = "experts.md"
 
 def _check(benchmark: Benchmark, tasks: list[str], split: str, episodes_per_task: int) -> None:
     benchmark.check_tasks(tasks)
-    available = benchmark.num_variations(split)  # checks the split too
-    if not 1 <= episodes_per_task <= available:
-        raise InvalidInputError(
-            f"episodes_per_task must be in [1, {available}] ({split} variations), got {episodes_per_task}"
-        )
+    benchmark.check_episodes(split, episodes_per_task)
 
 
 @dataclass(frozen=True)
