@@ -25,7 +25,8 @@
 #           PYTHONPATH=/tmp/site bash scripts/gpu_latency.sh /tmp/lat pi05
 # On an H200 (2026-11-27) pi0.5's cold bench ran past 280 s (model built on the GPU, then the one-step graph and the
 # teacher's graphs compiled) and the warm one took 165 s; SmolVLA at full size and pi0 each ran past 125-150 s cold:
-# give LIMIT 400 or more, and one architecture per 10-minute call.
+# give LIMIT 400 or more, and one architecture per 10-minute call. Which part of deploy moves the actions how far:
+# python3 scripts/deploy_parity.py --architecture pi05 --dtype bfloat16 --output /tmp/parity.
 set -uo pipefail
 out="${1:-outputs/latency-gpu}"
 shift $(($# > 0 ? 1 : 0))

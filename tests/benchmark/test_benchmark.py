@@ -282,3 +282,26 @@ def test_the_gpu_latency_script_times_the_deploy_fast_path_from_a_cold_then_a_wa
         assert first["graphs"] == 1 and first["seconds"] > 0
         assert first["action_bound"] == DEPLOY_ACTION_BOUND and first["within_bound"]
         assert first["max_abs_action_difference"] <= DEPLOY_ACTION_BOUND
+
+
+@pytest.mark.slow
+def test_the_deploy_parity_script_adds_the_fast_paths_parts_one_at_a_time_against_eager(tmp_path):
+    """``scripts/deploy_parity.py`` as a user starts it, on the MLP on a CPU: the parts that apply there (compiled,
+    then fused), each measured against eager and against the part before it."""
+    finished = subprocess.run(
+        [sys.executable, str(Path(__file__).resolve().parents[2] / "scripts" / "deploy_parity.py")]
+        + ["--architecture", "mlp", "--device", "cpu", "--output", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        stdin=subprocess.DEVNULL,
+        timeout=600,
+    )
+    assert finished.returncode == 0, finished.stderr[-3000:]
+    parity = json.loads((tmp_path / "parity.json").read_text())
+    assert [stage["stage"] for stage in parity["stages"]] == [
+        "+ prefix and velocity compiled (reduce-overhead)",
+        "+ one-step chunk as one graph (deploy)",
+    ], "no vision tower and no TF32 on an MLP on a CPU"
+    # float32 compiled on a CPU: rounding only, as the fast paths promise (within 1e-4 of eager)
+    assert all(0 <= stage["max_abs_to_eager"] <= 1e-4 for stage in parity["stages"])
+    assert parity["bound"] == DEPLOY_ACTION_BOUND and parity["eager_abs_max"] > 0
