@@ -331,6 +331,26 @@ class LeRobotAdapterContract(FlowPolicyContract):
         return contextlib.nullcontext() if self.policy_type == "smolvla" else tiny_pi_configs(self.policy_type)
 
     # ---- what only LeRobot policies have ----------------------------------------------------------------------
+    def test_cutting_the_prompts_padding_changes_no_chunk(self, policy, batch):
+        from snapflow.adapters.lerobot.base import OBS_LANGUAGE_ATTENTION_MASK as MASK
+        from snapflow.adapters.lerobot.base import OBS_LANGUAGE_TOKENS as TOKENS
+
+        randomise_target_time(policy)
+        observation, actions = batch
+        mask, noise = observation[MASK], self.noise_like(actions)
+        longest = int(mask.sum(dim=1).max())
+        cut = policy.without_prompt_padding(observation, multiple=1)
+        assert cut[MASK].shape[1] == cut[TOKENS].shape[1] == longest < mask.shape[1]
+        for mode in (TEACHER_10, SNAPFLOW_1):  # padding is masked out everywhere: rounding apart, the same chunk
+            torch.testing.assert_close(
+                sample_actions(policy, cut, noise, mode), sample_actions(policy, observation, noise, mode)
+            )
+        assert policy.without_prompt_padding(observation, multiple=4)[MASK].shape[1] == min(
+            -(-longest // 4) * 4, mask.shape[1]
+        )
+        left_padded = {**observation, MASK: mask.flip(1), TOKENS: observation[TOKENS].flip(1)}
+        assert policy.without_prompt_padding(left_padded, multiple=1) is left_padded, "only right padding is cut"
+
     def test_lerobot_sampling_reads_s_as_t_so_phi_s_changes_only_the_jump(self, policy, batch):
         from tests.lerobot_tiny import lerobot_sample
 

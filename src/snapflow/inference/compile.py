@@ -85,7 +85,9 @@ def fuse_one_step(policy: nn.Module, mode: CompileMode = "reduce-overhead") -> n
     fused = torch.compile(chunk, mode=mode, dynamic=False)
 
     def one_step_chunk(observation: Any, noise: torch.Tensor) -> torch.Tensor:
-        stepped_aside = {name: policy.__dict__.pop(name) for name in methods if name in policy.__dict__}
+        # any method the instance overrides steps aside: compiled ones, and a wrapper a fast path put around encode
+        names = dict.fromkeys((*methods, *DEFAULT_METHODS))
+        stepped_aside = {name: policy.__dict__.pop(name) for name in names if name in policy.__dict__}
         try:
             if mode != "reduce-overhead":
                 return fused(observation, noise)

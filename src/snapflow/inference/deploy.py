@@ -7,6 +7,9 @@
 - The prefix pass and the velocity compiled with CUDA graphs (``reduce-overhead``; the teacher's N-step modes and
   LeRobot's own sampling run them), and the one-step chunk, prefix and jump, as one graph of its own
   (:func:`snapflow.inference.compile.fuse_one_step`): one replay a chunk, nothing copied between the two.
+- The prompt's padding cut before the prefix where the policy can (a LeRobot policy's
+  ``without_prompt_padding``: LeRobot's pi0.5 pads every prompt to 200 tokens), to a multiple of 16 tokens so that
+  the graphs meet few shapes: padding is masked out of every attention, so only rounding changes.
 
 LeRobot's own precision stays one flag away: ``compile-reduce-overhead`` compiles the same passes without changing
 what runs in which precision. Compiled code is cached on disk by torch (``$TORCHINDUCTOR_CACHE_DIR``, by default in
@@ -40,7 +43,13 @@ def deploy(policy: nn.Module) -> nn.Module:
         torch.backends.cuda.matmul.allow_tf32 = torch.backends.cudnn.allow_tf32 = True
         torch.set_float32_matmul_precision("high")
     compile_policy(policy, "reduce-overhead")
-    return fuse_one_step(policy, "reduce-overhead")
+    fuse_one_step(policy, "reduce-overhead")
+    trim = getattr(policy, "without_prompt_padding", None)
+    if callable(trim):  # outside the graphs: the cut is decided by the data
+        encode, chunk = policy.encode, policy.one_step_chunk
+        policy.encode = lambda batch: encode(trim(batch))
+        policy.one_step_chunk = lambda observation, noise: chunk(trim(observation), noise)
+    return policy
 
 
 __all__ = ["DEPLOY_ACTION_BOUND", "deploy"]

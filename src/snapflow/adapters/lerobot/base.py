@@ -29,6 +29,8 @@ from snapflow.nn.time_embedding import TargetTimeEmbedding
 
 OBS_LANGUAGE_TOKENS = "observation.language.tokens"
 OBS_LANGUAGE_ATTENTION_MASK = "observation.language.attention_mask"
+#: a prompt cut of its padding keeps a multiple of this many tokens: a compiled prefix then meets few shapes
+PROMPT_BUCKET = 16
 
 
 def split_timestep(timestep: Tensor) -> tuple[Tensor, Tensor]:
@@ -166,6 +168,22 @@ class LeRobotFlowPolicy(nn.Module, ABC):
     def encode(self, batch: dict[str, Tensor]) -> dict[str, Any]:
         return self.encode_inputs(*self.model_inputs(batch))
 
+    def without_prompt_padding(self, batch: dict[str, Tensor], multiple: int = PROMPT_BUCKET) -> dict[str, Tensor]:
+        """``batch`` with its prompt's right padding cut down to its longest prompt, rounded up to ``multiple``
+        tokens. Padding is masked out of every attention and position ids count real tokens only, so the chunk is
+        the same for fewer tokens through the VLM (LeRobot's pi0.5 pads every prompt to 200 tokens). A batch whose
+        padding is not on the right is returned as it is."""
+        mask = batch[OBS_LANGUAGE_ATTENTION_MASK]
+        width = mask.shape[1]
+        keep = min(width, -(-max(int(mask.sum(dim=1).max()), 1) // multiple) * multiple)
+        if keep == width or bool(mask[:, keep:].any()):
+            return batch
+        return {
+            **batch,
+            OBS_LANGUAGE_TOKENS: batch[OBS_LANGUAGE_TOKENS][:, :keep],
+            OBS_LANGUAGE_ATTENTION_MASK: mask[:, :keep],
+        }
+
     def velocity(self, x_t: Tensor, t: Tensor, s: Tensor, context: dict[str, Any]) -> Tensor:
         return self.denoise(context, x_t, torch.stack([t, s], dim=1))
 
@@ -205,6 +223,7 @@ class LeRobotFlowPolicy(nn.Module, ABC):
 
 
 __all__ = [
+    "PROMPT_BUCKET",
     "OBS_LANGUAGE_ATTENTION_MASK",
     "OBS_LANGUAGE_TOKENS",
     "LeRobotFlowPolicy",
