@@ -8,6 +8,8 @@
 #   bash scripts/gpu_latency.sh [OUTPUT] [ARCHITECTURE ...]   # default outputs/latency-gpu; pi05 smolvla pi0
 #   SHORT=1 bash scripts/gpu_latency.sh OUTPUT                 # the chain on the CPU: the MLP, two repeats
 #   LIMIT=SECONDS ...                                          # the most one bench may take (default 400)
+#   PROMPT=N ...                                               # N real prompt tokens, the rest padding (default:
+#                                                              # all real; deploy cuts the padding)
 #
 # Each bench writes OUTPUT/<architecture>-<device>[-cold]/ and its log beside it; a finished one is kept when the
 # script runs again. The compile cache is OUTPUT/compile-cache.
@@ -45,7 +47,7 @@ bench() {  # FOLDER, then snapflow bench's arguments
     [ -f "$folder/bench.json" ] && return 0
     local began=$SECONDS
     timeout "${LIMIT:-400}" python3 -m snapflow.cli bench "$@" --fast-path deploy --compile-cache "$out/compile-cache" \
-        --batch-sizes 1 --no-progress --output "$folder" >"$folder.log" 2>&1
+        ${PROMPT:+--prompt-tokens "$PROMPT"} --batch-sizes 1 --no-progress --output "$folder" >"$folder.log" 2>&1
     local status=$?  # 124: stopped at LIMIT
     echo "${folder##*/}: exit $status after $((SECONDS - began)) s"
 }

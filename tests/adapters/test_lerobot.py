@@ -352,3 +352,17 @@ def test_the_vision_tower_runs_in_bfloat16_on_request_and_moves_the_actions_litt
     assert {parameter.dtype for parameter in tower.parameters()} == {torch.bfloat16}
     # bfloat16 rounding of the image features, nothing more: a change, and one within deploy's bound
     assert 0 < difference <= DEPLOY_ACTION_BOUND
+
+
+def test_a_bench_subject_may_time_a_prompt_of_fewer_real_tokens_than_its_padded_length(vlm_directory):
+    from snapflow.adapters.lerobot.base import OBS_LANGUAGE_ATTENTION_MASK
+    from snapflow.benchmark.subjects import lerobot_subject, with_prompt_tokens
+
+    subject = lerobot_subject(build_tiny_smolvla(vlm_directory), "tiny", torch.device("cpu"), torch.float32)
+    full = subject.observation[OBS_LANGUAGE_ATTENTION_MASK]
+    assert bool(full.all()), "by default every token is real: the most a prefix costs"
+    shorter = with_prompt_tokens(subject, 3)
+    assert shorter.observation[OBS_LANGUAGE_ATTENTION_MASK].tolist() == [[True] * 3 + [False] * (full.shape[1] - 3)]
+    assert shorter.details["prompt_tokens"] == 3 and "prompt_tokens" not in subject.details
+    with pytest.raises(ValueError, match=rf"--prompt-tokens must be in \[1, {full.shape[1]}\]"):
+        with_prompt_tokens(subject, full.shape[1] + 1)

@@ -305,3 +305,9 @@ def test_the_deploy_parity_script_adds_the_fast_paths_parts_one_at_a_time_agains
     # float32 compiled on a CPU: rounding only, as the fast paths promise (within 1e-4 of eager)
     assert all(0 <= stage["max_abs_to_eager"] <= 1e-4 for stage in parity["stages"])
     assert parity["bound"] == DEPLOY_ACTION_BOUND and parity["eager_abs_max"] > 0
+
+
+def test_a_prompt_length_is_refused_for_a_policy_that_reads_no_tokenized_prompt(tmp_path, capsys):
+    arguments = ["bench", "--architecture", "mlp", "--prompt-tokens", "3", "--repeats", "1", "--warmup", "0"]
+    assert main([*arguments, "--no-progress", "--output", str(tmp_path)]) == 2
+    assert "reads no tokenized prompt (a LeRobot policy does)" in capsys.readouterr().err

@@ -7,7 +7,7 @@ depend on the values, so a user can time pi0.5 or SmolVLA before downloading or 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -260,6 +260,23 @@ def make_subject(
     return opened_subject(loaded, f"{loaded.policy_type} ({policy})", device, dtype)
 
 
+def with_prompt_tokens(subject: BenchSubject, tokens: int) -> BenchSubject:
+    """``subject`` timed on a prompt of ``tokens`` real tokens, the rest of its padded length padding (a LeRobot
+    subject's prompt is all real tokens by default: the most a prefix can cost); recorded as
+    ``details["prompt_tokens"]``."""
+    from snapflow.adapters.lerobot.base import OBS_LANGUAGE_ATTENTION_MASK
+
+    observation = subject.observation
+    if not isinstance(observation, dict) or OBS_LANGUAGE_ATTENTION_MASK not in observation:
+        raise InvalidInputError(f"--prompt-tokens: {subject.name} reads no tokenized prompt (a LeRobot policy does)")
+    mask = observation[OBS_LANGUAGE_ATTENTION_MASK]
+    if not 1 <= tokens <= mask.shape[1]:
+        raise InvalidInputError(f"--prompt-tokens must be in [1, {mask.shape[1]}] (the padded prompt), got {tokens}")
+    real = torch.arange(mask.shape[1], device=mask.device)[None, :] < tokens
+    observation = {**observation, OBS_LANGUAGE_ATTENTION_MASK: real.expand_as(mask).to(mask.dtype)}
+    return replace(subject, observation=observation, details={**subject.details, "prompt_tokens": tokens})
+
+
 def opened_subject(
     loaded: OpenedPolicy, name: str, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32
 ) -> BenchSubject:
@@ -285,4 +302,5 @@ __all__ = [
     "lerobot_architecture",
     "make_subject",
     "opened_subject",
+    "with_prompt_tokens",
 ]

@@ -52,6 +52,12 @@ def add_parser(subparsers: Any) -> None:
         help="smolvla: its VLM's config written locally at this size instead (full: SmolVLM2-500M's dimensions, "
         "SmolVLA's own; no hub)",
     )
+    parser.add_argument(
+        "--prompt-tokens",
+        type=COUNT,
+        help="a LeRobot policy's prompt: this many real tokens, the rest of its padded length padding (default: all "
+        "real, the most a prefix costs)",
+    )
     parser.add_argument("--device", help="cpu, cuda, cuda:1, ... (default: cuda when available)")
     parser.add_argument(
         "--dtype", choices=["float32", "bfloat16", "float16"], default="float32", help="weights and activations"
@@ -96,13 +102,15 @@ def run(args: argparse.Namespace) -> int:
 
     from snapflow.benchmark.bench import run_bench
     from snapflow.benchmark.report import markdown_bench, write_bench
-    from snapflow.benchmark.subjects import make_subject
+    from snapflow.benchmark.subjects import make_subject, with_prompt_tokens
 
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     dtype = {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch.float16}[args.dtype]
     with tempfile.TemporaryDirectory() as scratch:
         vlm = _written_smolvlm(args.smolvlm, Path(scratch)) if args.smolvlm else args.vlm
         subject = make_subject(args.policy, args.architecture, device, dtype, vlm)
+    if args.prompt_tokens:
+        subject = with_prompt_tokens(subject, args.prompt_tokens)
     distill_step = None
     if args.distill_batch_sizes:  # first, in place: before a fast path changes the policy
         from snapflow.benchmark.training_cost import distillation_step_cost
