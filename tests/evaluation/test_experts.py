@@ -46,7 +46,9 @@ def test_experts_refuses_unknown_tasks_and_too_many_episodes_in_one_line(tmp_pat
     assert main(["experts", "--tasks", "all", "--output", str(tmp_path / "b"), "--no-progress"]) == 2
     assert "give a set (mt10, mt50)" in capsys.readouterr().err
     assert main(["experts", "--tasks", "reach-v3", "--episodes", "51", "--output", str(tmp_path / "c")]) == 2
-    assert "episodes per task must be in [1, 50] (metaworld's 50 evaluation variations), got 51" in capsys.readouterr().err
+    assert (
+        "episodes per task must be in [1, 50] (metaworld's 50 evaluation variations), got 51" in capsys.readouterr().err
+    )
     assert not any((tmp_path / name).exists() for name in "abc")
 
 
