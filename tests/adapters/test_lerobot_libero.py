@@ -101,3 +101,34 @@ def test_the_student_runs_in_snapflows_evaluator_and_in_lerobots_libero_environm
     assert (lerobot["env"], lerobot["task"], list(lerobot["modes"])) == ("libero", "libero_spatial", ["snapflow-1"])
     assert lerobot["modes"]["snapflow-1"]["nfe"] == 1
     assert lerobot["modes"]["snapflow-1"]["overall"]["n_episodes"] == 1
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(
+    not lerobot_loads_plugins(), reason="lerobot-eval loads snapflow's student types from lerobot 0.5 on"
+)
+def test_lerobot_eval_task_by_task_reads_back_as_an_evaluation_row_with_lerobots_own_files_kept(collected, tmp_path):
+    """What a sweep's ``evaluator = "lerobot-eval"`` table runs: LeRobot's ``lerobot-eval`` on the teacher (its
+    Euler steps) and on the student (its sampling mode), one task at a time, read back as snapflow's evaluation row;
+    LeRobot's ``eval_info.json`` kept as it wrote it; a finished task is not run again; a teacher has no jump."""
+    from snapflow.errors import InvalidInputError
+    from snapflow.evaluation.lerobot_eval import EVAL_INFO, run_lerobot_eval
+    from snapflow.flow.modes import SNAPFLOW_1, TEACHER_10
+
+    task = "libero_spatial_0"
+    for policy, mode in (("teacher", TEACHER_10), ("student", SNAPFLOW_1)):
+        output, kept = tmp_path / mode.name, tmp_path / "kept" / mode.name
+        arguments = (collected / policy / "lerobot_policy", [task], 1, IMAGE_SIZE, 2, mode, output)
+        row = run_lerobot_eval(*arguments, threads=1, kept=kept)
+        info = json.loads((output / task / EVAL_INFO).read_text())
+        assert json.loads((kept / task / EVAL_INFO).read_text()) == info
+        assert (row.mode, row.nfe, row.success[task].episodes) == (mode.name, mode.num_steps, 1)
+        assert row.success["mean"].successes == sum(info["per_task"][0]["metrics"]["successes"])
+        log = (output / f"{task}.log").read_text()
+        asked = "'sampling_mode': 'snapflow-1'" if mode.jump else "'num_steps': 10"
+        assert asked in log and "'n_action_steps': 2" in log
+        written = (output / f"{task}.log").stat().st_mtime_ns
+        assert run_lerobot_eval(*arguments, threads=1) == row
+        assert (output / f"{task}.log").stat().st_mtime_ns == written, "a finished task is read back, not run again"
+    with pytest.raises(InvalidInputError, match="has no jump to sample snapflow-1"):
+        run_lerobot_eval(collected / "teacher" / "lerobot_policy", [task], 1, IMAGE_SIZE, 2, SNAPFLOW_1, tmp_path / "x")

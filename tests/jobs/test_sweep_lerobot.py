@@ -12,7 +12,7 @@ import pytest
 from snapflow.adapters.lerobot_types import PLUGIN_LEROBOT, lerobot_loads_plugins
 from snapflow.cli import main
 from snapflow.jobs.sweep import TrainJob, jobs, load_sweep
-from snapflow.jobs.sweep.planning import LeRobotDatasetJob, train_job
+from snapflow.jobs.sweep.planning import EvalJob, LeRobotDatasetJob, train_job
 
 TINY_TRAIN = "{ steps = 4, batch_size = 4, warmup_steps = 1, log_every = 2, validate_every = 4, checkpoint_every = 2 }"
 
@@ -131,3 +131,71 @@ def test_a_tiny_smolvla_sweep_trains_distils_by_both_trainers_and_evaluates_ever
     assert [row["episodes"] for row in headline] == [2, 2, 2, 2]
     for row in headline:
         assert 0 <= row["success_mean"] <= 100 and row["offline"]["mse"] >= 0
+
+
+LEROBOT_EVAL_TABLE = """
+[[tables]]
+name = "lerobot-eval"
+evaluator = "lerobot-eval"
+episodes_per_task = 10
+rows = [
+  { label = "teacher 10-NFE", run = "teacher", mode = "teacher-10" },
+  { label = "SnapFlow 1-NFE, lerobot-train", run = "lerobot-train", mode = "snapflow-1" },
+]
+"""
+
+
+def write_libero_config(directory: Path, table: str = LEROBOT_EVAL_TABLE) -> Path:
+    """The tiny sweep on LIBERO's first task, with ``table`` after its headline."""
+    path = write_config(directory)
+    text = path.read_text().replace(
+        'tasks = ["reach-v3", "button-press-topdown-v3"]', 'env = "libero"\ntasks = ["libero_spatial_0"]'
+    )
+    path.write_text(text + table)
+    return path
+
+
+def test_a_table_by_lerobot_eval_evaluates_the_same_policies_into_records_of_its_own(tmp_path):
+    config = load_sweep(write_libero_config(tmp_path))
+    planned = [job for job in jobs(config) if isinstance(job, EvalJob)]
+    by_snapflow = {(job.policy.run_name, job.mode.name): job for job in planned if job.evaluator == "snapflow"}
+    by_lerobot = {(job.policy.run_name, job.mode.name): job for job in planned if job.evaluator == "lerobot-eval"}
+    assert set(by_lerobot) == {("teacher", "teacher-10"), ("lerobot-train", "snapflow-1")}
+    for cell, job in by_lerobot.items():
+        assert job.path.name == f"{job.mode.name}_nact4_eps10_lerobot-eval.json"
+        settings = job.settings()
+        assert settings["evaluator"] == "lerobot-eval" and "offline_samples" not in settings
+        # the headline's cell by snapflow's evaluator: the same policy, another record, its settings as they were
+        same = by_snapflow[cell]
+        assert same.policy == job.policy and same.path != job.path and "evaluator" not in same.settings()
+    assert "by lerobot-eval" in by_lerobot[("teacher", "teacher-10")].describe()
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (('evaluator = "lerobot-eval"', 'evaluator = "gym"'), "evaluator must be one of ['snapflow', 'lerobot-eval']"),
+        (("episodes_per_task = 10\nrows", "episodes_per_task = 11\nrows"), "at most 10 episodes a task"),
+        (("episodes_per_task = 10\nrows", "first_variation = 10\nepisodes_per_task = 10\nrows"), "first_variation 0"),
+        (('run = "lerobot-train", mode = "snapflow-1"', 'run = "teacher", mode = "snapflow-1"'), "no jump to sample"),
+    ],
+)
+def test_a_bad_lerobot_eval_table_is_refused_with_its_section_named(tmp_path, capsys, change, message):
+    path = write_libero_config(tmp_path, LEROBOT_EVAL_TABLE.replace(*change))
+    assert main(["sweep", str(path), "--report-only", "--no-progress"]) == 2
+    error = capsys.readouterr().err
+    assert "[[tables]] #2" in error and message in error and "Traceback" not in error
+
+
+def test_lerobot_eval_runs_on_libero_and_on_lerobot_runs_alone(tmp_path, capsys):
+    metaworld = write_config(tmp_path)
+    metaworld.write_text(metaworld.read_text() + LEROBOT_EVAL_TABLE)
+    assert main(["sweep", str(metaworld), "--report-only", "--no-progress"]) == 2
+    assert "lerobot-eval evaluates on LeRobot's LIBERO environment; data is 'metaworld'" in capsys.readouterr().err
+    built_in = write_libero_config(
+        tmp_path,
+        '[runs.mlp]\npolicy = { type = "mlp" }\n'
+        + LEROBOT_EVAL_TABLE.replace('run = "teacher", mode = "teacher-10"', 'run = "mlp", mode = "teacher-10"'),
+    )
+    assert main(["sweep", str(built_in), "--report-only", "--no-progress"]) == 2
+    assert "lerobot-eval evaluates this sweep's LeRobot runs and their students" in capsys.readouterr().err

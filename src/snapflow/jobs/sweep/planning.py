@@ -21,7 +21,7 @@ from snapflow.evaluation.config import OFFLINE_SAMPLES
 from snapflow.evaluation.pipeline import evaluate
 from snapflow.flow.modes import SamplingMode
 from snapflow.jobs.runner import Job, record, run_jobs, to_run
-from snapflow.jobs.sweep.schema import TRAINERS, DataSpec, LeRobotSpec, RowSpec, SweepConfig, TableSpec
+from snapflow.jobs.sweep.schema import EVALUATORS, TRAINERS, DataSpec, LeRobotSpec, RowSpec, SweepConfig, TableSpec
 from snapflow.policies.checkpoint import resolve_checkpoint
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import policy_type_of
@@ -349,16 +349,19 @@ class EvalJob(Job):
     path: Path
     ledger: Path | None = None
     first_variation: int = 0  # each task's episodes from this evaluation variation on
+    evaluator: str = EVALUATORS[0]  # snapflow's evaluator, or LeRobot's lerobot-eval (no offline metrics)
 
     def settings(self) -> dict[str, Any]:
+        by_lerobot = self.evaluator != EVALUATORS[0]
         return {
             "mode": as_record(self.mode),
             "n_act": self.n_act,
             "episodes_per_task": self.episodes_per_task,
             "seed": self.policy.seed,
-            "offline_samples": OFFLINE_SAMPLES,
-            # only where set: the records made before it could be chosen are of the first variations
+            **({} if by_lerobot else {"offline_samples": OFFLINE_SAMPLES}),
+            # only where set: the records made before they could be chosen are of the first variations, by snapflow's
             **({"first_variation": self.first_variation} if self.first_variation else {}),
+            **({"evaluator": self.evaluator} if by_lerobot else {}),
         }
 
     @property
@@ -375,7 +378,8 @@ class EvalJob(Job):
 
     @property
     def episodes_dir(self) -> Path:
-        """Where its episodes are logged as they finish: an interrupted evaluation goes on from them."""
+        """Where its episodes are logged as they finish (by lerobot-eval: each task's run): an interrupted evaluation
+        goes on from them."""
         return self.path.with_name(f"{self.path.stem}.episodes")
 
     @property
@@ -383,6 +387,8 @@ class EvalJob(Job):
         return (self.episodes_dir,)
 
     def run(self) -> dict[str, Any]:
+        if self.evaluator != EVALUATORS[0]:
+            return self._run_lerobot_eval()
         collected = self.policy.data
         loaded = open_policy(str(self.policy.policy_path))
         # the runner clears the log of a run with other settings, so what is left is this evaluation's to resume
@@ -404,9 +410,33 @@ class EvalJob(Job):
         )
         return report.rows[self.mode.name].to_dict()
 
+    def _run_lerobot_eval(self) -> dict[str, Any]:
+        """LeRobot's ``lerobot-eval`` on each task, its ``eval_info.json`` files kept beside the ledger's record."""
+        import torch
+
+        from snapflow.evaluation.lerobot_eval import run_lerobot_eval
+
+        data = self.policy.data.data
+        kept = self.ledger.with_suffix("") if self.ledger is not None else None
+        row = run_lerobot_eval(
+            self.policy.policy_path,
+            list(data.tasks),
+            self.episodes_per_task,
+            data.image_size,
+            self.n_act,
+            self.mode,
+            self.episodes_dir,
+            threads=torch.get_num_threads(),
+            kept=kept,
+        )
+        return row.to_dict()
+
     def describe(self) -> str:
         policy = self.policy
-        return f"{policy.sweep}: evaluate {policy.run_name} seed {policy.seed} ({self.mode.name}; n_act {self.n_act})"
+        by = "" if self.evaluator == EVALUATORS[0] else f", by {self.evaluator}"
+        return (
+            f"{policy.sweep}: evaluate {policy.run_name} seed {policy.seed} ({self.mode.name}; n_act {self.n_act}{by})"
+        )
 
 
 def data_job(config: SweepConfig) -> DataJob:
@@ -451,10 +481,11 @@ def eval_job(config: SweepConfig, table: TableSpec, row: RowSpec, seed: int) -> 
     """The evaluation behind one cell (row, seed) of a table of ``config``: the row's own sweep's, where it reads
     another's."""
     owner = row.owner(config)
-    first = table.first_variation
-    path = owner.eval_path(row.run, seed, row.mode, row.n_act, table.episodes_per_task, first)
+    first, evaluator = table.first_variation, table.evaluator
+    path = owner.eval_path(row.run, seed, row.mode, row.n_act, table.episodes_per_task, first, evaluator)
     policy = train_job(owner, row.run, seed)
-    return EvalJob(policy, row.mode, row.n_act, table.episodes_per_task, path, owner.ledger_path(path), first)
+    ledger = owner.ledger_path(path)
+    return EvalJob(policy, row.mode, row.n_act, table.episodes_per_task, path, ledger, first, evaluator)
 
 
 def jobs(config: SweepConfig) -> list[Job]:

@@ -58,6 +58,9 @@ class LeRobotSpec:
 #: how a student of a LeRobot teacher is distilled: snapflow's trainer (``snapflow distill``) or LeRobot's own
 #: (``lerobot-train`` on the teacher written as its ``snapflow_<type>`` student)
 TRAINERS = ("snapflow", "lerobot-train")
+# who runs a table's episodes: snapflow's evaluator (with offline metrics), or LeRobot's own lerobot-eval on LeRobot's
+# LIBERO environment, from the same initial states (LeRobot policies only; no offline metrics)
+EVALUATORS = ("snapflow", "lerobot-eval")
 
 
 @dataclass(frozen=True)
@@ -106,6 +109,7 @@ class TableSpec:
     x_label: str | None = None
     reference: str | None = None  # the row every other is compared with, paired (default: the first)
     first_variation: int = 0  # each task's episodes on its evaluation variations from this one on (LIBERO's states)
+    evaluator: str = EVALUATORS[0]  # who runs the episodes: snapflow's evaluator, or LeRobot's own lerobot-eval
 
     @property
     def reference_row(self) -> RowSpec:
@@ -155,11 +159,19 @@ class SweepConfig:
         return self.output_dir / "collect" / task
 
     def eval_path(
-        self, run: str, seed: int, mode: SamplingMode, n_act: int, episodes_per_task: int, first_variation: int = 0
+        self,
+        run: str,
+        seed: int,
+        mode: SamplingMode,
+        n_act: int,
+        episodes_per_task: int,
+        first_variation: int = 0,
+        evaluator: str = EVALUATORS[0],
     ) -> Path:
-        # from the first variation, the name evaluations had before another could be chosen
+        # from the first variation by snapflow's evaluator, the name evaluations had before either could be chosen
         start = f"_from{first_variation}" if first_variation else ""
-        name = f"{mode.name}_nact{n_act}_eps{episodes_per_task}{start}.json"
+        by = "" if evaluator == EVALUATORS[0] else f"_{evaluator}"
+        name = f"{mode.name}_nact{n_act}_eps{episodes_per_task}{start}{by}.json"
         return self.output_dir / "evals" / run / f"seed-{seed}" / name
 
     def ledger_path(self, record: Path) -> Path:
@@ -383,7 +395,7 @@ def _tables(
         raise InvalidInputError(f"{path}: tables must be a list of [[tables]] entries")
     tables = []
     allowed = {"name", "title", "rows", "seeds", "episodes_per_task", "first_variation", "n_act", "per_task"}
-    allowed |= {"x_label", "reference"}
+    allowed |= {"x_label", "reference", "evaluator"}
     for index, entry in enumerate(raw):
         section = f"[[tables]] #{index + 1}"
         _checked(section, entry, allowed, frozenset({"name", "rows"}))
@@ -423,20 +435,49 @@ def _tables(
             raise InvalidInputError(
                 f"{section}: reference {reference!r} is not one of its rows {[row.label for row in rows]}"
             )
-        tables.append(
-            TableSpec(
-                entry["name"],
-                entry.get("title", entry["name"]),
-                tuple(rows),
-                table_seeds,
-                _count(section, "episodes_per_task", entry.get("episodes_per_task", EVAL_EPISODES)),
-                entry.get("per_task", False),
-                entry.get("x_label"),
-                reference,
-                _first_variation(section, entry.get("first_variation", 0)),
-            )
+        table = TableSpec(
+            entry["name"],
+            entry.get("title", entry["name"]),
+            tuple(rows),
+            table_seeds,
+            _count(section, "episodes_per_task", entry.get("episodes_per_task", EVAL_EPISODES)),
+            entry.get("per_task", False),
+            entry.get("x_label"),
+            reference,
+            _first_variation(section, entry.get("first_variation", 0)),
+            entry.get("evaluator", EVALUATORS[0]),
         )
+        if table.evaluator != EVALUATORS[0]:
+            _check_lerobot_eval(section, table, runs, data)
+        tables.append(table)
     return tuple(tables)
+
+
+def _check_lerobot_eval(section: str, table: TableSpec, runs: dict[str, RunSpec], data: DataSpec) -> None:
+    """A table that ``lerobot-eval`` runs: LeRobot runs of this sweep on LIBERO, each task's episodes one batch from
+    its first initial states (:mod:`snapflow.evaluation.lerobot_eval`)."""
+    from snapflow.evaluation.lerobot_eval import MAX_EPISODES
+
+    if table.evaluator not in EVALUATORS:
+        raise InvalidInputError(f"{section}: evaluator must be one of {list(EVALUATORS)}, got {table.evaluator!r}")
+    if data.env != "libero":
+        raise InvalidInputError(
+            f"{section}: lerobot-eval evaluates on LeRobot's LIBERO environment; data is {data.env!r}"
+        )
+    if table.first_variation or table.episodes_per_task > MAX_EPISODES:
+        raise InvalidInputError(
+            f"{section}: lerobot-eval runs a task's episodes as one batch from LIBERO's first initial states: "
+            f"first_variation 0 and at most {MAX_EPISODES} episodes a task"
+        )
+    for row in table.rows:
+        run = runs.get(row.run) if row.sweep is None else None
+        teacher = runs[run.teacher] if run is not None and run.teacher is not None else run
+        if teacher is None or teacher.lerobot is None:
+            raise InvalidInputError(
+                f"{section}: row {row.label!r}: lerobot-eval evaluates this sweep's LeRobot runs and their students"
+            )
+        if row.mode.jump and run.teacher is None:
+            raise InvalidInputError(f"{section}: row {row.label!r}: a LeRobot teacher has no jump to sample {row.mode}")
 
 
 def _first_variation(section: str, value: Any) -> int:
