@@ -366,3 +366,32 @@ def test_a_bench_subject_may_time_a_prompt_of_fewer_real_tokens_than_its_padded_
     assert shorter.details["prompt_tokens"] == 3 and "prompt_tokens" not in subject.details
     with pytest.raises(ValueError, match=rf"--prompt-tokens must be in \[1, {full.shape[1]}\]"):
         with_prompt_tokens(subject, full.shape[1] + 1)
+
+
+@pytest.mark.parametrize("episodes", [None, [0, 2]])
+def test_training_frames_are_lerobots_own_delta_timestamp_items(tmp_path, episodes):
+    """Each training frame equals what LeRobot's ``delta_timestamps`` gives, key for key and bit for bit (images,
+    state, the chunk with its repeated last actions, ``action_is_pad``), on all episodes or some (a held-out one
+    left out between them): only the way the chunk is read differs."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from snapflow.adapters.lerobot.data import ActionChunks
+    from tests.lerobot_tiny import write_tiny_dataset
+
+    root = write_tiny_dataset(tmp_path / "dataset", episodes=3, frames=12, fps=10)
+    ours = ActionChunks(LeRobotDataset("local/tiny", root=root, episodes=episodes), chunk_size=5)
+    chunk = {"action": [step / 10 for step in range(5)]}
+    theirs = LeRobotDataset("local/tiny", root=root, episodes=episodes, delta_timestamps=chunk)
+    count = len(episodes or range(3))
+    assert len(ours) == len(theirs) == 12 * count
+    padded = 0
+    for position in range(len(theirs)):
+        mine, lerobots = ours[position], theirs[position]
+        assert mine.keys() == lerobots.keys()
+        for key, value in lerobots.items():
+            if isinstance(value, torch.Tensor):
+                assert mine[key].dtype == value.dtype and torch.equal(mine[key], value), (position, key)
+            else:
+                assert mine[key] == value, (position, key)
+        padded += int(lerobots["action_is_pad"].any())
+    assert padded == 4 * count, "each episode's last four frames reach past its end"

@@ -16,7 +16,7 @@ from accelerate import PartialState
 from snapflow.adapters.hub import check_source, fetch_hub_file
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy, lerobot_time_sampler
 from snapflow.adapters.lerobot.checkpoint import PREPROCESSOR_FILE, save_distilled, save_teacher
-from snapflow.adapters.lerobot.data import LeRobotChunkData
+from snapflow.adapters.lerobot.data import ActionChunks, LeRobotChunkData
 from snapflow.adapters.lerobot.dataset import policy_features
 from snapflow.adapters.lerobot.registry import wrap_policy
 from snapflow.adapters.lerobot.smolvlm import smolvla_config, token_budget, words_of, write_smolvlm
@@ -155,14 +155,14 @@ def distill_lerobot(
 def training_dataset(metadata: Any, dataset_root: str | Path | None, chunk_size: int, val_fraction: float) -> Any:
     """The LeRobotDataset's training episodes (the last ``val_fraction`` of each task's held out, as for the
     built-in policies: :func:`~snapflow.data.demonstrations.split_episodes`), each frame with its next
-    ``chunk_size`` actions (LeRobot repeats an episode's last one)."""
+    ``chunk_size`` actions as LeRobot's ``delta_timestamps`` give them (:class:`ActionChunks`: an episode's last one
+    repeated and marked in ``action_is_pad``)."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     episodes = None
     if val_fraction > 0:
         episodes, _ = split_episodes([entry["tasks"][0] for entry in metadata.episodes], val_fraction)
-    chunk = [step / metadata.fps for step in range(chunk_size)]
-    return LeRobotDataset(metadata.repo_id, root=dataset_root, episodes=episodes, delta_timestamps={"action": chunk})
+    return ActionChunks(LeRobotDataset(metadata.repo_id, root=dataset_root, episodes=episodes), chunk_size)
 
 
 def train_smolvla_teacher(
@@ -206,7 +206,9 @@ def train_smolvla_teacher(
         sizes = dict(chunk_size=chunk_size, n_action_steps=n_action_steps, tokenizer_max_length=token_budget(tasks))
         policy = SmolVLAPolicy(smolvla_config(vlm, inputs, outputs, size, **sizes))
         dataset = training_dataset(metadata, dataset_root, chunk_size, val_fraction)
-        check_finite(dataset, [key for key, feature in features.items() if feature.type is not FeatureType.VISUAL])
+        check_finite(
+            dataset.dataset, [key for key, feature in features.items() if feature.type is not FeatureType.VISUAL]
+        )
         preprocessor, postprocessor = make_pre_post_processors(policy.config, dataset_stats=metadata.stats)
         adapter = wrap_policy(policy)
         adapter.train_prefix = True
@@ -301,7 +303,7 @@ def _distill_lerobot(
         val_fraction = opened.val_fraction
     dataset = training_dataset(metadata, dataset_root, policy.config.chunk_size, val_fraction)
     features = {**policy.config.input_features, **policy.config.output_features}
-    check_finite(dataset, [key for key, feature in features.items() if feature.type.name != "VISUAL"])
+    check_finite(dataset.dataset, [key for key, feature in features.items() if feature.type.name != "VISUAL"])
     preprocessor, postprocessor = policy_processors(policy, policy_path, metadata.stats, preprocessor_overrides)
     objective = settings.objective(opened.time_sampler)
     run_metadata = {
