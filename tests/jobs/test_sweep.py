@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, ClassVar
@@ -15,6 +16,7 @@ import pytest
 import torch
 
 from snapflow.cli import main
+from snapflow.errors import SnapflowError
 from snapflow.jobs.runner import Job, is_done, is_recorded, read_record, run_jobs, to_run, write_record
 from snapflow.jobs.sweep import (
     CollectJob,
@@ -583,6 +585,25 @@ def test_the_runner_continues_an_interrupted_job_and_restarts_a_stale_one(tmp_pa
     run_jobs([LogJob(directory, 2)], progress=False)
     assert read_record(LogJob(directory, 2))["lines"] == 1, "other settings: its old outputs were cleared first"
     assert not is_done(LogJob(directory, 1))
+
+
+@dataclass(frozen=True)
+class KilledJob(LogJob):
+    """A log job whose worker is killed as it runs, as the system kills one out of memory."""
+
+    def run(self) -> dict[str, Any]:
+        super().run()
+        os.kill(os.getpid(), signal.SIGKILL)
+        return {}
+
+
+def test_a_killed_worker_stops_the_run_naming_its_job_and_the_same_command_goes_on(tmp_path):
+    directory = tmp_path / "job"
+    with pytest.raises(SnapflowError, match=r"the worker running log 1 died \(killed, or out of memory\)"):
+        run_jobs([KilledJob(directory, 1)], progress=False)
+    assert not is_done(LogJob(directory, 1))
+    run_jobs([LogJob(directory, 1)], progress=False)
+    assert read_record(LogJob(directory, 1))["lines"] == 2, "its pending run's outputs were kept and went on"
 
 
 @pytest.mark.slow

@@ -30,6 +30,7 @@ import time
 from abc import ABC, abstractmethod
 from collections.abc import Iterable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any, ClassVar
@@ -37,7 +38,7 @@ from typing import Any, ClassVar
 import torch
 from tqdm.auto import tqdm
 
-from snapflow.errors import InvalidInputError
+from snapflow.errors import InvalidInputError, SnapflowError
 from snapflow.reporting.files import write_json
 from snapflow.reporting.machine import versions
 
@@ -253,7 +254,8 @@ def run_jobs(
     depth, then :func:`to_run`'s order: a worker freed by a student evaluates it before starting a teacher of hours,
     so results a session can commit come as early as they can.
 
-    A failed job stops the run with its own error (after the jobs already running have finished).
+    A failed job stops the run with its own error (after the jobs already running have finished); a worker killed
+    from outside (or for memory) stops it with a :class:`~snapflow.errors.SnapflowError` naming its job.
     """
     if workers < 1:
         raise InvalidInputError(f"workers must be at least 1, got {workers}")
@@ -285,7 +287,13 @@ def run_jobs(
             finished, _ = wait(running, return_when=FIRST_COMPLETED)
             for future in finished:
                 job = running.pop(future)
-                results, seconds = future.result()
+                try:
+                    results, seconds = future.result()
+                except BrokenProcessPool:
+                    raise SnapflowError(
+                        f"the worker running {job.describe()} died (killed, or out of memory); what finished is "
+                        "kept, and its checkpoints: run the same command again to go on"
+                    ) from None
                 _finish(job, results)
                 unfinished.discard(job)
                 times[job.describe()] = seconds
