@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES
 from snapflow.envs.libero import suite_of
 from snapflow.errors import InvalidInputError, SnapflowError
 from snapflow.evaluation.results import EpisodeResult, EvaluationRow, success_by_task
@@ -31,14 +32,12 @@ MAX_EPISODES = 10
 EVAL_INFO = "eval_info.json"  # lerobot-eval's own results file, in its output folder
 TIMING = "wall_time.json"  # beside it: the task's wall time, which lerobot-eval does not record
 
-PLUGIN_PREFIX = "snapflow_"  # a student type's name: LeRobot samples it as its config's ``sampling_mode`` says
-
 
 def mode_arguments(policy: Path, mode: SamplingMode) -> list[str]:
     """The flags that make ``lerobot-eval`` sample ``mode``: a student type's ``sampling_mode``, or the number of
     Euler steps of a LeRobot teacher (a plain type knows no jump)."""
     config = json.loads((policy / "config.json").read_text())
-    if config["type"].startswith(PLUGIN_PREFIX):
+    if config["type"] in {declared.student_type for declared in LEROBOT_POLICY_TYPES.values()}:
         return [f"--policy.sampling_mode={mode.name}"]
     if mode.jump:
         raise InvalidInputError(
