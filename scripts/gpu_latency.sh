@@ -40,6 +40,10 @@ if [ "${SHORT:-0}" = 1 ]; then
 fi
 device=$(python3 -c 'import torch; print(torch.cuda.get_device_name().split()[1].lower() if torch.cuda.is_available() else "cpu")')
 mkdir -p "$out"
+if [ "$device" != cpu ]; then  # the CUDA graph a deploy chunk replays, checked on this GPU before anything is timed
+    python3 -m pytest -q -p no:cacheprovider tests/inference/test_cuda_graph.py >"$out/cuda-graph-tests.log" 2>&1 ||
+        { tail -n 30 "$out/cuda-graph-tests.log"; exit 1; }
+fi
 
 bench() {  # FOLDER, then snapflow bench's arguments
     local folder="$out/$1"
