@@ -29,8 +29,9 @@ from snapflow.adapters.lerobot_config import SmolVLMSize
 
 try:
     LEROBOT: Version | None = Version(version("lerobot"))
+    TRANSFORMERS: Version | None = Version(version("transformers"))
 except PackageNotFoundError:  # the adapters' tests skip; the built-in policies' still run
-    LEROBOT = None
+    LEROBOT = TRANSFORMERS = None
 # the pi adapters' own minimum, as the registry reads it (0.4.4's pi0 needs a transformers fork)
 PI_SKIP = pytest.mark.skipif(
     LEROBOT is None or LEROBOT < Version(PI0FlowPolicy.minimum_lerobot),

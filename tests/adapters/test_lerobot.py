@@ -19,6 +19,7 @@ from snapflow.inference.deploy import DEPLOY_ACTION_BOUND  # noqa: E402
 from tests.lerobot_tiny import (  # noqa: E402
     LEROBOT,
     PI_SKIP,
+    TRANSFORMERS,
     build_tiny_pi,
     build_tiny_smolvla,
     randomise_target_time,
@@ -352,6 +353,23 @@ def test_the_vision_tower_runs_in_bfloat16_on_request_and_moves_the_actions_litt
     assert {parameter.dtype for parameter in tower.parameters()} == {torch.bfloat16}
     # bfloat16 rounding of the image features, nothing more: a change, and one within deploy's bound
     assert 0 < difference <= DEPLOY_ACTION_BOUND
+
+
+@pytest.mark.skipif(TRANSFORMERS < Version("5"), reason="reproduces transformers 5's embeddings")
+def test_smolvlms_vision_embeddings_without_host_syncs_are_transformers_own(vlm_directory):
+    """deploy's capturable SmolVLM vision embeddings against transformers' own, on whole images (what SmolVLA hands
+    them) and on padded ones (rows and columns of patches masked out)."""
+    from snapflow.adapters.lerobot.smolvla import _capturable_embeddings_forward
+
+    embeddings = build_tiny_smolvla(vlm_directory).model.vlm_with_expert.get_vlm_model().vision_model.embeddings
+    capturable = _capturable_embeddings_forward(embeddings)
+    side = embeddings.num_patches_per_side
+    pixels = torch.randn(3, 3, side * embeddings.patch_size, side * embeddings.patch_size)
+    mask = torch.ones(3, side, side, dtype=torch.bool)
+    mask[1, side // 2 :, :] = False
+    mask[2, :, side - 1 :] = False
+    for patches in (torch.ones_like(mask), mask):
+        torch.testing.assert_close(capturable(pixels, patches), embeddings(pixels, patches), rtol=0, atol=0)
 
 
 def test_a_bench_subject_may_time_a_prompt_of_fewer_real_tokens_than_its_padded_length(vlm_directory):

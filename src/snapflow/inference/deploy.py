@@ -7,6 +7,8 @@
 - The prefix pass and the velocity compiled with CUDA graphs (``reduce-overhead``; the teacher's N-step modes and
   LeRobot's own sampling run them), and the one-step chunk, prefix and jump, as one graph of its own
   (:func:`snapflow.inference.compile.fuse_one_step`): one replay a chunk, nothing copied between the two.
+- What would keep the chunk out of one graph replaced by its capturable equivalent where the policy has one (a
+  LeRobot policy's ``without_host_syncs``: SmolVLM's vision embeddings index their position ids by a boolean mask).
 - The prompt's padding cut before the prefix where the policy can (a LeRobot policy's
   ``without_prompt_padding``: LeRobot's pi0.5 pads every prompt to 200 tokens), to a multiple of 16 tokens so that
   the graphs meet few shapes: padding is masked out of every attention, so only rounding changes.
@@ -39,6 +41,9 @@ def deploy(policy: nn.Module) -> nn.Module:
     run_vision_in = getattr(policy, "run_vision_in", None)
     if callable(run_vision_in):
         run_vision_in(torch.bfloat16)
+    without_host_syncs = getattr(policy, "without_host_syncs", None)
+    if callable(without_host_syncs):
+        without_host_syncs()
     if any(parameter.is_cuda for parameter in policy.parameters()):
         torch.backends.cuda.matmul.allow_tf32 = torch.backends.cudnn.allow_tf32 = True
         torch.set_float32_matmul_precision("high")

@@ -50,6 +50,33 @@ def _embed_suffix_with_target_time(
     return embeddings, pad_masks, att_masks
 
 
+def _patch_positions(mask: Tensor, patches_per_side: int, dtype: torch.dtype) -> Tensor:
+    """The position ids SmolVLM's vision embeddings give a batch's patches under ``mask`` (batch, rows, columns):
+    each real patch's fractional row and column bucketed onto the ``patches_per_side`` grid, 0 on padding. The same
+    ids as transformers' ``SmolVLMVisionEmbeddings``, which writes them through a boolean-mask index (a host
+    synchronisation, so no CUDA graph can hold it); here a ``torch.where``."""
+    rows, columns = mask[:, :, 0].sum(dim=1), mask[:, 0, :].sum(dim=1)
+    boundaries = torch.arange(1 / patches_per_side, 1.0, 1 / patches_per_side, device=mask.device)
+
+    def buckets(count: Tensor, size: int) -> Tensor:
+        coordinates = torch.arange(size, device=mask.device, dtype=torch.float32)[None, :] / count[:, None]
+        return torch.bucketize(coordinates.clamp(max=1.0 - 1e-6).to(dtype), boundaries, right=True)
+
+    grid = buckets(rows, mask.shape[1])[:, :, None] * patches_per_side + buckets(columns, mask.shape[2])[:, None, :]
+    return torch.where(mask, grid, 0).flatten(1)
+
+
+def _capturable_embeddings_forward(embeddings: nn.Module) -> Any:
+    """``embeddings.forward`` (a ``SmolVLMVisionEmbeddings``) with its position ids from :func:`_patch_positions`."""
+
+    def forward(pixel_values: Tensor, patch_attention_mask: Tensor) -> Tensor:
+        patches = embeddings.patch_embedding(pixel_values).flatten(2).transpose(1, 2)
+        positions = _patch_positions(patch_attention_mask, embeddings.num_patches_per_side, pixel_values.dtype)
+        return patches + embeddings.position_embedding(positions)
+
+    return forward
+
+
 class SmolVLAFlowPolicy(LeRobotFlowPolicy):
     """SnapFlow view of a LeRobot ``SmolVLAPolicy``."""
 
@@ -77,6 +104,19 @@ class SmolVLAFlowPolicy(LeRobotFlowPolicy):
             batch[OBS_LANGUAGE_ATTENTION_MASK],
             self.policy.prepare_state(batch),
         )
+
+    def without_host_syncs(self) -> None:
+        """Make the prefix pass capturable in one CUDA graph (``deploy``): SmolVLM's vision embeddings compute the
+        same position ids without a boolean-mask index (:func:`_patch_positions`), on this instance only. From
+        transformers 5 on, whose embeddings this reproduces; older releases bucket the patches otherwise (one image
+        at a time, sized by ``.item()``) and keep their own."""
+        import transformers
+        from packaging.version import Version
+
+        if Version(transformers.__version__) < Version("5"):
+            return
+        vision = self.policy.model.vlm_with_expert.get_vlm_model().vision_model
+        vision.embeddings.forward = _capturable_embeddings_forward(vision.embeddings)
 
     def encode_inputs(
         self, images: list[Tensor], image_masks: list[Tensor], tokens: Tensor, token_masks: Tensor, state: Tensor
