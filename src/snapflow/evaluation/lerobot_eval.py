@@ -12,14 +12,13 @@ the next task."""
 from __future__ import annotations
 
 import json
-import os
 import shutil
-import subprocess
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
+from snapflow.adapters.lerobot_commands import LOG_TAIL_CHARACTERS, run_lerobot_command
 from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES
 from snapflow.envs.libero import suite_of
 from snapflow.errors import InvalidInputError, SnapflowError
@@ -80,20 +79,16 @@ def _run_task(arguments: list[str], output: Path, threads: int | None) -> None:
     cleared first, and the wall time written once the results are there."""
     if output.exists():
         shutil.rmtree(output)
-    output.parent.mkdir(parents=True, exist_ok=True)
-    environment = {**os.environ, "HF_HUB_OFFLINE": "1", **({"OMP_NUM_THREADS": str(threads)} if threads else {})}
     log = output.with_name(f"{output.name}.log")
     started = time.perf_counter()
-    with log.open("w") as written:
-        status = subprocess.run(
-            [sys.executable, "-m", "snapflow.adapters.lerobot.libero", *arguments],
-            env=environment,
-            stdin=subprocess.DEVNULL,
-            stdout=written,
-            stderr=subprocess.STDOUT,
-        ).returncode
-    if status != 0 or not (output / EVAL_INFO).is_file():
-        raise SnapflowError(f"lerobot-eval exited {status}; its output is in {log}, ending:\n{log.read_text()[-3000:]}")
+    run_lerobot_command(
+        "lerobot-eval", [sys.executable, "-m", "snapflow.adapters.lerobot.libero", *arguments], log, threads
+    )
+    if not (output / EVAL_INFO).is_file():
+        raise SnapflowError(
+            f"lerobot-eval wrote no {EVAL_INFO}; its output is in {log}, ending:\n"
+            f"{log.read_text()[-LOG_TAIL_CHARACTERS:]}"
+        )
     write_json(output / TIMING, {"wall_time_s": time.perf_counter() - started})
 
 

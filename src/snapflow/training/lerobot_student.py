@@ -6,16 +6,15 @@ own trainer, optimiser, Accelerate, logging and hub push (the student type's ``f
 
 from __future__ import annotations
 
-import os
 import shutil
-import subprocess
 import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 from snapflow.adapters.lerobot.plugin.configuration_snapflow import DISTILL_OPTIONS, SnapFlowSampling
-from snapflow.errors import InvalidInputError, SnapflowError
+from snapflow.adapters.lerobot_commands import run_lerobot_command
+from snapflow.errors import InvalidInputError
 from snapflow.policies.loaded import CheckpointError
 from snapflow.sources import open_policy
 from snapflow.training.config import TrainConfig
@@ -147,21 +146,13 @@ def run_lerobot_train(
             "--policy.push_to_hub=false",
             *lerobot_train_arguments(config, training_episodes),
         ]
-    environment = {**os.environ, "HF_HUB_OFFLINE": "1", **({"OMP_NUM_THREADS": str(threads)} if threads else {})}
-    log = output.parent / f"{output.name}.log"  # beside the run: lerobot-train refuses an output_dir that exists
-    log.parent.mkdir(parents=True, exist_ok=True)
-    with log.open("a") as written:  # a resumed run's lines follow the interrupted one's
-        status = subprocess.run(
-            [str(Path(sys.executable).with_name("lerobot-train")), *arguments],
-            env=environment,
-            stdin=subprocess.DEVNULL,
-            stdout=written,
-            stderr=subprocess.STDOUT,
-        ).returncode
-    if status != 0:
-        raise SnapflowError(
-            f"lerobot-train exited {status}; its output is in {log}, ending:\n{log.read_text()[-3000:]}"
-        )
+    run_lerobot_command(
+        "lerobot-train",
+        [str(Path(sys.executable).with_name("lerobot-train")), *arguments],
+        output.parent / f"{output.name}.log",  # beside the run: lerobot-train refuses an output_dir that exists
+        threads,
+        append=True,  # a resumed run's lines follow the interrupted one's
+    )
     return last
 
 
