@@ -82,20 +82,23 @@ if [ "$bench" = libero ]; then
     # episode (LeRobot's environment k starts from initial state k, and moves on by itself after a success), one
     # task at a time (a LIBERO environment with cameras holds ~850 MB)
     plugins=$(python -c 'from snapflow.adapters.lerobot_types import lerobot_loads_plugins as f; print(int(f()))')
-    for task in $(python -c "from snapflow.envs.factory import make_benchmark; print(*make_benchmark('libero').resolve_tasks('$tasks'))"); do
-        [ -f "$out/lerobot-eval$suffix/$task/report.json" ] || [ -f "$out/lerobot-eval$suffix/$task/eval_info.json" ] || {
-            if [ "$plugins" = 1 ]; then  # LeRobot's lerobot-eval itself, with the package's initial states
-                rm -rf "$out/lerobot-eval$suffix/$task.tmp"
-                python -m snapflow.adapters.lerobot.libero --policy.path="$out/student$suffix/lerobot_policy" \
-                    --policy.device=cpu --policy.n_action_steps=4 --env.type=libero --env.task=libero_spatial --env.task_ids="[${task##*_}]" \
-                    --env.observation_height="$image" --env.observation_width="$image" \
-                    --eval.n_episodes="$episodes" --eval.batch_size="$episodes" --eval.use_async_envs=false --output_dir="$out/lerobot-eval$suffix/$task.tmp"
-                mv "$out/lerobot-eval$suffix/$task.tmp" "$out/lerobot-eval$suffix/$task"
-            else
+    if [ "$plugins" = 1 ]; then  # LeRobot's lerobot-eval itself, task by task, with the package's initial states
+        python - "$out/student$suffix/lerobot_policy" "$tasks" "$episodes" "$image" "$out/lerobot-eval$suffix" <<'EOF'
+import sys
+
+from snapflow.envs.factory import make_benchmark
+from snapflow.evaluation.lerobot_eval import run_lerobot_eval
+from snapflow.flow.modes import SNAPFLOW_1
+
+policy, tasks, episodes, image, output = sys.argv[1:]
+run_lerobot_eval(policy, make_benchmark("libero").resolve_tasks(tasks), int(episodes), int(image), 4, SNAPFLOW_1, output)
+EOF
+    else
+        for task in $(python -c "from snapflow.envs.factory import make_benchmark; print(*make_benchmark('libero').resolve_tasks('$tasks'))"); do
+            [ -f "$out/lerobot-eval$suffix/$task/report.json" ] ||
                 snapflow eval --lerobot-env libero --env-task "$task" --policy "$out/student$suffix/lerobot_policy" \
                     --modes snapflow-1 --episodes "$episodes" --n-envs "$episodes" --n-action-steps 4 \
                     --output "$out/lerobot-eval$suffix/$task" "${options[@]}"
-            fi
-        }
-    done
+        done
+    fi
 fi
