@@ -25,9 +25,9 @@
 #   python -m pip wheel --no-deps --no-build-isolation -w .whl .
 #   (there) python3 -m pip install -q --no-index --no-deps --target /tmp/site .whl/*.whl
 #           PYTHONPATH=/tmp/site bash scripts/gpu_latency.sh /tmp/lat pi05
-# On an H200 (2026-11-27) pi0.5's cold bench ran past 280 s (model built on the GPU, then the one-step graph and the
-# teacher's graphs compiled) and the warm one took 165 s; SmolVLA at full size and pi0 each ran past 125-150 s cold:
-# give LIMIT 400 or more, and one architecture per 10-minute call. Which part of deploy moves the actions how far:
+# On an H200 (2026-11-28) pi0.5's cold bench took 196 s (model built on the GPU, then the one-step graph and the
+# teacher's graphs compiled) and the warm one 69 s; SmolVLA at full size ran past 135 s cold and pi0 past 125 s:
+# give LIMIT 330 or more, pi0.5's two runs one 10-minute call, SmolVLA and pi0 another. Which part of deploy moves the actions how far:
 # python3 scripts/deploy_parity.py --architecture pi05 --dtype bfloat16 --output /tmp/parity.
 set -uo pipefail
 out="${1:-outputs/latency-gpu}"
