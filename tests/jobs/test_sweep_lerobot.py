@@ -5,6 +5,7 @@ by snapflow's evaluator (planning: fast; a tiny sweep run for real: slow, LeRobo
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -40,6 +41,7 @@ train = {TINY_TRAIN}
 teacher = "teacher"
 trainer = "lerobot-train"
 train = {{ steps = 2, batch_size = 4, warmup_steps = 1, log_every = 1, checkpoint_every = 2 }}
+commit_checkpoint = true
 {runs}
 [[tables]]
 name = "headline"
@@ -80,6 +82,23 @@ def test_a_lerobot_teacher_and_its_students_train_on_the_demonstrations_written_
     assert train_job(config, "lerobot-train", 0).key != train_job(config, "distilled", 0).key
 
 
+def test_a_finished_lerobot_train_students_policy_is_kept_and_put_back_on_a_fresh_machine(tmp_path):
+    """``commit_checkpoint`` on a lerobot-train student keeps its finished policy folder beside its ledger record;
+    a machine without the run folder gets the folder back where evaluations read it (``restore_outputs``)."""
+    student = train_job(load_sweep(write_config(tmp_path)), "lerobot-train", 0)
+    assert student.kept == tmp_path / "results" / "records" / "lerobot-train" / "seed-0" / "checkpoint"
+    files = {"config.json": '{"type": "snapflow_smolvla"}', "model.safetensors": "weights", "train_config.json": "{}"}
+    student.policy_path.mkdir(parents=True)
+    for name, text in files.items():
+        (student.policy_path / name).write_text(text)
+    assert not student.restore_outputs(), "nothing kept yet"
+    student.keep_lerobot_policy()
+    shutil.rmtree(student.directory)  # a fresh machine: the ledger and what it keeps, no run folder
+    assert student.restore_outputs()
+    assert {file.name: file.read_text() for file in student.policy_path.iterdir()} == files
+    assert not student.restore_progress(), "an unfinished lerobot-train run resumes from its own checkpoints"
+
+
 @pytest.mark.parametrize(
     ("runs", "message"),
     [
@@ -92,10 +111,6 @@ def test_a_lerobot_teacher_and_its_students_train_on_the_demonstrations_written_
         (
             '[runs.built-in]\n[runs.other]\nteacher = "built-in"\ntrainer = "lerobot-train"\n',
             "trainer 'lerobot-train' distils a LeRobot teacher; 'built-in' is built in",
-        ),
-        (
-            '[runs.other]\nteacher = "teacher"\ntrainer = "lerobot-train"\ncommit_checkpoint = true\n',
-            "a lerobot-train student keeps its own checkpoints",
         ),
     ],
 )
@@ -127,6 +142,8 @@ def test_a_tiny_smolvla_sweep_trains_distils_by_both_trainers_and_evaluates_ever
     )
     assert trained_on["dataset"]["episodes"] == [0, 1, 3, 4], "the teacher's held-out episode of each task stays out"
     assert "consistency_loss" in (runs / "lerobot-train/seed-0/lerobot-train.log").read_text()
+    kept = tmp_path / "results/records/lerobot-train/seed-0/checkpoint/pretrained_model"
+    assert (kept / "model.safetensors").is_file() and json.loads((kept / "config.json").read_text()) == student
     headline = json.loads((tmp_path / "results" / "results.json").read_text())["tables"]["headline"]["rows"]
     assert [row["episodes"] for row in headline] == [2, 2, 2, 2]
     for row in headline:

@@ -28,7 +28,7 @@ from snapflow.policies.factory import policy_type_of
 from snapflow.reporting.locks import hold_run_lock
 from snapflow.reporting.records import as_record
 from snapflow.sources import open_policy
-from snapflow.training.checkpoint import install_checkpoint, keep_checkpoint, read_kept
+from snapflow.training.checkpoint import copy_checkpoint, install_checkpoint, keep_checkpoint, read_kept
 from snapflow.training.config import VAL_FRACTION, TrainConfig
 from snapflow.training.recipes import DistillSettings
 from snapflow.training.stages import distill, train_teacher
@@ -295,7 +295,16 @@ class TrainJob(FolderJob):
             "cuda" if torch.cuda.is_available() else "cpu",
             torch.get_num_threads(),
         )
+        if self.kept is not None:
+            self.keep_lerobot_policy()
         return {"step": self.train.steps, "wall_time_s": time.perf_counter() - began}
+
+    def keep_lerobot_policy(self) -> None:
+        """Keep a finished ``lerobot-train`` student's policy folder in :attr:`kept`, which :meth:`restore_outputs`
+        puts back on another machine; the policy alone: an unfinished run resumes from lerobot-train's own
+        checkpoints, on its machine."""
+        assert self.kept is not None
+        keep_checkpoint(self.policy_path, self.kept, {"job": record(self), "finished": True})
 
     def _keep_progress(self, checkpoint: Path) -> None:
         self._keep(checkpoint, finished=False)
@@ -322,7 +331,10 @@ class TrainJob(FolderJob):
         if checkpoint is None:
             return False
         shutil.rmtree(self.directory, ignore_errors=True)
-        self._install(checkpoint)
+        if self.trainer == "lerobot-train":  # the policy folder where lerobot-train leaves it
+            copy_checkpoint(checkpoint, self.policy_path)
+        else:
+            self._install(checkpoint)
         return True
 
     def restore_progress(self) -> bool:

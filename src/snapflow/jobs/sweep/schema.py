@@ -324,10 +324,6 @@ def _runs(raw: Any, seeds: tuple[int, ...], data: DataSpec, recipe: str) -> dict
             trainer = entry.get("trainer", TRAINERS[0])
             if trainer not in TRAINERS:
                 raise InvalidInputError(f"{section}: trainer must be one of {list(TRAINERS)}, got {trainer!r}")
-            if trainer != TRAINERS[0] and commit_checkpoint:
-                raise InvalidInputError(
-                    f"{section}: a {trainer} student keeps its own checkpoints; remove commit_checkpoint"
-                )
             runs[name] = RunSpec(
                 name,
                 run_seeds,
