@@ -124,7 +124,7 @@ class CudaGraphReplay:
         leaves, spec = tree_flatten(arguments)
         signature = (str(spec), *(_leaf_signature(leaf) for leaf in leaves))
         if signature not in self.graphs:
-            self.graphs[signature] = self._capture(arguments)
+            self.graphs[signature] = self._capture(leaves, spec)
         captured = self.graphs[signature]
         if captured is None:
             return self.function(*arguments)
@@ -135,11 +135,11 @@ class CudaGraphReplay:
         graph.replay()
         return output.clone()  # the graph's output buffer is overwritten by its next replay
 
-    def _capture(self, arguments: tuple[Any, ...]) -> tuple[list[Any], Any, Any] | None:
+    def _capture(self, leaves: list[Any], spec: Any) -> tuple[list[Any], Any, Any] | None:
+        """The graph of one signature, from its flattened arguments; None when it cannot be captured."""
         import torch
-        from torch.utils._pytree import tree_flatten, tree_unflatten
+        from torch.utils._pytree import tree_unflatten
 
-        leaves, spec = tree_flatten(arguments)
         with torch.inference_mode(False):  # buffers a later call may fill outside inference mode too
             inputs = [leaf.clone() if isinstance(leaf, torch.Tensor) else None for leaf in leaves]
         static = tree_unflatten(
