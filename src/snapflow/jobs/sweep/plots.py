@@ -22,8 +22,9 @@ def _error_bar(row: SweepRow) -> tuple[float, float]:
 TITLE_WIDTH = 90  # characters of a plot's title per line: a longer title ran off the figure's right edge
 
 
-def plot_table(result: TableResult, path: Path) -> None:
-    """Success with its 95% interval: lines over ``x`` when the rows carry one, bars otherwise."""
+def plot_table(result: TableResult, path: Path, sweep_title: str) -> None:
+    """Success with its 95% interval: lines over ``x`` when the rows carry one, bars otherwise; titled by the sweep
+    (which names the benchmark) and the table."""
     plt = pyplot()
     rows = result.rows
     figure, axis = plt.subplots(figsize=(6.4, 3.8))
@@ -46,9 +47,9 @@ def plot_table(result: TableResult, path: Path) -> None:
         )
         axis.set_xticks(positions, [row.label for row in rows], rotation=20, ha="right")
     interval = all(row.success_interval for row in rows)
-    axis.set_ylabel("MT10 success % (95% Wilson interval)" if interval else "MT10 success % (mean ± std over seeds)")
+    axis.set_ylabel("success % (95% Wilson interval)" if interval else "success % (mean ± std over seeds)")
     title = f"{result.title} ({len(result.seeds)} seed(s), {result.episodes_per_task} episodes per task)"
-    axis.set_title(textwrap.fill(title, TITLE_WIDTH), fontsize=9)
+    axis.set_title("\n".join(textwrap.fill(line, TITLE_WIDTH) for line in (sweep_title, title)), fontsize=9)
     axis.grid(alpha=0.3)
     figure.tight_layout()
     save_figure(figure, path, dpi=120)

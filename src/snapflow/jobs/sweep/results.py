@@ -37,7 +37,7 @@ def write_results(
         if table.name in rebuilt or table.name in earlier
     }
     for name in rebuilt:
-        plot_table(results[name], config.results_dir / f"{name}.png")
+        plot_table(results[name], config.results_dir / f"{name}.png", config.title)
     summary = {
         "sweep": config.name,
         "title": config.title,
