@@ -216,3 +216,35 @@ def test_lerobot_eval_runs_on_libero_and_on_lerobot_runs_alone(tmp_path, capsys)
     )
     assert main(["sweep", str(built_in), "--report-only", "--no-progress"]) == 2
     assert "lerobot-eval evaluates this sweep's LeRobot runs and their students" in capsys.readouterr().err
+
+
+def test_a_lerobot_eval_rows_finished_tasks_are_kept_and_go_on_from_the_next_on_a_fresh_machine(tmp_path):
+    """By lerobot-eval a row runs task by task, 16 min a LIBERO task: each finished task's files are kept beside the
+    row's ledger record with the job they belong to, and a fresh machine reads them back instead of running them
+    again; tasks kept without their job are not read; the row does not need the demonstrations back."""
+    from snapflow.evaluation.lerobot_eval import EVAL_INFO, TIMING, run_lerobot_eval
+    from snapflow.flow.modes import SNAPFLOW_1
+    from snapflow.jobs.runner import record
+    from snapflow.jobs.sweep.planning import KEPT_JOB
+    from snapflow.reporting.files import write_json
+
+    config = load_sweep(write_libero_config(tmp_path))
+    (job,) = [
+        job
+        for job in jobs(config)
+        if isinstance(job, EvalJob) and job.evaluator == "lerobot-eval" and job.mode.name == "snapflow-1"
+    ]
+    assert job.reads_outputs_of(job.policy) and not job.reads_outputs_of(job.policy.data)
+    kept = job.kept_tasks
+    assert kept == job.ledger_path.with_suffix("")
+    task = "libero_spatial_0"
+    eval_info = {"per_task": [{"task_group": "libero_spatial", "task_id": 0, "metrics": {"successes": [True, False]}}]}
+    write_json(kept / task / EVAL_INFO, eval_info)
+    write_json(kept / task / TIMING, {"wall_time_s": 960.0})
+    assert not job.restore_progress(), "tasks kept without the job they belong to are not this job's"
+    write_json(kept / KEPT_JOB, record(job))
+    assert job.restore_progress()
+    # read back as a finished task: no lerobot-eval runs (there is no policy folder to run), its files kept again
+    row = run_lerobot_eval(tmp_path / "no-policy", [task], 2, 32, 2, SNAPFLOW_1, job.episodes_dir, kept=kept)
+    assert (row.success[task].successes, row.success[task].episodes, row.closed_loop_s) == (1, 2, 960.0)
+    assert json.loads((kept / task / TIMING).read_text()) == {"wall_time_s": 960.0}

@@ -113,7 +113,8 @@ def run_lerobot_eval(
     """``episodes`` of each LIBERO task in ``tasks`` by LeRobot's ``lerobot-eval`` on the LeRobot policy folder
     ``policy`` sampling ``mode``, each task's run in ``output/<task>``, the tasks already there kept. ``kept``: a
     folder that gets a copy of each task's ``eval_info.json`` (to commit: the files are LeRobot's own). Episodes
-    record no step counts (lerobot-eval writes none); ``closed_loop_s`` is the tasks' wall time."""
+    record no step counts (lerobot-eval writes none); ``closed_loop_s`` is the tasks' wall time. A task kept with its
+    wall time is what :func:`restore_kept_tasks` puts back on another machine."""
     policy, output = Path(policy), Path(output)
     wall_time = 0.0
     results: list[EpisodeResult] = []
@@ -125,9 +126,29 @@ def run_lerobot_eval(
         eval_info = json.loads((folder / EVAL_INFO).read_text())
         if kept is not None:
             write_json(Path(kept) / task / EVAL_INFO, eval_info)
+            shutil.copy2(folder / TIMING, Path(kept) / task / TIMING)
         results += task_episodes(task, eval_info)
         wall_time += json.loads((folder / TIMING).read_text())["wall_time_s"]
     return EvaluationRow(str(policy), mode.name, mode.num_steps, success_by_task(results), wall_time)
 
 
-__all__ = ["MAX_EPISODES", "lerobot_eval_arguments", "mode_arguments", "run_lerobot_eval", "task_episodes"]
+def restore_kept_tasks(kept: str | Path, output: str | Path) -> list[str]:
+    """Put the tasks that :func:`run_lerobot_eval` finished and kept in ``kept`` (on another machine) into ``output``,
+    where it reads them back instead of running them again; the tasks put back."""
+    kept, output = Path(kept), Path(output)
+    restored = []
+    for folder in sorted(kept.iterdir()) if kept.is_dir() else []:
+        if (folder / EVAL_INFO).is_file() and (folder / TIMING).is_file():
+            shutil.copytree(folder, output / folder.name, dirs_exist_ok=True)
+            restored.append(folder.name)
+    return restored
+
+
+__all__ = [
+    "MAX_EPISODES",
+    "lerobot_eval_arguments",
+    "mode_arguments",
+    "restore_kept_tasks",
+    "run_lerobot_eval",
+    "task_episodes",
+]

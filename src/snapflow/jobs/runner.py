@@ -72,6 +72,11 @@ class Job(ABC):
         """Where a copy of the record is kept to be committed (None: nowhere)."""
         return None
 
+    def reads_outputs_of(self, dependency: Job) -> bool:
+        """Whether running this job reads ``dependency``'s outputs (default: every dependency's). One it does not read
+        is part of its key only, and is not brought back to run it."""
+        return True
+
     def restore_outputs(self) -> bool:
         """Rebuild the outputs of this job, recorded in its ledger, from what its run on another machine kept there;
         False where nothing was kept (the default), and the job then runs again."""
@@ -228,7 +233,7 @@ def to_run(jobs: Iterable[Job]) -> list[Job]:
         if is_recorded(job) and (not outputs_needed or _restored(job)):
             return -1
         if job not in depth:
-            depth[job] = 1 + max((visit(dep, True) for dep in job.dependencies), default=-1)
+            depth[job] = 1 + max((visit(dep, job.reads_outputs_of(dep)) for dep in job.dependencies), default=-1)
         return depth[job]
 
     for job in jobs:

@@ -6,6 +6,7 @@ an interrupted sweep keeps the tasks it finished."""
 
 from __future__ import annotations
 
+import json
 import shutil
 import time
 from contextlib import ExitStack
@@ -25,6 +26,7 @@ from snapflow.jobs.sweep.schema import EVALUATORS, TRAINERS, DataSpec, LeRobotSp
 from snapflow.policies.checkpoint import resolve_checkpoint
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import policy_type_of
+from snapflow.reporting.files import write_json
 from snapflow.reporting.locks import hold_run_lock
 from snapflow.reporting.records import as_record
 from snapflow.sources import open_policy
@@ -36,6 +38,7 @@ from snapflow.training.stages import distill, train_teacher
 RECORD = "job.json"  # a collect or train job's record, inside the folder it fills
 LEROBOT_REPO_ID = "local/lerobot"  # the LeRobotDataset's name: it is read from its folder, never from a hub
 LEROBOT_TRAIN_DIRECTORY = "lerobot-train"  # a lerobot-train student's run, inside its run folder
+KEPT_JOB = "job.json"  # beside a lerobot-eval row's kept tasks: the record of the job they belong to
 
 
 class FolderJob(Job):
@@ -422,6 +425,34 @@ class EvalJob(Job):
         )
         return report.rows[self.mode.name].to_dict()
 
+    def reads_outputs_of(self, dependency: Job) -> bool:
+        """lerobot-eval reads the policy alone: the demonstrations (offline metrics) are snapflow's evaluator's."""
+        return self.evaluator == EVALUATORS[0] or dependency != self.policy.data
+
+    @property
+    def kept_tasks(self) -> Path | None:
+        """By lerobot-eval, beside the ledger's record: each finished task's ``eval_info.json`` and wall time, and the
+        job they belong to (``job.json``), so that another machine goes on from the next task."""
+        if self.ledger is None or self.evaluator == EVALUATORS[0]:
+            return None
+        return self.ledger.with_suffix("")
+
+    def _kept_by_this_job(self) -> bool:
+        kept = self.kept_tasks
+        if kept is None:
+            return False
+        try:
+            return json.loads((kept / KEPT_JOB).read_text()) == record(self)
+        except (FileNotFoundError, json.JSONDecodeError):
+            return False
+
+    def restore_progress(self) -> bool:
+        from snapflow.evaluation.lerobot_eval import restore_kept_tasks
+
+        if not self._kept_by_this_job():
+            return False
+        return bool(restore_kept_tasks(self.kept_tasks, self.episodes_dir))
+
     def _run_lerobot_eval(self) -> dict[str, Any]:
         """LeRobot's ``lerobot-eval`` on each task, its ``eval_info.json`` files kept beside the ledger's record."""
         import torch
@@ -429,7 +460,10 @@ class EvalJob(Job):
         from snapflow.evaluation.lerobot_eval import run_lerobot_eval
 
         data = self.policy.data.data
-        kept = self.ledger.with_suffix("") if self.ledger is not None else None
+        kept = self.kept_tasks
+        if kept is not None and not self._kept_by_this_job():  # tasks another job's settings kept are not this one's
+            shutil.rmtree(kept, ignore_errors=True)
+            write_json(kept / KEPT_JOB, record(self))
         row = run_lerobot_eval(
             self.policy.policy_path,
             list(data.tasks),
