@@ -128,7 +128,7 @@ def read_record(job: Job) -> dict[str, Any]:
     """The finished job's record, from its run folder or else its ledger; FileNotFoundError if neither holds one
     made with the job's current settings."""
     for path in _record_paths(job):
-        if _matches(path, job):
+        if holds_record_of(path, job):
             return json.loads(path.read_text())
     raise FileNotFoundError(f"no record of {job.describe()} made with its current settings at {job.record_path}")
 
@@ -137,8 +137,9 @@ def _record_paths(job: Job) -> tuple[Path, ...]:
     return (job.record_path,) if job.ledger_path is None else (job.record_path, job.ledger_path)
 
 
-def _matches(path: Path, job: Job) -> bool:
-    """Whether ``path`` holds a record (finished or pending) of ``job`` with its current settings."""
+def holds_record_of(path: Path, job: Job) -> bool:
+    """Whether ``path`` holds a record (finished or pending) of ``job`` with its current settings: the one test of
+    whether something written belongs to the job."""
     try:
         stored = json.loads(path.read_text())
     except (FileNotFoundError, json.JSONDecodeError):
@@ -150,12 +151,12 @@ def _matches(path: Path, job: Job) -> bool:
 
 def is_done(job: Job) -> bool:
     """The one cache rule: the record exists and was written for the job's current settings and dependencies."""
-    return _matches(job.record_path, job)
+    return holds_record_of(job.record_path, job)
 
 
 def is_recorded(job: Job) -> bool:
     """Whether the job's result is known: done here, or recorded in its ledger with its current settings."""
-    return any(_matches(path, job) for path in _record_paths(job))
+    return any(holds_record_of(path, job) for path in _record_paths(job))
 
 
 def _pending_path(job: Job) -> Path:
@@ -172,7 +173,7 @@ def _remove(path: Path) -> None:
 def _start(job: Job) -> None:
     """Clear what a run with other settings (or an unknown one) left, bring back the progress a run on another
     machine kept, then note the settings this run has."""
-    if not _matches(_pending_path(job), job):
+    if not holds_record_of(_pending_path(job), job):
         for path in (*job.outputs, job.record_path):
             _remove(path)
         job.restore_progress()
@@ -203,7 +204,7 @@ def _work(job: Job, threads: int) -> tuple[dict[str, Any], float]:
 
 def _copy_to_ledger(job: Job) -> None:
     """Give a job done here its ledger copy if it lacks one (it finished before its kind kept one)."""
-    if job.ledger_path is not None and not _matches(job.ledger_path, job):
+    if job.ledger_path is not None and not holds_record_of(job.ledger_path, job):
         write_json(job.ledger_path, read_record(job))
 
 

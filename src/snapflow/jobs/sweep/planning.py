@@ -6,7 +6,6 @@ an interrupted sweep keeps the tasks it finished."""
 
 from __future__ import annotations
 
-import json
 import shutil
 import time
 from contextlib import ExitStack
@@ -21,7 +20,7 @@ from snapflow.envs.factory import make_benchmark
 from snapflow.evaluation.config import OFFLINE_SAMPLES
 from snapflow.evaluation.pipeline import evaluate
 from snapflow.flow.modes import SamplingMode
-from snapflow.jobs.runner import Job, record, run_jobs, to_run
+from snapflow.jobs.runner import Job, holds_record_of, record, run_jobs, to_run
 from snapflow.jobs.sweep.schema import EVALUATORS, TRAINERS, DataSpec, LeRobotSpec, RowSpec, SweepConfig, TableSpec
 from snapflow.policies.checkpoint import resolve_checkpoint
 from snapflow.policies.configuration import PolicyConfig
@@ -366,17 +365,21 @@ class EvalJob(Job):
     first_variation: int = 0  # each task's episodes from this evaluation variation on
     evaluator: str = EVALUATORS[0]  # snapflow's evaluator, or LeRobot's lerobot-eval (no offline metrics)
 
+    @property
+    def by_lerobot_eval(self) -> bool:
+        """Whether LeRobot's ``lerobot-eval`` runs its episodes rather than snapflow's evaluator."""
+        return self.evaluator != EVALUATORS[0]
+
     def settings(self) -> dict[str, Any]:
-        by_lerobot = self.evaluator != EVALUATORS[0]
         return {
             "mode": as_record(self.mode),
             "n_act": self.n_act,
             "episodes_per_task": self.episodes_per_task,
             "seed": self.policy.seed,
-            **({} if by_lerobot else {"offline_samples": OFFLINE_SAMPLES}),
+            **({} if self.by_lerobot_eval else {"offline_samples": OFFLINE_SAMPLES}),
             # only where set: the records made before they could be chosen are of the first variations, by snapflow's
             **({"first_variation": self.first_variation} if self.first_variation else {}),
-            **({"evaluator": self.evaluator} if by_lerobot else {}),
+            **({"evaluator": self.evaluator} if self.by_lerobot_eval else {}),
         }
 
     @property
@@ -402,7 +405,7 @@ class EvalJob(Job):
         return (self.episodes_dir,)
 
     def run(self) -> dict[str, Any]:
-        if self.evaluator != EVALUATORS[0]:
+        if self.by_lerobot_eval:
             return self._run_lerobot_eval()
         collected = self.policy.data
         loaded = open_policy(str(self.policy.policy_path))
@@ -427,24 +430,19 @@ class EvalJob(Job):
 
     def reads_outputs_of(self, dependency: Job) -> bool:
         """lerobot-eval reads the policy alone: the demonstrations (offline metrics) are snapflow's evaluator's."""
-        return self.evaluator == EVALUATORS[0] or dependency != self.policy.data
+        return not self.by_lerobot_eval or dependency != self.policy.data
 
     @property
     def kept_tasks(self) -> Path | None:
         """By lerobot-eval, beside the ledger's record: each finished task's ``eval_info.json`` and wall time, and the
         job they belong to (``job.json``), so that another machine goes on from the next task."""
-        if self.ledger is None or self.evaluator == EVALUATORS[0]:
+        if self.ledger is None or not self.by_lerobot_eval:
             return None
         return self.ledger.with_suffix("")
 
     def _kept_by_this_job(self) -> bool:
         kept = self.kept_tasks
-        if kept is None:
-            return False
-        try:
-            return json.loads((kept / KEPT_JOB).read_text()) == record(self)
-        except (FileNotFoundError, json.JSONDecodeError):
-            return False
+        return kept is not None and holds_record_of(kept / KEPT_JOB, self)
 
     def restore_progress(self) -> bool:
         from snapflow.evaluation.lerobot_eval import restore_kept_tasks
@@ -479,7 +477,7 @@ class EvalJob(Job):
 
     def describe(self) -> str:
         policy = self.policy
-        by = "" if self.evaluator == EVALUATORS[0] else f", by {self.evaluator}"
+        by = f", by {self.evaluator}" if self.by_lerobot_eval else ""
         return (
             f"{policy.sweep}: evaluate {policy.run_name} seed {policy.seed} ({self.mode.name}; n_act {self.n_act}{by})"
         )
