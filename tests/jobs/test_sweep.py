@@ -494,7 +494,9 @@ def test_replace_block_appends_a_missing_block_and_replaces_an_existing_one():
 
 def test_report_only_on_an_unfinished_sweep_names_what_is_missing(tmp_path, capsys):
     assert main(["sweep", str(write_config(tmp_path)), "--report-only", "--no-progress"]) == 2
-    assert "table 'headline' is incomplete" in capsys.readouterr().err
+    error = capsys.readouterr().err
+    assert "table 'headline' is incomplete" in error
+    assert error.rstrip().endswith("first"), error  # the message's own end, no file name of None after it
 
 
 def test_report_only_refuses_evaluations_made_with_other_settings(tmp_path, capsys):

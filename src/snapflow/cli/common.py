@@ -364,7 +364,8 @@ def run_command(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     except OSError as error:  # a path the system refused: missing, taken, read-only, a full disk, ...
-        print(f"{prefix} error: {error.strerror or error}: {error.filename}", file=sys.stderr)
+        where = f": {error.filename}" if error.filename else ""  # our own messages name their paths themselves
+        print(f"{prefix} error: {error.strerror or error}{where}", file=sys.stderr)
     except KeyboardInterrupt:
         print(f"{prefix} {args.interrupted(args)}", file=sys.stderr)
         return INTERRUPTED
