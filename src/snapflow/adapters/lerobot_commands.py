@@ -16,17 +16,23 @@ LOG_TAIL_CHARACTERS = 3000
 
 
 def run_lerobot_command(
-    name: str, command: list[str], log: str | Path, threads: int | None = None, append: bool = False
+    name: str,
+    command: list[str],
+    log: str | Path,
+    threads: int | None = None,
+    append: bool = False,
+    directory: str | Path | None = None,
 ) -> None:
     """Run ``command`` (LeRobot's command ``name``, for the error) with ``HF_HUB_OFFLINE`` set and, where ``threads``
     is given, ``OMP_NUM_THREADS``; stdout and stderr go to ``log`` (its folder made; ``append``: after the lines a
-    previous run left, as a resumed run's do). A non-zero exit raises a :class:`SnapflowError` with the log's tail."""
+    previous run left, as a resumed run's do); in the working directory ``directory`` (default: this one). A non-zero
+    exit raises a :class:`SnapflowError` with the log's tail."""
     log = Path(log)
     log.parent.mkdir(parents=True, exist_ok=True)
     environment = {**os.environ, "HF_HUB_OFFLINE": "1", **({"OMP_NUM_THREADS": str(threads)} if threads else {})}
     with log.open("a" if append else "w") as written:
         status = subprocess.run(
-            command, env=environment, stdin=subprocess.DEVNULL, stdout=written, stderr=subprocess.STDOUT
+            command, env=environment, cwd=directory, stdin=subprocess.DEVNULL, stdout=written, stderr=subprocess.STDOUT
         ).returncode
     if status != 0:
         raise SnapflowError(

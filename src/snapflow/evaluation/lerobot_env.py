@@ -13,6 +13,7 @@ import torch
 
 from snapflow.adapters.lerobot.evaluation import LoadedLeRobotPolicy
 from snapflow.adapters.lerobot.libero import packaged_initial_states
+from snapflow.adapters.lerobot.local_vlm import processor_overrides
 from snapflow.envs.libero import SUITES, Libero, suite_of
 from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SamplingMode
@@ -93,7 +94,7 @@ def evaluate_in_lerobot_env(
     preprocessor, postprocessor = make_pre_post_processors(
         policy.config,
         pretrained_path=str(policy_directory),
-        preprocessor_overrides={"device_processor": {"device": device}},
+        preprocessor_overrides={"device_processor": {"device": device}, **processor_overrides(policy_directory)},
     )
     env_preprocessor, env_postprocessor = make_env_pre_post_processors(env_config, policy.config)
     with packaged_initial_states() if env_type == "libero" else nullcontext():

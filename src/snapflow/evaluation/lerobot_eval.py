@@ -74,16 +74,16 @@ def lerobot_eval_arguments(
     ]
 
 
-def _run_task(arguments: list[str], output: Path, threads: int | None) -> None:
-    """One task's ``lerobot-eval``, its log beside its folder; a folder without results (an interrupted run) is
+def _run_task(arguments: list[str], policy: Path, output: Path, threads: int | None) -> None:
+    """One task's ``lerobot-eval``, its log beside its folder, run from inside the policy folder (where LeRobot finds
+    a VLM kept there by the relative path its files name it by); a folder without results (an interrupted run) is
     cleared first, and the wall time written once the results are there."""
     if output.exists():
         shutil.rmtree(output)
     log = output.with_name(f"{output.name}.log")
     started = time.perf_counter()
-    run_lerobot_command(
-        "lerobot-eval", [sys.executable, "-m", "snapflow.adapters.lerobot.libero", *arguments], log, threads
-    )
+    command = [sys.executable, "-m", "snapflow.adapters.lerobot.libero", *arguments]
+    run_lerobot_command("lerobot-eval", command, log, threads, directory=policy)
     if not (output / EVAL_INFO).is_file():
         raise SnapflowError(
             f"lerobot-eval wrote no {EVAL_INFO}; its output is in {log}, ending:\n"
@@ -121,8 +121,11 @@ def run_lerobot_eval(
     for task in tasks:
         folder = output / task
         if not (folder / TIMING).is_file():
-            arguments = lerobot_eval_arguments(policy, task, episodes, image_size, n_action_steps, mode, folder)
-            _run_task(arguments, folder, threads)
+            # absolute: lerobot-eval runs from inside the policy folder
+            arguments = lerobot_eval_arguments(
+                policy.resolve(), task, episodes, image_size, n_action_steps, mode, folder.resolve()
+            )
+            _run_task(arguments, policy, folder, threads)
         eval_info = json.loads((folder / EVAL_INFO).read_text())
         if kept is not None:
             write_json(Path(kept) / task / EVAL_INFO, eval_info)

@@ -91,17 +91,19 @@ def select(files: Sequence[ArchivedFile], prefixes: Sequence[str]) -> list[Archi
 
 
 def is_present(root: Path, entry: ArchivedFile) -> bool:
-    """Whether the file is in place with the archived content."""
+    """Whether the file is in place under ``root`` with the archived content."""
     path = root / entry.path
     return path.is_file() and path.stat().st_size == entry.bytes and git_blob_id(path.read_bytes()) == entry.blob
 
 
-def restore(root: Path, entries: Sequence[ArchivedFile]) -> list[ArchivedFile]:
-    """Write each entry's file back from history where it is missing or differs; those written. Each file appears
-    whole or not at all, checked against its blob id."""
+def restore(root: Path, entries: Sequence[ArchivedFile], into: Path | None = None) -> list[ArchivedFile]:
+    """Write each entry's file back from the history of the checkout at ``root`` where it is missing or differs, at
+    its path under ``into`` (default: ``root``); those written. Each file appears whole or not at all, checked
+    against its blob id."""
+    into = root if into is None else into
     written = []
     for entry in entries:
-        if is_present(root, entry):
+        if is_present(into, entry):
             continue
         try:
             data = _git(root, "cat-file", "blob", f"{entry.commit}:{entry.path}")
@@ -112,7 +114,7 @@ def restore(root: Path, entries: Sequence[ArchivedFile]) -> list[ArchivedFile]:
             ) from None
         if git_blob_id(data) != entry.blob:
             raise ArchiveError(f"{entry.path} at commit {entry.commit[:12]} is not the archived blob {entry.blob[:12]}")
-        atomic_write(root / entry.path, lambda temporary, data=data: temporary.write_bytes(data))
+        atomic_write(into / entry.path, lambda temporary, data=data: temporary.write_bytes(data))
         written.append(entry)
     return written
 

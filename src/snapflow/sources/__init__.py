@@ -4,6 +4,7 @@ place, in the order they are tried."""
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -11,7 +12,7 @@ from pathlib import Path
 from snapflow import install_command
 from snapflow._lazy import resolve
 from snapflow.adapters.hub import check_source, local_folder
-from snapflow.policies.checkpoint import is_builtin_checkpoint
+from snapflow.policies.checkpoint import LATEST, POLICY_CONFIG, is_builtin_checkpoint
 from snapflow.policies.loaded import CheckpointError, OpenedPolicy
 
 
@@ -42,6 +43,45 @@ class SourceKind:
 
 SOURCE_KINDS: list[SourceKind] = []
 
+#: ``policy.json``'s format in a training checkpoint snapflow's trainer wrote of a LeRobot policy (it resumes a run)
+LEROBOT_RUN_FORMAT = "snapflow-lerobot-run"
+#: the LeRobot policy folder such a run exports beside its checkpoints when it finishes: what opens as a policy
+LEROBOT_EXPORT_DIRECTORY = "lerobot_policy"
+
+
+def _lerobot_run_checkpoint(folder: Path | None) -> Path | None:
+    """The LeRobot training checkpoint at ``folder`` (a checkpoint folder, or a run folder whose latest it is)."""
+    if folder is None:
+        return None
+    checkpoint = folder
+    if not (folder / POLICY_CONFIG).is_file() and (folder / LATEST).is_file():
+        checkpoint = folder / json.loads((folder / LATEST).read_text())["checkpoint"]
+    try:
+        return (
+            checkpoint
+            if json.loads((checkpoint / POLICY_CONFIG).read_text()).get("format") == LEROBOT_RUN_FORMAT
+            else None
+        )
+    except (FileNotFoundError, json.JSONDecodeError):
+        return None
+
+
+def refuse_lerobot_run(source: str) -> OpenedPolicy:
+    """Refuse a LeRobot training checkpoint given where a policy is expected, naming the policy folder to pass: the
+    one its run exported (in the run folder, or kept beside the checkpoint)."""
+    checkpoint = _lerobot_run_checkpoint(Path(source))
+    assert checkpoint is not None
+    candidates = [
+        folder / LEROBOT_EXPORT_DIRECTORY for folder in (Path(source), checkpoint.parent, checkpoint.parent.parent)
+    ]
+    exported = next((folder for folder in candidates if (folder / "config.json").is_file()), None)
+    where = (
+        f"pass its policy folder {exported}"
+        if exported is not None
+        else f"pass the policy folder its run exports when it finishes ({LEROBOT_EXPORT_DIRECTORY}/ in the run's folder)"
+    )
+    raise CheckpointError(f"{source} is a training checkpoint of a LeRobot policy, which resumes training; {where}")
+
 
 def register_source_kind(kind: SourceKind) -> None:
     """Add a kind of policy source, tried after those registered before it."""
@@ -50,6 +90,14 @@ def register_source_kind(kind: SourceKind) -> None:
     SOURCE_KINDS.append(kind)
 
 
+register_source_kind(
+    SourceKind(
+        "lerobot-run",
+        "a LeRobot run's training checkpoint (refused: its exported policy folder opens)",
+        lambda folder: _lerobot_run_checkpoint(folder) is not None,
+        "snapflow.sources:refuse_lerobot_run",
+    )
+)
 register_source_kind(
     SourceKind(
         "snapflow",
@@ -86,4 +134,12 @@ def open_policy(source: str | Path) -> OpenedPolicy:
     raise CheckpointError(f"{text} holds no policy snapflow can open; a policy source is {kinds}")
 
 
-__all__ = ["SourceKind", "SOURCE_KINDS", "register_source_kind", "open_policy"]
+__all__ = [
+    "LEROBOT_EXPORT_DIRECTORY",
+    "LEROBOT_RUN_FORMAT",
+    "SourceKind",
+    "SOURCE_KINDS",
+    "register_source_kind",
+    "open_policy",
+    "refuse_lerobot_run",
+]

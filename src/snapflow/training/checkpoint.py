@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -115,13 +116,21 @@ def save_checkpoint(
     return _into_place(temporary, directory)
 
 
-def copy_checkpoint(checkpoint: Path, destination: Path, policy_only: bool = False) -> Path:
-    """Copy the checkpoint folder ``checkpoint`` to ``destination`` atomically, replacing what is there; with
-    ``policy_only``, only the policy's files (what evaluation and distillation read), not what resuming reads."""
+def copy_checkpoint(
+    checkpoint: Path, destination: Path, policy_only: bool = False, prepare: Callable[[Path], Any] | None = None
+) -> Path:
+    """Copy the checkpoint folder ``checkpoint`` to ``destination`` atomically, replacing what is there, its
+    sub-folders included (a LeRobot policy's local VLM); with ``policy_only``, only the policy's files (what
+    evaluation and distillation read), not what resuming reads. ``prepare`` is given the copy before it is put in
+    place (a LeRobot policy folder takes its VLM inside: :func:`snapflow.adapters.lerobot.local_vlm.bundle_vlm`)."""
     temporary = _temporary_sibling(Path(destination))
-    for file in sorted(Path(checkpoint).iterdir()):
-        if file.is_file() and (not policy_only or file.name in (POLICY_CONFIG, POLICY_WEIGHTS)):
-            shutil.copy2(file, temporary / file.name)
+    for entry in sorted(Path(checkpoint).iterdir()):
+        if entry.is_file() and (not policy_only or entry.name in (POLICY_CONFIG, POLICY_WEIGHTS)):
+            shutil.copy2(entry, temporary / entry.name)
+        elif entry.is_dir() and not policy_only and not entry.name.startswith("."):
+            shutil.copytree(entry, temporary / entry.name)
+    if prepare is not None:
+        prepare(temporary)
     return _into_place(temporary, Path(destination))
 
 
@@ -146,11 +155,18 @@ def _into_place(temporary: Path, directory: Path) -> Path:
     return directory
 
 
-def keep_checkpoint(checkpoint: Path, directory: Path, note: dict[str, Any], policy_only: bool = False) -> Path:
+def keep_checkpoint(
+    checkpoint: Path,
+    directory: Path,
+    note: dict[str, Any],
+    policy_only: bool = False,
+    prepare: Callable[[Path], Any] | None = None,
+) -> Path:
     """Make a copy of ``checkpoint`` the one checkpoint kept in ``directory`` (a folder to commit or carry to another
     machine), with ``note`` recorded beside it (:func:`read_kept` returns both); the previous one is removed only
-    once the copy and its note are whole, so a kill at any moment leaves a checkpoint that the note names."""
-    kept = copy_checkpoint(checkpoint, Path(directory) / Path(checkpoint).name, policy_only)
+    once the copy and its note are whole, so a kill at any moment leaves a checkpoint that the note names.
+    ``prepare``: as :func:`copy_checkpoint`'s."""
+    kept = copy_checkpoint(checkpoint, Path(directory) / Path(checkpoint).name, policy_only, prepare)
     write_json(Path(directory) / KEPT, {"checkpoint": kept.name, **note})
     for other in Path(directory).glob("step_*"):
         if other != kept:

@@ -18,6 +18,7 @@ from snapflow.adapters.lerobot.base import LeRobotFlowPolicy, lerobot_time_sampl
 from snapflow.adapters.lerobot.checkpoint import PREPROCESSOR_FILE, save_distilled, save_teacher
 from snapflow.adapters.lerobot.data import ActionChunks, LeRobotChunkData
 from snapflow.adapters.lerobot.dataset import policy_features
+from snapflow.adapters.lerobot.local_vlm import bundle_vlm, processor_overrides
 from snapflow.adapters.lerobot.registry import wrap_policy
 from snapflow.adapters.lerobot.smolvlm import smolvla_config, token_budget, words_of, write_smolvlm
 from snapflow.adapters.lerobot_config import SmolVLMSize
@@ -28,12 +29,12 @@ from snapflow.objective.snapflow import SnapFlowObjective
 from snapflow.policies.loaded import CheckpointError
 from snapflow.reporting.locks import hold_run_lock
 from snapflow.reporting.records import as_record
-from snapflow.sources import open_policy
+from snapflow.sources import LEROBOT_EXPORT_DIRECTORY, LEROBOT_RUN_FORMAT, open_policy
 from snapflow.training.config import VAL_FRACTION, TrainConfig, paper_training
 from snapflow.training.recipes import DistillSettings
 from snapflow.training.trainer import train
 
-EXPORT_DIRECTORY = "lerobot_policy"
+EXPORT_DIRECTORY = LEROBOT_EXPORT_DIRECTORY  # where a run exports its policy folder
 SMOLVLM_DIRECTORY = "smolvlm"  # the teacher's SmolVLM config and tokenizer, which its exported config points at
 DATASET_INFO = "meta/info.json"  # LeRobot's INFO_PATH: the first file of a LeRobotDataset it reads
 # the commands named as the holder of a run folder, in another process's refusal
@@ -53,7 +54,9 @@ def policy_processors(
     if local.is_dir() and not (local / PREPROCESSOR_FILE).is_file():
         return make_pre_post_processors(policy.config, dataset_stats=dataset_stats)
     return make_pre_post_processors(
-        policy.config, pretrained_path=policy_path, preprocessor_overrides={**device, **(overrides or {})}
+        policy.config,
+        pretrained_path=policy_path,
+        preprocessor_overrides={**device, **processor_overrides(policy_path), **(overrides or {})},
     )
 
 
@@ -214,7 +217,7 @@ def train_smolvla_teacher(
         adapter.train_prefix = True
         phi_s = set(adapter.target_time_embedding.parameters())  # stays zero: s = t on every flow-matching row
         run_metadata = {
-            "format": "snapflow-lerobot-run",
+            "format": LEROBOT_RUN_FORMAT,
             "policy": adapter.policy_type,
             "source": None,
             "dataset": {"repo_id": repo_id, "root": dataset_root and str(dataset_root)},
@@ -274,6 +277,7 @@ def _train_and_export(
     export = save(Path(output) / EXPORT_DIRECTORY)
     preprocessor.save_pretrained(export)
     postprocessor.save_pretrained(export)
+    bundle_vlm(export)  # a SmolVLM written locally travels inside the folder: it opens on any machine
     return state
 
 
@@ -307,7 +311,7 @@ def _distill_lerobot(
     preprocessor, postprocessor = policy_processors(policy, policy_path, metadata.stats, preprocessor_overrides)
     objective = settings.objective(opened.time_sampler)
     run_metadata = {
-        "format": "snapflow-lerobot-run",
+        "format": LEROBOT_RUN_FORMAT,
         "policy": adapter.policy_type,
         "source": str(policy_path),
         "dataset": {"repo_id": repo_id, "root": dataset_root and str(dataset_root)},

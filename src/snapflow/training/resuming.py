@@ -31,9 +31,10 @@ from snapflow.training.ema import WeightAverage
 
 
 def continue_from_kept(accelerator: Accelerator, run_directory: Path, kept_in: Path, config: TrainConfig) -> None:
-    """Install the checkpoint kept in ``kept_in`` as the latest of a run folder that has none."""
+    """Install the checkpoint kept in ``kept_in`` as the latest of a run folder that has none (not a finished run's
+    policy kept there, which holds nothing to resume)."""
     kept = read_kept(kept_in)
-    if kept is None or (run_directory / LATEST).is_file():
+    if kept is None or kept[1].get("finished") or (run_directory / LATEST).is_file():
         return
     install_checkpoint(kept[0], run_directory, config.keep_checkpoints)
     accelerator.print(

@@ -12,6 +12,7 @@ from torch import nn
 
 from snapflow.adapters.hub import check_source
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
+from snapflow.adapters.lerobot.local_vlm import resolve_config
 from snapflow.adapters.lerobot.registry import adapter_class, base_policy_type, wrap_policy
 from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
 from snapflow.policies.checkpoint import CheckpointError, load_state_strict, read_tensors
@@ -38,15 +39,15 @@ def write_marker(directory: str | Path, marker: dict[str, Any]) -> None:
 
 
 def load_student_config(directory: str | Path) -> Any:
-    """The LeRobot config of a policy folder, a SnapFlow student's type included; a config that does not load (an
-    unknown sampling mode, a bad field) is named."""
+    """The LeRobot config of a policy folder, a SnapFlow student's type included, naming a VLM kept inside the
+    folder by its absolute path; a config that does not load (an unknown sampling mode, a bad field) is named."""
     from lerobot.configs.policies import PreTrainedConfig
 
     import snapflow.adapters.lerobot.plugin  # noqa: F401 - registers the student types
 
     directory = Path(directory)
     try:
-        return PreTrainedConfig.from_pretrained(directory)
+        return resolve_config(PreTrainedConfig.from_pretrained(directory), directory)
     except Exception as error:  # draccus wraps the config's own error
         raise CheckpointError(f"{directory / 'config.json'} does not load: {error.__cause__ or error}") from None
 
@@ -129,12 +130,13 @@ def load_pretrained_policy(path: str) -> nn.Module:
     from snapflow.adapters.lerobot.plugin import SnapFlowSampling, student_policy  # registers the student types
     from snapflow.adapters.lerobot.student_folder import refuse_student_as_teacher
 
-    config = PreTrainedConfig.from_pretrained(path)
+    # a VLM kept inside the folder named by its absolute path: LeRobot reads the name from the working directory
+    config = resolve_config(PreTrainedConfig.from_pretrained(path), path)
     adapter_class(base_policy_type(config))
     if isinstance(config, SnapFlowSampling):  # LeRobot < 0.5 resolves only its own types
-        return student_policy(config.base_type).from_pretrained(path)
+        return student_policy(config.base_type).from_pretrained(path, config=config)
     refuse_student_as_teacher(path, config.type)  # a student typed as its teacher: LeRobot's loader would drop phi_s
-    return get_policy_class(config.type).from_pretrained(path)
+    return get_policy_class(config.type).from_pretrained(path, config=config)
 
 
 __all__ = [

@@ -33,6 +33,7 @@ from snapflow.adapters.lerobot.checkpoint import (
     write_marker,
 )
 from snapflow.adapters.lerobot.dataset import IMAGE_PREFIX, STATE
+from snapflow.adapters.lerobot.local_vlm import processor_overrides
 from snapflow.adapters.lerobot.registry import wrap_policy
 from snapflow.errors import InvalidInputError
 from snapflow.flow.time_sampling import BetaTimeSampler
@@ -141,8 +142,9 @@ class LoadedLeRobotPolicy(OpenedPolicy):
         from lerobot.policies.factory import make_pre_post_processors
 
         self.config.device = "cpu"
+        overrides = {"device_processor": {"device": "cpu"}, **processor_overrides(self.path)}
         preprocessor, postprocessor = make_pre_post_processors(
-            self.config, pretrained_path=str(self.path), preprocessor_overrides={"device_processor": {"device": "cpu"}}
+            self.config, pretrained_path=str(self.path), preprocessor_overrides=overrides
         )
         return LeRobotProcessor(self.config, preprocessor, postprocessor)
 

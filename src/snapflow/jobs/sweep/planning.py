@@ -269,6 +269,8 @@ class TrainJob(FolderJob):
                 progress=False,
                 keep_progress=self.kept,
             )
+        if self.kept is not None:
+            self.keep_lerobot_policy()
         return {"step": state["step"], "wall_time_s": state["wall_time_s"]}
 
     def _run_lerobot_train(self) -> dict[str, Any]:
@@ -302,11 +304,14 @@ class TrainJob(FolderJob):
         return {"step": self.train.steps, "wall_time_s": time.perf_counter() - began}
 
     def keep_lerobot_policy(self) -> None:
-        """Keep a finished ``lerobot-train`` student's policy folder in :attr:`kept`, which :meth:`restore_outputs`
-        puts back on another machine; the policy alone: an unfinished run resumes from lerobot-train's own
-        checkpoints, on its machine."""
+        """Keep a finished LeRobot run's policy folder (a teacher's or student's export, or ``lerobot-train``'s last
+        checkpoint) in :attr:`kept`, its processors and its local VLM inside, which :meth:`restore_outputs` puts back
+        on another machine and ``open_policy`` opens anywhere; the policy alone: an unfinished run resumes from its
+        trainer's checkpoints."""
+        from snapflow.adapters.lerobot.local_vlm import bundle_vlm
+
         assert self.kept is not None
-        keep_checkpoint(self.policy_path, self.kept, {"job": record(self), "finished": True})
+        keep_checkpoint(self.policy_path, self.kept, {"job": record(self), "finished": True}, prepare=bundle_vlm)
 
     def _keep_progress(self, checkpoint: Path) -> None:
         self._keep(checkpoint, finished=False)
@@ -333,7 +338,7 @@ class TrainJob(FolderJob):
         if checkpoint is None:
             return False
         shutil.rmtree(self.directory, ignore_errors=True)
-        if self.trainer == "lerobot-train":  # the policy folder where lerobot-train leaves it
+        if self.dataset is not None:  # a LeRobot policy folder, where its trainer leaves it
             copy_checkpoint(checkpoint, self.policy_path)
         else:
             self._install(checkpoint)

@@ -1,0 +1,101 @@
+"""A LeRobot policy folder that opens on any machine, where its VLM is a local folder (a SmolVLA over a SmolVLM
+written by :func:`~snapflow.adapters.lerobot.smolvlm.write_smolvlm`: config, tokenizer and processor, a few kB).
+
+LeRobot names such a VLM by the path it was given, in the policy's ``config.json`` (``vlm_model_name``), LeRobot's
+``train_config.json`` and the pre-processor's tokenizer step (``tokenizer_name``): an absolute path of the machine
+that trained it makes the folder useless anywhere else. :func:`bundle_vlm` copies the VLM folder into the policy
+folder (:data:`BUNDLED_VLM`) and names it there relative to the policy folder. LeRobot reads these names relative to
+the working directory, so snapflow hands them to LeRobot as absolute paths when it loads such a folder
+(:func:`resolve_config`, :func:`processor_overrides`), and runs LeRobot's own commands on one from inside it (LeRobot's
+``lerobot-eval --policy.path=.`` in the policy folder works the same way).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+from snapflow.reporting.files import write_json
+
+BUNDLED_VLM = "smolvlm"  # the local VLM's folder inside a policy folder
+_CONFIG = "config.json"  # LeRobot's names for a policy's config, its training config and its pre-processor
+_TRAIN_CONFIG = "train_config.json"
+_PREPROCESSOR = "policy_preprocessor.json"
+_TOKENIZER_STEP = "tokenizer_processor"  # the pre-processor step that loads the VLM's tokenizer
+
+
+def _vlm_name(folder: Path) -> str | None:
+    config = folder / _CONFIG
+    return json.loads(config.read_text()).get("vlm_model_name") if config.is_file() else None
+
+
+def bundled_vlm(folder: str | Path) -> Path | None:
+    """The VLM folder kept inside the policy folder ``folder``, as an absolute path, or None where its config names
+    a hub model, an absolute path or no VLM at all."""
+    folder = Path(folder)
+    name = _vlm_name(folder)
+    if not name or Path(name).is_absolute():
+        return None
+    candidate = folder / name
+    return candidate.resolve() if (candidate / _CONFIG).is_file() else None
+
+
+def bundle_vlm(folder: str | Path) -> bool:
+    """Copy the local VLM folder that the policy folder ``folder`` names by an absolute path into
+    ``folder/smolvlm``, and name it there by that relative path in every file of ``folder`` that names it. False
+    (nothing changed) where the folder names a hub model or has its VLM inside already. The VLM's copy is whole
+    before any file names it."""
+    folder = Path(folder)
+    name = _vlm_name(folder)
+    if not name or not Path(name).is_absolute():
+        return False
+    source = Path(name)
+    if not (source / _CONFIG).is_file():
+        raise FileNotFoundError(f"{folder / _CONFIG} names the local VLM {source}, which is not there")
+    partial = folder / f".{BUNDLED_VLM}.partial"
+    shutil.rmtree(partial, ignore_errors=True)
+    shutil.copytree(source, partial)
+    shutil.rmtree(folder / BUNDLED_VLM, ignore_errors=True)
+    partial.rename(folder / BUNDLED_VLM)
+    _rename_vlm(folder, name, BUNDLED_VLM)
+    return True
+
+
+def _rename_vlm(folder: Path, old: str, new: str) -> None:
+    """Replace the VLM's name ``old`` by ``new`` in the config, the training config and the pre-processor."""
+    config = json.loads((folder / _CONFIG).read_text())
+    write_json(folder / _CONFIG, {**config, "vlm_model_name": new})
+    train_config = folder / _TRAIN_CONFIG
+    if train_config.is_file():
+        content = json.loads(train_config.read_text())
+        if content.get("policy", {}).get("vlm_model_name") == old:
+            content["policy"]["vlm_model_name"] = new
+            write_json(train_config, content)
+    preprocessor = folder / _PREPROCESSOR
+    if preprocessor.is_file():
+        content = json.loads(preprocessor.read_text())
+        for step in content["steps"]:
+            if step.get("registry_name") == _TOKENIZER_STEP and step["config"].get("tokenizer_name") == old:
+                step["config"]["tokenizer_name"] = new
+        write_json(preprocessor, content)
+
+
+def resolve_config(config: Any, folder: str | Path) -> Any:
+    """``config`` (LeRobot's, loaded from the policy folder ``folder``) naming its bundled VLM by absolute path, as
+    LeRobot builds the model from it; unchanged for any other policy."""
+    vlm = bundled_vlm(folder)
+    if vlm is not None:
+        config.vlm_model_name = str(vlm)
+    return config
+
+
+def processor_overrides(folder: str | Path) -> dict[str, Any]:
+    """LeRobot's ``preprocessor_overrides`` that point the tokenizer step at the policy folder's bundled VLM (none
+    for any other policy)."""
+    vlm = bundled_vlm(folder)
+    return {} if vlm is None else {_TOKENIZER_STEP: {"tokenizer_name": str(vlm)}}
+
+
+__all__ = ["BUNDLED_VLM", "bundled_vlm", "bundle_vlm", "resolve_config", "processor_overrides"]

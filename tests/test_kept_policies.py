@@ -1,0 +1,118 @@
+"""Everything the repository keeps reopens on a fresh clone: each policy folder whose weights ``docs/results/archive.json``
+names is restored from history into a temporary folder, away from any output of the machine that trained it, and
+``open_policy`` must open it and sample one chunk through its own processors; the committed files name no absolute
+path of the machine that wrote them."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+from pathlib import Path, PurePosixPath
+
+import numpy as np
+import pytest
+import torch
+
+from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1
+from snapflow.flow.solver import sample_actions
+from snapflow.policies.loaded import CheckpointError
+from snapflow.reporting.archive import read_manifest, repository_root, restore
+from snapflow.sources import LEROBOT_RUN_FORMAT, open_policy
+
+ROOT = repository_root(Path(__file__))
+#: a string value that starts with an absolute path of a machine: what a committed file must never hold
+MACHINE_PATH = re.compile(r'"/(home|root|tmp|work|usr|opt)/')
+
+
+def _tracked(*pathspecs: str) -> list[str]:
+    listing = subprocess.run(["git", "ls-files", "-z", "--", *pathspecs], cwd=ROOT, capture_output=True, check=True)
+    return [path for path in listing.stdout.decode().split("\0") if path]
+
+
+def _kept_folders() -> dict[str, bool]:
+    """Each folder that archived weights live in: True where it is a policy (what opens), False where it is a LeRobot
+    run's training checkpoint (what resumes training, and must be refused naming the policy folder)."""
+    folders = {}
+    for entry in read_manifest(ROOT):
+        folder = PurePosixPath(entry.path).parent
+        if (ROOT / folder / "config.json").is_file():
+            folders[str(folder)] = True
+        elif (ROOT / folder / "policy.json").is_file():
+            folders[str(folder)] = (
+                json.loads((ROOT / folder / "policy.json").read_text())["format"] != LEROBOT_RUN_FORMAT
+            )
+    return folders
+
+
+KEPT = _kept_folders()
+
+
+def _lerobot_opens(folder: Path) -> bool:
+    """Whether this environment's LeRobot can open the LeRobot folder (the student types need lerobot >= 0.5)."""
+    if not (folder / "config.json").is_file():
+        return True
+    pytest.importorskip("lerobot")
+    from snapflow.adapters.lerobot_types import lerobot_loads_plugins
+
+    return lerobot_loads_plugins()
+
+
+@pytest.fixture(scope="module")
+def fresh_copies(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The tracked files of every kept folder and their archived weights, restored from history, in a folder of
+    their own (as a fresh clone has them after ``snapflow checkpoints restore``)."""
+    into = tmp_path_factory.mktemp("clone")
+    for path in _tracked(*KEPT):
+        (into / path).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(ROOT / path, into / path)
+    restore(ROOT, [entry for entry in read_manifest(ROOT) if str(PurePosixPath(entry.path).parent) in KEPT], into)
+    return into
+
+
+def test_every_archived_weight_belongs_to_a_kept_folder() -> None:
+    stray = [entry.path for entry in read_manifest(ROOT) if str(PurePosixPath(entry.path).parent) not in KEPT]
+    assert not stray, f"archived weights in no policy or checkpoint folder: {stray}"
+    assert sum(KEPT.values()) >= 18  # the MiniVLA LIBERO teachers and students, and every SmolVLA seed's
+
+
+@pytest.mark.lerobot
+@pytest.mark.parametrize("folder", sorted(folder for folder, opens in KEPT.items() if opens))
+def test_a_kept_policy_opens_on_a_fresh_clone_and_samples_a_chunk(fresh_copies: Path, folder: str) -> None:
+    path = fresh_copies / folder
+    if not _lerobot_opens(path):
+        pytest.skip("a LeRobot student type: lerobot >= 0.5 opens it")
+    opened = open_policy(path)
+    processor = opened.processor
+    size = processor.image_size
+    images = None if size is None else np.full((1, size, size, 3), 128, dtype=np.uint8)
+    extra = {name: np.full((1, size, size, 3), 128, dtype=np.uint8) for name in processor.extra_cameras}
+    observation = processor.observation(
+        np.zeros((1, processor.state_dim), dtype=np.float32), ["pick up the black bowl"], images, extra
+    )
+    noise = torch.randn(1, processor.chunk_length, processor.action_dim, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        chunk = processor.unnormalize_actions(
+            sample_actions(opened.policy.eval(), observation, noise, SNAPFLOW_1 if opened.distilled else NAIVE_1)
+        )
+    assert chunk.shape == (1, processor.chunk_length, processor.action_dim)
+    assert torch.isfinite(chunk).all()
+
+
+@pytest.mark.parametrize("folder", sorted(folder for folder, opens in KEPT.items() if not opens))
+def test_a_kept_training_checkpoint_is_refused_naming_what_to_pass(folder: str) -> None:
+    with pytest.raises(CheckpointError, match="training checkpoint of a LeRobot policy.*pass") as refusal:
+        open_policy(ROOT / folder)
+    assert "\n" not in str(refusal.value)
+
+
+def test_no_committed_record_or_config_names_a_path_of_the_machine_that_wrote_it() -> None:
+    named = [
+        f"{path}:{number}"
+        for path in _tracked("docs", "configs")
+        if not path.endswith((".png", ".safetensors"))
+        for number, line in enumerate((ROOT / path).read_text(errors="replace").splitlines(), start=1)
+        if MACHINE_PATH.search(line)
+    ]
+    assert not named, f"absolute paths of a machine in: {named[:10]}"
