@@ -14,6 +14,8 @@ from snapflow.adapters.lerobot_types import PLUGIN_LEROBOT, lerobot_loads_plugin
 from snapflow.cli import main
 from snapflow.jobs.sweep import TrainJob, jobs, load_sweep
 from snapflow.jobs.sweep.planning import EvalJob, LeRobotDatasetJob, train_job
+from snapflow.policies.loaded import CheckpointError
+from snapflow.sources import open_policy
 
 TINY_TRAIN = "{ steps = 4, batch_size = 4, warmup_steps = 1, log_every = 2, validate_every = 4, checkpoint_every = 2 }"
 
@@ -34,6 +36,7 @@ image_size = 32
 [runs.teacher]
 lerobot = {{ smolvlm = "tiny", image_size = 32, chunk_size = 4, n_action_steps = 2 }}
 train = {TINY_TRAIN}
+commit_checkpoint = true
 [runs.distilled]
 teacher = "teacher"
 train = {TINY_TRAIN}
@@ -82,21 +85,23 @@ def test_a_lerobot_teacher_and_its_students_train_on_the_demonstrations_written_
     assert train_job(config, "lerobot-train", 0).key != train_job(config, "distilled", 0).key
 
 
-def test_a_finished_lerobot_train_students_policy_is_kept_and_put_back_on_a_fresh_machine(tmp_path):
-    """``commit_checkpoint`` on a lerobot-train student keeps its finished policy folder beside its ledger record;
-    a machine without the run folder gets the folder back where evaluations read it (``restore_outputs``)."""
-    student = train_job(load_sweep(write_config(tmp_path)), "lerobot-train", 0)
-    assert student.kept == tmp_path / "results" / "records" / "lerobot-train" / "seed-0" / "checkpoint"
-    files = {"config.json": '{"type": "snapflow_smolvla"}', "model.safetensors": "weights", "train_config.json": "{}"}
-    student.policy_path.mkdir(parents=True)
+@pytest.mark.parametrize("run", ["lerobot-train", "teacher"])
+def test_a_finished_lerobot_runs_policy_folder_is_kept_and_put_back_on_a_fresh_machine(tmp_path, run):
+    """``commit_checkpoint`` on a LeRobot run (a lerobot-train student, a teacher trained from scratch) keeps its
+    finished policy folder beside its ledger record; a machine without the run folder gets the folder back where
+    evaluations and students read it (``restore_outputs``)."""
+    job = train_job(load_sweep(write_config(tmp_path)), run, 0)
+    assert job.kept == tmp_path / "results" / "records" / run / "seed-0" / "checkpoint"
+    files = {"config.json": '{"type": "smolvla"}', "model.safetensors": "weights", "policy_preprocessor.json": "{}"}
+    job.policy_path.mkdir(parents=True)
     for name, text in files.items():
-        (student.policy_path / name).write_text(text)
-    assert not student.restore_outputs(), "nothing kept yet"
-    student.keep_lerobot_policy()
-    shutil.rmtree(student.directory)  # a fresh machine: the ledger and what it keeps, no run folder
-    assert student.restore_outputs()
-    assert {file.name: file.read_text() for file in student.policy_path.iterdir()} == files
-    assert not student.restore_progress(), "an unfinished lerobot-train run resumes from its own checkpoints"
+        (job.policy_path / name).write_text(text)
+    assert not job.restore_outputs(), "nothing kept yet"
+    job.keep_lerobot_policy()
+    shutil.rmtree(job.directory)  # a fresh machine: the ledger and what it keeps, no run folder
+    assert job.restore_outputs()
+    assert {file.name: file.read_text() for file in job.policy_path.iterdir()} == files
+    assert not job.restore_progress(), "a finished run's policy folder is no checkpoint to resume"
 
 
 @pytest.mark.parametrize(
@@ -128,6 +133,8 @@ def test_a_bad_lerobot_run_is_refused_with_its_section_named(tmp_path, capsys, r
     reason=f"lerobot-train imports snapflow's student types from lerobot {PLUGIN_LEROBOT} on",
 )
 def test_a_tiny_smolvla_sweep_trains_distils_by_both_trainers_and_evaluates_every_row(tmp_path):
+    from snapflow.adapters.lerobot.local_vlm import BUNDLED_VLM
+
     config_path = write_config(tmp_path)
     assert main(["sweep", str(config_path), "--workers", "1", "--threads", "1", "--no-progress"]) == 0
     runs = tmp_path / "runs"
@@ -143,7 +150,18 @@ def test_a_tiny_smolvla_sweep_trains_distils_by_both_trainers_and_evaluates_ever
     assert trained_on["dataset"]["episodes"] == [0, 1, 3, 4], "the teacher's held-out episode of each task stays out"
     assert "consistency_loss" in (runs / "lerobot-train/seed-0/lerobot-train.log").read_text()
     kept = tmp_path / "results/records/lerobot-train/seed-0/checkpoint/pretrained_model"
-    assert (kept / "model.safetensors").is_file() and json.loads((kept / "config.json").read_text()) == student
+    kept_config = json.loads((kept / "config.json").read_text())
+    assert kept_config.pop("vlm_model_name") == BUNDLED_VLM, "the SmolVLM travels inside the kept folder"
+    assert (kept / BUNDLED_VLM / "tokenizer.json").is_file() and (kept / "model.safetensors").is_file()
+    assert kept_config == {key: value for key, value in student.items() if key != "vlm_model_name"}
+    # the teacher is kept as the policy folder it exported, which opens where the run folder is gone
+    teacher = tmp_path / "results/records/teacher/seed-0/checkpoint"
+    assert json.loads((teacher / "kept.json").read_text())["checkpoint"] == "lerobot_policy"
+    with pytest.raises(CheckpointError, match=f"pass its policy folder {runs / 'teacher/seed-0/lerobot_policy'}"):
+        open_policy(runs / "teacher" / "seed-0")
+    moved = shutil.copytree(teacher / "lerobot_policy", tmp_path / "elsewhere" / "teacher")
+    shutil.rmtree(runs)
+    assert not open_policy(moved).distilled
     headline = json.loads((tmp_path / "results" / "results.json").read_text())["tables"]["headline"]["rows"]
     assert [row["episodes"] for row in headline] == [2, 2, 2, 2]
     for row in headline:

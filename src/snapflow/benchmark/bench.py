@@ -23,6 +23,7 @@ from snapflow.flow.modes import SamplingMode
 from snapflow.flow.solver import sample_actions
 from snapflow.inference.fast_paths import FAST_PATHS, apply_fast_path
 from snapflow.protocol import map_tensors
+from snapflow.reporting.files import recorded_path
 from snapflow.reporting.machine import machine
 
 # the teacher's step counts timed before the subject's one-step mode
@@ -108,7 +109,7 @@ def time_first_chunk(subject: BenchSubject, fast_path: str) -> FirstChunk:
         graphs,
         hits,
         misses,
-        cache_dir(),
+        recorded_path(cache_dir()),
     )
 
 

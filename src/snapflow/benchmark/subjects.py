@@ -26,6 +26,7 @@ from snapflow.policies.factory import POLICIES, default_config, make_model, make
 from snapflow.policies.loaded import OpenedPolicy
 from snapflow.policies.normalization import NormalizationStats
 from snapflow.protocol import map_tensors
+from snapflow.reporting.files import recorded_path
 
 # the paper's LIBERO setting for the LeRobot architectures: two 224-pixel cameras, an 8-D state, 7-D actions
 LIBERO_CAMERAS = ("observation.images.image", "observation.images.image2")
@@ -257,7 +258,7 @@ def make_subject(
     from snapflow.sources import open_policy
 
     loaded = open_policy(policy)
-    return opened_subject(loaded, f"{loaded.policy_type} ({policy})", device, dtype)
+    return opened_subject(loaded, f"{loaded.policy_type} ({recorded_path(policy)})", device, dtype)
 
 
 def with_prompt_tokens(subject: BenchSubject, tokens: int) -> BenchSubject:

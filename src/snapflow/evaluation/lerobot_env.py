@@ -19,7 +19,7 @@ from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SamplingMode
 from snapflow.inference.fast_paths import apply_fast_path
 from snapflow.policies.loaded import CheckpointError
-from snapflow.reporting.files import write_json, write_text
+from snapflow.reporting.files import recorded_path, write_json, write_text
 from snapflow.reporting.tables import markdown_table
 from snapflow.sources import open_policy
 
@@ -125,7 +125,7 @@ def evaluate_in_lerobot_env(
     finally:
         close_envs(environments)
     return {
-        "policy": str(policy_directory),
+        "policy": recorded_path(policy_directory),
         "policy_type": adapter.policy_type,
         "env": env_type,
         "task": env_config.task,

@@ -24,7 +24,7 @@ from snapflow.envs.libero import suite_of
 from snapflow.errors import InvalidInputError, SnapflowError
 from snapflow.evaluation.results import EpisodeResult, EvaluationRow, success_by_task
 from snapflow.flow.modes import SamplingMode
-from snapflow.reporting.files import write_json
+from snapflow.reporting.files import recorded_path, write_json
 
 #: a task's episodes run as one batch of LeRobot environments, each from its own initial state
 MAX_EPISODES = 10
@@ -132,7 +132,7 @@ def run_lerobot_eval(
             shutil.copy2(folder / TIMING, Path(kept) / task / TIMING)
         results += task_episodes(task, eval_info)
         wall_time += json.loads((folder / TIMING).read_text())["wall_time_s"]
-    return EvaluationRow(str(policy), mode.name, mode.num_steps, success_by_task(results), wall_time)
+    return EvaluationRow(recorded_path(policy), mode.name, mode.num_steps, success_by_task(results), wall_time)
 
 
 def restore_kept_tasks(kept: str | Path, output: str | Path) -> list[str]:

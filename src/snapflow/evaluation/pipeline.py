@@ -25,6 +25,7 @@ from snapflow.evaluation.offline import offline_metrics
 from snapflow.evaluation.results import EvaluationReport, EvaluationRow, success_by_task
 from snapflow.flow.modes import SamplingMode
 from snapflow.policies.loaded import OpenedPolicy
+from snapflow.reporting.files import recorded_path
 
 Run = tuple[str, OpenedPolicy, SamplingMode]  # (label, policy, sampling mode)
 
@@ -129,7 +130,7 @@ def evaluate(
             started = time.perf_counter()
             episodes = evaluator.run(loaded.policy, loaded.processor, mode, n_act, seed, progress, log=log)
             row = EvaluationRow(
-                str(loaded.path),
+                recorded_path(loaded.path),
                 mode.name,
                 mode.num_steps,
                 success_by_task(episodes),

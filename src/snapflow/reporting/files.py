@@ -42,4 +42,17 @@ def write_text(path: str | Path, text: str) -> Path:
     return atomic_write(path, lambda temporary: temporary.write_text(text))
 
 
-__all__ = ["atomic_write", "write_json", "write_text"]
+def recorded_path(path: str | Path) -> str:
+    """``path`` as a result file records it: relative to the working directory where it lies inside it, as given
+    where it is relative, else only its last part (an absolute path of this machine means nothing on another, and a
+    committed record must not hold one)."""
+    path = Path(path)
+    if not path.is_absolute():
+        return path.as_posix()
+    try:
+        return path.relative_to(Path.cwd()).as_posix()
+    except ValueError:
+        return path.name
+
+
+__all__ = ["atomic_write", "recorded_path", "write_json", "write_text"]
