@@ -15,6 +15,9 @@ docs/results/sweeps/smolvla-libero-spatial-dart`` (Python 3.12, lerobot 0.6.1):
    data carries, and the SmolVLM) from the trained weights of their checkpoints: the raw weights, which is what the
    runs exported and what the committed evaluations and students read (the teachers' weight average was saved in
    their checkpoints but never exported), and keeps that folder in place of the checkpoint, as the sweep now does.
+
+It has run once (commit 78f319a); the checkpoints it read left the archive's manifest then, and stay in history: the
+manifest of commit efb20a6 names them, with the commits that hold them.
 """
 
 from __future__ import annotations
@@ -74,11 +77,12 @@ def rebuild_smolvlm(seed: int, student: Path) -> tuple[Path, dict]:
 
 
 def teacher_config_folder(student_config: dict, into: Path) -> Path:
-    """A folder holding the teacher's LeRobot config: the student's, typed back as its teacher."""
+    """A folder holding the teacher's LeRobot config: the student's, typed back as its teacher, with SmolVLA's own
+    optimiser settings, as the teacher's run wrote them (snapflow's trainer writes its own nowhere in the config;
+    those of the student are lerobot-train's)."""
+    dropped = ("distill_", "optimizer_", "scheduler_")
     plain = {
-        key: value
-        for key, value in student_config.items()
-        if key not in STUDENT_FIELDS and not key.startswith("distill_")
+        key: value for key, value in student_config.items() if key not in STUDENT_FIELDS and not key.startswith(dropped)
     }
     plain.update(type="smolvla", pretrained_path=None)
     into.mkdir(parents=True, exist_ok=True)

@@ -528,6 +528,20 @@ def test_a_jump_mode_on_a_teacher_is_refused_not_reported_as_snapflow(checkpoint
     assert not output.exists()
 
 
+@pytest.mark.parametrize("given", ["run", "run/checkpoints/step_0000004"])
+def test_a_lerobot_training_checkpoint_given_as_a_policy_is_refused_naming_the_folder_to_pass(tmp_path, given):
+    """What `snapflow train` / `distill` leave of a LeRobot policy: checkpoints that resume training, and beside them
+    the policy folder the run exported, which is what opens."""
+    checkpoint = tmp_path / "run" / "checkpoints" / "step_0000004"
+    checkpoint.mkdir(parents=True)
+    (checkpoint / "policy.json").write_text(json.dumps({"format": "snapflow-lerobot-run", "policy": "smolvla"}))
+    (tmp_path / "run" / "latest.json").write_text(json.dumps({"checkpoint": "checkpoints/step_0000004"}))
+    (tmp_path / "run" / "lerobot_policy").mkdir()
+    (tmp_path / "run" / "lerobot_policy" / "config.json").write_text("{}")
+    result = _snapflow("eval", "--policy", given, "--output", str(tmp_path / "out"), "--no-progress", cwd=tmp_path)
+    _assert_refused(result, "training checkpoint of a LeRobot policy", "pass its policy folder run/lerobot_policy")
+
+
 def test_a_second_demo_in_the_same_folder_is_refused_at_once_with_the_flag_that_exists(tmp_path):
     (tmp_path / "demo" / "data").mkdir(parents=True)
     result = _snapflow("demo", "--output", str(tmp_path / "demo"), "--no-progress")

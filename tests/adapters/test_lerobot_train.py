@@ -231,3 +231,25 @@ def test_lerobot_train_on_a_student_type_distils_a_tiny_smolvla(tmp_path):
     assert opened.distilled and opened.policy_type == "snapflow_smolvla"
     opened.check_mode(SNAPFLOW_1)
     assert not opened.policy.policy.model.target_time_embedding.linear_out.weight.eq(0).all(), "phi_s was loaded"
+
+
+def test_a_teacher_trained_with_a_weight_average_exports_the_average(tmp_path):
+    """As a built-in run's checkpoints hold it, the average is the policy: the exported folder holds the weights the
+    last checkpoint saved as its policy, not the raw trained ones beside them."""
+    from safetensors.torch import load_file
+
+    from snapflow.policies.checkpoint import resolve_checkpoint
+    from snapflow.training.checkpoint import TRAINING_WEIGHTS
+    from snapflow.training.config import TrainConfig
+    from snapflow.training.lerobot import train_smolvla_teacher
+    from tests.lerobot_tiny import write_tiny_dataset
+
+    data = write_tiny_dataset(tmp_path / "data", episodes=2, frames=8)
+    training = TrainConfig(steps=4, batch_size=4, learning_rate=1e-3, warmup_steps=1, checkpoint_every=4, ema_decay=0.5)
+    train_smolvla_teacher(data, "local/tiny", tmp_path / "teacher", training, chunk_size=4, val_fraction=0.0)
+    checkpoint = resolve_checkpoint(tmp_path / "teacher")
+    average, raw = load_file(checkpoint / "policy.safetensors"), load_file(checkpoint / TRAINING_WEIGHTS)
+    exported = load_file(tmp_path / "teacher" / "lerobot_policy" / "model.safetensors")
+    name = "model.action_out_proj.weight"
+    assert not torch.equal(average[f"policy.{name}"], raw[f"policy.{name}"])
+    assert all(torch.equal(tensor, average[f"policy.{key}"]) for key, tensor in exported.items())

@@ -26,6 +26,7 @@ from snapflow.data.demonstrations import split_episodes
 from snapflow.errors import InvalidInputError
 from snapflow.objective.base import TwoBranchObjective
 from snapflow.objective.snapflow import SnapFlowObjective
+from snapflow.policies.checkpoint import POLICY_WEIGHTS, load_state_strict, read_tensors, resolve_checkpoint
 from snapflow.policies.loaded import CheckpointError
 from snapflow.reporting.locks import hold_run_lock
 from snapflow.reporting.records import as_record
@@ -258,7 +259,8 @@ def _train_and_export(
     save: Callable[[Path], Path],
 ) -> dict[str, Any]:
     """The one trainer on LeRobot's pre-processed batches of ``dataset`` (``holder``: the command holding
-    ``output``), then ``save`` of the result into ``output/lerobot_policy`` with the processors beside it."""
+    ``output``), then ``save`` of the result into ``output/lerobot_policy`` with the processors beside it: the weight
+    average where the run keeps one (``config.ema_decay``), else the trained weights."""
     preprocessor, postprocessor = processors
     state = train(
         adapter,
@@ -274,6 +276,9 @@ def _train_and_export(
         holder=holder,
         keep_progress=keep_progress,
     )
+    if config.ema_decay is not None:  # the weight average is the policy, as the run's checkpoints hold it
+        checkpoint = resolve_checkpoint(output)
+        load_state_strict(adapter, read_tensors(checkpoint / POLICY_WEIGHTS), checkpoint / POLICY_WEIGHTS)
     export = save(Path(output) / EXPORT_DIRECTORY)
     preprocessor.save_pretrained(export)
     postprocessor.save_pretrained(export)
