@@ -240,6 +240,8 @@ class FlowPolicyContract:
         with pytest.raises(CheckpointError), self.loading():
             self.load(tmp_path / "empty")
 
+    # up to ~60 s an architecture on CI's two cores: torch.compile's inductor compiles both the prefix pass and the
+    # velocity, which is what is tested
     @pytest.mark.slow
     def test_the_compiled_fast_path_samples_what_eager_does(self, policy, batch):
         from snapflow.inference import compile_policy

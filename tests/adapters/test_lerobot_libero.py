@@ -21,6 +21,9 @@ pytest.importorskip("libero")
 IMAGE_SIZE = 32  # the short chain's
 
 
+# ~220 s on CI's two cores, paid once for the module's tests: the README's whole LeRobot chain on LIBERO, whose
+# environments alone take 4-9 s to make and ~20 ms a step; its parts (collection, dataset, training, both evaluators)
+# are each at their smallest (two demonstrations, four training steps, one episode a row).
 @pytest.fixture(scope="module")
 def collected(tmp_path_factory):
     """The short chain on one LIBERO-Spatial task: two demonstrations with 32-pixel images from both cameras as npz

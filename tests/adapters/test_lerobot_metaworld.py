@@ -21,6 +21,8 @@ from tests.helpers import run_short_lerobot_chain  # noqa: E402
 IMAGE_SIZE = 32  # the short chain's
 
 
+# ~75 s on CI's two cores, paid once for the module's tests: the README's whole LeRobot chain, each stage at its
+# smallest (two tasks, two demonstrations each, a few training steps, one episode a row).
 @pytest.fixture(scope="module")
 def collected(tmp_path_factory):
     """The README's LeRobot SmolVLA chain in its short form (scripts/lerobot-smolvla.sh, SHORT=1): two
@@ -103,16 +105,18 @@ def test_demonstrations_already_in_the_output_are_written_as_a_dataset_not_colle
 
 
 @pytest.mark.slow
-def test_the_chain_trains_distills_and_evaluates_a_lerobot_smolvla(collected):
+def test_the_chain_trains_distills_and_evaluates_a_lerobot_smolvla(collected, monkeypatch):
     from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
+
+    from snapflow.adapters.lerobot.local_vlm import BUNDLED_VLM
 
     teacher, student = collected / "teacher" / "lerobot_policy", collected / "student" / "lerobot_policy"
     assert json.loads((teacher / "snapflow.json").read_text())["target_time"] is False
     assert json.loads((student / "snapflow.json").read_text())["target_time"] is True
-    # the teacher is a plain LeRobot SmolVLA: LeRobot's own loader takes it as it is
-    assert SmolVLAPolicy.from_pretrained(teacher).config.vlm_model_name == str(
-        collected.resolve() / "teacher" / "smolvlm"
-    )
+    # the teacher is a plain LeRobot SmolVLA with its SmolVLM inside: LeRobot's own loader takes it from inside it
+    with monkeypatch.context() as inside:
+        inside.chdir(teacher)
+        assert SmolVLAPolicy.from_pretrained(".").config.vlm_model_name == BUNDLED_VLM
     report = json.loads((collected / "eval" / "report.json").read_text())
     rows = report["rows"]
     assert [(row["mode"]) for row in rows.values()] == ["teacher-10", "naive-1", "snapflow-1"]

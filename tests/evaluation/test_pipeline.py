@@ -14,6 +14,7 @@ from snapflow.evaluation.pipeline import labelled_runs
 from snapflow.evaluation.results import EvaluationReport
 from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, TEACHER_10
 from snapflow.policies.checkpoint import load_policy
+from snapflow.reporting.files import recorded_path
 from snapflow.training.recipes import DistillSettings
 from snapflow.training.stages import distill, train_teacher
 from tests.evaluation.figures import CYCLE, assert_figure
@@ -85,7 +86,7 @@ def test_collect_train_distill_eval_on_one_task(tmp_path_factory, tmp_path, caps
     held_out = len(ChunkData(data, data.split(loaded.val_fraction)[1], loaded.processor))
     for label, nfe in (("snapflow-1", 1), ("teacher-2", 2)):
         row = report["rows"][label]
-        assert row["policy"] == str(loaded.path) and row["mode"] == label and row["nfe"] == nfe
+        assert row["policy"] == recorded_path(loaded.path) and row["mode"] == label and row["nfe"] == nfe
         success = row["success"][TASK]
         assert (
             success["episodes"] == 1

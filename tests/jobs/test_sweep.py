@@ -624,6 +624,8 @@ def test_a_job_runs_on_the_threads_asked_for_where_other_programs_share_the_core
     assert read_record(job)["threads"] == 1
 
 
+# ~150 s on CI's two cores: the sweep's one end-to-end run on a simulator (collection, teachers, students, every
+# table) then its cache and rerun rules on the same folders; each part is at its smallest.
 @pytest.mark.slow
 def test_a_sweep_runs_caches_reruns_a_changed_student_and_writes_its_tables_into_the_document(tmp_path, capsys):
     config_path = write_config(tmp_path)
@@ -727,6 +729,8 @@ def test_a_sweep_into_an_output_dir_another_process_holds_is_refused_before_any_
     assert [path.name for path in runs.iterdir()] == [".snapflow.lock"], "no job started"
 
 
+# ~125 s on CI's two cores: a sweep from a real collection, then on a "fresh machine" a new evaluation of its kept
+# teacher, and a teacher interrupted and continued there beside one never interrupted, whose weights it must end with.
 @pytest.mark.slow
 def test_a_fresh_machine_evaluates_a_kept_policy_and_continues_a_kept_unfinished_run(tmp_path, monkeypatch, capfd):
     """commit_checkpoint: a finished run's policy, kept beside its ledger record, comes back on a fresh machine for a

@@ -11,6 +11,7 @@ from snapflow.cli import main
 from snapflow.data.demonstrations import Demonstrations
 from snapflow.policies.checkpoint import load_policy
 from snapflow.policies.factory import POLICIES
+from snapflow.reporting.files import recorded_path
 
 TASKS = ("drawer-close-v3", "reach-v3")
 EVAL_TASK = "drawer-close-v3"
@@ -140,7 +141,7 @@ def test_a_built_in_policy_trains_saves_loads_and_evaluates_through_the_same_com
     assert list(report["rows"]) == ["snapflow-1", "teacher-2"]
     for label, nfe in (("snapflow-1", 1), ("teacher-2", 2)):
         row = report["rows"][label]
-        assert row["nfe"] == nfe and row["policy"] == str(student / "checkpoints" / "step_0000002")
+        assert row["nfe"] == nfe and row["policy"] == recorded_path(student / "checkpoints" / "step_0000002")
         success = row["success"][EVAL_TASK]
         assert (
             success["episodes"] == 1
@@ -176,7 +177,7 @@ def test_a_built_in_policy_trains_saves_loads_and_evaluates_through_the_same_com
         == 0
     )
     timed = json.loads((bench / "bench.json").read_text())
-    assert timed["subject"] == f"{policy} ({student})" and timed["details"]["policy_type"] == policy
+    assert timed["subject"] == f"{policy} ({recorded_path(student)})" and timed["details"]["policy_type"] == policy
     assert timed["details"]["config"] == load_policy(student).processor.config.to_dict()
     assert timed["details"]["parameters"] == sum(
         parameter.numel() for parameter in load_policy(student).policy.parameters()
