@@ -106,6 +106,8 @@ def test_the_student_runs_in_snapflows_evaluator_and_in_lerobots_libero_environm
     assert lerobot["modes"]["snapflow-1"]["overall"]["n_episodes"] == 1
 
 
+# ~185 s on CI's two cores: two lerobot-eval subprocesses (the teacher's ten steps, the student's one) of one episode
+# each, the least there is; LeRobot's LiberoEnv renders both cameras every step at robosuite's full settings.
 @pytest.mark.slow
 @pytest.mark.skipif(
     not lerobot_loads_plugins(), reason="lerobot-eval loads snapflow's student types from lerobot 0.5 on"

@@ -130,6 +130,8 @@ def test_lerobots_factory_resolves_the_student_types_by_its_conventions(vlm_dire
     ]
 
 
+# ~170 s on CI's two cores: LeRobot's own lerobot-eval as a user runs it, one Meta-World episode, which LeRobot runs
+# for 500 steps at 480 px whatever is asked.
 @pytest.mark.slow
 @PLUGINS
 def test_lerobot_eval_runs_the_distilled_student_in_metaworld(vlm_directory, tmp_path):

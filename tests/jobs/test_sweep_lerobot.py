@@ -126,6 +126,8 @@ def test_a_bad_lerobot_run_is_refused_with_its_section_named(tmp_path, capsys, r
     assert message in error and "Traceback" not in error
 
 
+# ~175 s on CI's two cores: the LeRobot sweep end to end, each part at its smallest: a collection, its
+# LeRobotDataset, a SmolVLA teacher, a student by each trainer (lerobot-train as a subprocess) and every row evaluated.
 @pytest.mark.slow
 @pytest.mark.lerobot
 @pytest.mark.skipif(
