@@ -10,10 +10,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import torch
 
 from snapflow.adapters.lerobot.local_vlm import BUNDLED_VLM, bundle_vlm, bundled_vlm
 from snapflow.flow.modes import SNAPFLOW_1
+from snapflow.policies.loaded import CheckpointError
 from snapflow.sources import open_policy
 from tests.lerobot_tiny import save_tiny_student, tiny_batch, write_tiny_smolvlm
 
@@ -53,6 +55,14 @@ def test_a_bundled_folder_opens_where_its_smolvlm_was_deleted_and_samples_the_sa
     assert config["vlm_model_name"] == tokenizer == BUNDLED_VLM
     assert bundled_vlm(moved) == (moved / BUNDLED_VLM).resolve()
     torch.testing.assert_close(_chunk(moved), before, rtol=0, atol=0)
+
+
+def test_a_folder_copied_without_its_smolvlm_is_refused_naming_what_it_lacks(tmp_path: Path) -> None:
+    folder = tmp_path / "policy"
+    folder.mkdir()
+    (folder / "config.json").write_text(json.dumps({"type": "smolvla", "vlm_model_name": BUNDLED_VLM}))
+    with pytest.raises(CheckpointError, match=f"names its VLM {BUNDLED_VLM}/, which the folder lacks"):
+        bundled_vlm(folder)
 
 
 def test_a_hub_model_is_left_as_named(tmp_path: Path) -> None:

@@ -17,6 +17,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+from snapflow.policies.loaded import CheckpointError
 from snapflow.reporting.files import write_json
 
 BUNDLED_VLM = "smolvlm"  # the local VLM's folder inside a policy folder
@@ -33,13 +34,18 @@ def _vlm_name(folder: Path) -> str | None:
 
 def bundled_vlm(folder: str | Path) -> Path | None:
     """The VLM folder kept inside the policy folder ``folder``, as an absolute path, or None where its config names
-    a hub model, an absolute path or no VLM at all."""
+    a hub model, an absolute path or no VLM at all; a :class:`CheckpointError` where the folder lacks the VLM it
+    names as kept inside."""
     folder = Path(folder)
     name = _vlm_name(folder)
     if not name or Path(name).is_absolute():
         return None
     candidate = folder / name
-    return candidate.resolve() if (candidate / _CONFIG).is_file() else None
+    if (candidate / _CONFIG).is_file():
+        return candidate.resolve()
+    if name == BUNDLED_VLM:  # the name snapflow gives a VLM it keeps inside: never a hub model's
+        raise CheckpointError(f"{folder} names its VLM {name}/, which the folder lacks (copy the whole folder)")
+    return None
 
 
 def bundle_vlm(folder: str | Path) -> bool:
