@@ -8,6 +8,7 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NoReturn
 
 from snapflow import install_command
 from snapflow._lazy import resolve
@@ -66,7 +67,7 @@ def _lerobot_run_checkpoint(folder: Path | None) -> Path | None:
         return None
 
 
-def refuse_lerobot_run(source: str) -> OpenedPolicy:
+def refuse_lerobot_run(source: str) -> NoReturn:
     """Refuse a LeRobot training checkpoint given where a policy is expected, naming the policy folder to pass: the
     one its run exported (in the run folder, or kept beside the checkpoint)."""
     checkpoint = _lerobot_run_checkpoint(Path(source))
