@@ -127,7 +127,8 @@ def _distill_lerobot(args: argparse.Namespace) -> int:
 
     dataset_root, repo_id = dataset_source(args.dataset, args.repo_id)  # a mistyped root is named before LeRobot loads
     train, settings = _student_settings(args, lerobot=True)
-    from snapflow.training.lerobot import EXPORT_DIRECTORY, distill_lerobot
+    from snapflow.sources import LEROBOT_EXPORT_DIRECTORY
+    from snapflow.training.lerobot import distill_lerobot
 
     state = distill_lerobot(
         args.policy,
@@ -140,7 +141,9 @@ def _distill_lerobot(args: argparse.Namespace) -> int:
         not args.no_progress,
         keep_progress=args.keep_progress,
     )
-    print(f"SnapFlow student trained to step {state['step']}; LeRobot policy in {Path(args.output) / EXPORT_DIRECTORY}")
+    print(
+        f"SnapFlow student trained to step {state['step']}; LeRobot policy in {Path(args.output) / LEROBOT_EXPORT_DIRECTORY}"
+    )
     return 0
 
 

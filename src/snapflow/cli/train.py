@@ -131,7 +131,8 @@ def _train_lerobot(args: argparse.Namespace, config: TrainConfig) -> int:
     from snapflow.adapters.hub import dataset_source
 
     dataset_root, repo_id = dataset_source(args.dataset, args.repo_id)  # a mistyped root is named before LeRobot loads
-    from snapflow.training.lerobot import EXPORT_DIRECTORY, train_smolvla_teacher
+    from snapflow.sources import LEROBOT_EXPORT_DIRECTORY
+    from snapflow.training.lerobot import train_smolvla_teacher
 
     size = SMOLVLM_SIZES[args.smolvlm]
     if args.image_size:
@@ -151,6 +152,6 @@ def _train_lerobot(args: argparse.Namespace, config: TrainConfig) -> int:
     )
     print(
         f"SmolVLA teacher trained to step {state['step']} in {state['wall_time_s']:.0f} s; "
-        f"LeRobot policy in {Path(args.output) / EXPORT_DIRECTORY}"
+        f"LeRobot policy in {Path(args.output) / LEROBOT_EXPORT_DIRECTORY}"
     )
     return 0

@@ -13,7 +13,7 @@ import torch
 
 from snapflow.adapters.lerobot.evaluation import LoadedLeRobotPolicy
 from snapflow.adapters.lerobot.libero import packaged_initial_states
-from snapflow.adapters.lerobot.local_vlm import processor_overrides
+from snapflow.adapters.lerobot.local_vlm import saved_processors
 from snapflow.envs.libero import SUITES, Libero, suite_of
 from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SamplingMode
@@ -69,7 +69,6 @@ def evaluate_in_lerobot_env(
     os.environ.setdefault("MUJOCO_GL", "egl")  # Meta-World and ALOHA render off-screen
     from lerobot.envs.factory import make_env, make_env_pre_post_processors
     from lerobot.envs.utils import close_envs
-    from lerobot.policies.factory import make_pre_post_processors
     from lerobot.scripts.lerobot_eval import eval_policy_all
 
     if episodes < 1 or n_envs < 1:
@@ -91,11 +90,7 @@ def evaluate_in_lerobot_env(
 
     cameras = [feature.shape[-1] for feature in policy.config.image_features.values()]
     env_config = make_lerobot_env_config(env_type, task, cameras[0] if cameras else None)
-    preprocessor, postprocessor = make_pre_post_processors(
-        policy.config,
-        pretrained_path=str(policy_directory),
-        preprocessor_overrides={"device_processor": {"device": device}, **processor_overrides(policy_directory)},
-    )
+    preprocessor, postprocessor = saved_processors(policy.config, policy_directory, device)
     env_preprocessor, env_postprocessor = make_env_pre_post_processors(env_config, policy.config)
     with packaged_initial_states() if env_type == "libero" else nullcontext():
         try:

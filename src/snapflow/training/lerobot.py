@@ -18,7 +18,7 @@ from snapflow.adapters.lerobot.base import LeRobotFlowPolicy, lerobot_time_sampl
 from snapflow.adapters.lerobot.checkpoint import PREPROCESSOR_FILE, save_distilled, save_teacher
 from snapflow.adapters.lerobot.data import ActionChunks, LeRobotChunkData
 from snapflow.adapters.lerobot.dataset import policy_features
-from snapflow.adapters.lerobot.local_vlm import bundle_vlm, processor_overrides
+from snapflow.adapters.lerobot.local_vlm import bundle_vlm, saved_processors
 from snapflow.adapters.lerobot.registry import wrap_policy
 from snapflow.adapters.lerobot.smolvlm import smolvla_config, token_budget, words_of, write_smolvlm
 from snapflow.adapters.lerobot_config import SmolVLMSize
@@ -35,7 +35,6 @@ from snapflow.training.config import VAL_FRACTION, TrainConfig, paper_training
 from snapflow.training.recipes import DistillSettings
 from snapflow.training.trainer import train
 
-EXPORT_DIRECTORY = LEROBOT_EXPORT_DIRECTORY  # where a run exports its policy folder
 SMOLVLM_DIRECTORY = "smolvlm"  # the teacher's SmolVLM config and tokenizer, which its exported config points at
 DATASET_INFO = "meta/info.json"  # LeRobot's INFO_PATH: the first file of a LeRobotDataset it reads
 # the commands named as the holder of a run folder, in another process's refusal
@@ -50,15 +49,10 @@ def policy_processors(
     repo carries them; processors built from the dataset's statistics for a local folder that has none."""
     from lerobot.policies.factory import make_pre_post_processors
 
-    device = {"device_processor": {"device": str(policy.config.device)}}
     local = Path(policy_path)
     if local.is_dir() and not (local / PREPROCESSOR_FILE).is_file():
         return make_pre_post_processors(policy.config, dataset_stats=dataset_stats)
-    return make_pre_post_processors(
-        policy.config,
-        pretrained_path=policy_path,
-        preprocessor_overrides={**device, **processor_overrides(policy_path), **(overrides or {})},
-    )
+    return saved_processors(policy.config, policy_path, str(policy.config.device), overrides)
 
 
 def check_dataset(dataset_root: str | Path | None, repo_id: str) -> None:
@@ -279,7 +273,7 @@ def _train_and_export(
     if config.ema_decay is not None:  # the weight average is the policy, as the run's checkpoints hold it
         checkpoint = resolve_checkpoint(output)
         load_state_strict(adapter, read_tensors(checkpoint / POLICY_WEIGHTS), checkpoint / POLICY_WEIGHTS)
-    export = save(Path(output) / EXPORT_DIRECTORY)
+    export = save(Path(output) / LEROBOT_EXPORT_DIRECTORY)
     preprocessor.save_pretrained(export)
     postprocessor.save_pretrained(export)
     bundle_vlm(export)  # a SmolVLM written locally travels inside the folder: it opens on any machine
@@ -342,7 +336,6 @@ def _distill_lerobot(
 
 
 __all__ = [
-    "EXPORT_DIRECTORY",
     "SMOLVLM_DIRECTORY",
     "check_dataset",
     "training_dataset",

@@ -33,7 +33,7 @@ from snapflow.adapters.lerobot.checkpoint import (
     write_marker,
 )
 from snapflow.adapters.lerobot.dataset import IMAGE_PREFIX, STATE
-from snapflow.adapters.lerobot.local_vlm import processor_overrides
+from snapflow.adapters.lerobot.local_vlm import saved_processors
 from snapflow.adapters.lerobot.registry import wrap_policy
 from snapflow.errors import InvalidInputError
 from snapflow.flow.time_sampling import BetaTimeSampler
@@ -139,13 +139,8 @@ class LoadedLeRobotPolicy(OpenedPolicy):
 
     @cached_property
     def processor(self) -> LeRobotProcessor:  # type: ignore[override]
-        from lerobot.policies.factory import make_pre_post_processors
-
         self.config.device = "cpu"
-        overrides = {"device_processor": {"device": "cpu"}, **processor_overrides(self.path)}
-        preprocessor, postprocessor = make_pre_post_processors(
-            self.config, pretrained_path=str(self.path), preprocessor_overrides=overrides
-        )
+        preprocessor, postprocessor = saved_processors(self.config, self.path, "cpu")
         return LeRobotProcessor(self.config, preprocessor, postprocessor)
 
     @property

@@ -6,7 +6,7 @@ LeRobot names such a VLM by the path it was given, in the policy's ``config.json
 that trained it makes the folder useless anywhere else. :func:`bundle_vlm` copies the VLM folder into the policy
 folder (:data:`BUNDLED_VLM`) and names it there relative to the policy folder. LeRobot reads these names relative to
 the working directory, so snapflow hands them to LeRobot as absolute paths when it loads such a folder
-(:func:`resolve_config`, :func:`processor_overrides`), and runs LeRobot's own commands on one from inside it (LeRobot's
+(:func:`resolve_config`, :func:`saved_processors`), and runs LeRobot's own commands on one from inside it (LeRobot's
 ``lerobot-eval --policy.path=.`` in the policy folder works the same way).
 """
 
@@ -97,11 +97,23 @@ def resolve_config(config: Any, folder: str | Path) -> Any:
     return config
 
 
-def processor_overrides(folder: str | Path) -> dict[str, Any]:
+def _tokenizer_override(folder: str | Path) -> dict[str, Any]:
     """LeRobot's ``preprocessor_overrides`` that point the tokenizer step at the policy folder's bundled VLM (none
     for any other policy)."""
     vlm = bundled_vlm(folder)
     return {} if vlm is None else {_TOKENIZER_STEP: {"tokenizer_name": str(vlm)}}
 
 
-__all__ = ["BUNDLED_VLM", "bundled_vlm", "bundle_vlm", "resolve_config", "processor_overrides"]
+def saved_processors(
+    config: Any, folder: str | Path, device: str, overrides: dict[str, Any] | None = None
+) -> tuple[Any, Any]:
+    """LeRobot's pre- and post-processors saved with the policy at ``folder`` (a local folder or hub id), on
+    ``device``, the tokenizer step pointed at a VLM kept inside the folder; ``overrides`` (LeRobot's
+    ``preprocessor_overrides``) win."""
+    from lerobot.policies.factory import make_pre_post_processors
+
+    preprocessor = {"device_processor": {"device": device}, **_tokenizer_override(folder), **(overrides or {})}
+    return make_pre_post_processors(config, pretrained_path=str(folder), preprocessor_overrides=preprocessor)
+
+
+__all__ = ["BUNDLED_VLM", "bundled_vlm", "bundle_vlm", "resolve_config", "saved_processors"]

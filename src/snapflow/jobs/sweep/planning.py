@@ -28,7 +28,7 @@ from snapflow.policies.factory import policy_type_of
 from snapflow.reporting.files import write_json
 from snapflow.reporting.locks import hold_run_lock
 from snapflow.reporting.records import as_record
-from snapflow.sources import open_policy
+from snapflow.sources import LEROBOT_EXPORT_DIRECTORY, open_policy
 from snapflow.training.checkpoint import copy_checkpoint, install_checkpoint, keep_checkpoint, read_kept
 from snapflow.training.config import VAL_FRACTION, TrainConfig
 from snapflow.training.recipes import DistillSettings
@@ -176,9 +176,7 @@ class TrainJob(FolderJob):
             from snapflow.training.lerobot_student import LAST_CHECKPOINT
 
             return self.directory / LEROBOT_TRAIN_DIRECTORY / LAST_CHECKPOINT
-        from snapflow.training.lerobot import EXPORT_DIRECTORY
-
-        return self.directory / EXPORT_DIRECTORY
+        return self.directory / LEROBOT_EXPORT_DIRECTORY
 
     @property
     def ledger_path(self) -> Path | None:
