@@ -1,0 +1,36 @@
+"""Scripted experts for LIBERO: waypoint controllers that steer by the simulator's object poses.
+
+LIBERO ships human demonstrations only (on a hub), no expert; these controllers replace them. They read
+:attr:`~snapflow.envs.base.Observation.privileged` (robosuite's object poses, plus what :func:`privileged_extras`
+adds), never shown to a policy, and act through LIBERO's OSC_POSE controller: a 7-D action in [-1, 1] of translation
+(1 = 5 cm of target offset), rotation (1 = 0.5 rad) and gripper (-1 open, +1 closed).
+
+Each primitive is a module: pick-and-place (``pick_and_place.py``) covers every task of LIBERO-Spatial ("pick up the
+black bowl ... and place it on the plate") and LIBERO-Object ("pick up the X and place it in the basket"), and the
+goals of the same form whose target is an object (the plate, the basket, the bowl), a fixture's surface (the stove's
+burner, the cabinet's top, the wine rack) or a region of the table ("to the right of the plate"); mugs are gripped by
+the rim clear of their handle, the moka pot and the wine bottle below the top read from their geoms (``scene.py``). A
+fixture's joint (``fixtures.py``: "open the middle drawer", "turn on the stove"); a push (``push.py``: "push the plate
+to the front of the stove"). A goal of several predicates (LIBERO-10's "put both ... in the basket") runs their
+primitives in sequence (``sequence.py``). ``goals.py`` maps a goal to its controller; any other (an object put into a
+drawer, the microwave or the caddy; a drawer or a door closed) raises :class:`NoExpertError` naming it.
+"""
+
+from snapflow.envs.libero_expert.fixtures import OpenDrawer, TurnOn
+from snapflow.envs.libero_expert.goals import LiberoExpert, NoExpertError, make_libero_expert
+from snapflow.envs.libero_expert.pick_and_place import PickAndPlace
+from snapflow.envs.libero_expert.push import Push
+from snapflow.envs.libero_expert.scene import privileged_extras
+from snapflow.envs.libero_expert.sequence import InSequence
+
+__all__ = [
+    "InSequence",
+    "LiberoExpert",
+    "NoExpertError",
+    "OpenDrawer",
+    "PickAndPlace",
+    "Push",
+    "TurnOn",
+    "make_libero_expert",
+    "privileged_extras",
+]

@@ -1,0 +1,124 @@
+"""Work a fixture's joint: twist a stove's knob, pull a drawer open."""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+
+from snapflow.envs.base import Observation
+from snapflow.envs.libero_expert.motion import (
+    CLEARANCE,
+    CLOSED,
+    OPEN,
+    POSITION_SCALE,
+    REACHED,
+    Primitive,
+    move_action,
+)
+from snapflow.envs.rotations import axis_angle_to_quaternion, quaternion_multiply, rotation_between
+
+KNOB_GRIP_HEIGHT = 0.035  # the stove knob's fin: gripped this far above the stove's origin, on the knob's axis
+KNOB_TURN = 1.0  # radians the hand twists the knob by (on from 0.5, its stop at 2.1)
+# LIBERO's wooden cabinet: each drawer's handle bar in its drawer body's frame (the drawer slides out along -y)
+DRAWER_HANDLES = {"top": (-0.00278, -0.10161, 0.18393), "middle": (-0.00278, -0.10161, 0.11041)}
+DRAWER_STANDOFF = 0.1  # the hand comes level with the handle this far in front of it, then moves in
+DRAWER_PULL = 0.15  # how far the handle is pulled (LIBERO's "open" from 0.14 out; the drawer's stop at 0.16)
+
+
+class TurnOn(Primitive):
+    """Turn on a stove: rise, move above its knob, descend onto the knob's fin (the open fingers close across it:
+    the hand's default orientation), grip it, twist the hand about the knob's vertical axis, open and rise."""
+
+    PHASES = ("rise", "above", "descend", "close", "twist", "release", "retreat")
+    PHASE_STEPS: ClassVar[dict[str, int]] = {
+        "rise": 40, "above": 60, "descend": 40, "close": 10, "twist": 60, "release": 8
+    }  # fmt: skip
+
+    def __init__(self, fixture: str) -> None:
+        self.fixture = fixture
+
+    def reset(self, observation: Observation, upright: np.ndarray | None = None) -> None:
+        super().reset(observation, upright)
+        state = observation.privileged
+        knob = state[f"{self.fixture}_pos"]
+        self.grip = knob + np.array([0.0, 0.0, KNOB_GRIP_HEIGHT])
+        self.travel = max(state["robot0_eef_pos"][2], self.grip[2] + CLEARANCE)
+        self.orientation = self.upright
+        turn = axis_angle_to_quaternion(np.array([0.0, 0.0, KNOB_TURN]))  # counter-clockwise: the knob's "on"
+        self.twisted = quaternion_multiply(turn, self.orientation)
+
+    def act(self, observation: Observation) -> np.ndarray:
+        state = observation.privileged
+        hand = state["robot0_eef_pos"]
+        self.timer += 1
+        orientation = self.twisted if self.phase in ("twist", "release", "retreat") else self.orientation
+        if self.phase == "rise":
+            goal, gripper, done = np.array([*hand[:2], self.travel]), OPEN, abs(hand[2] - self.travel) < 0.02
+        elif self.phase == "above":
+            goal, gripper = np.array([*self.grip[:2], self.travel]), OPEN
+            done = np.linalg.norm((hand - goal)[:2]) < 0.01
+        elif self.phase == "descend":
+            goal, gripper, done = self.grip, OPEN, np.linalg.norm(hand - self.grip) < REACHED
+        elif self.phase in ("close", "twist"):
+            goal, gripper = self.grip, CLOSED
+            twisted = np.linalg.norm(rotation_between(state["robot0_eef_quat"], orientation)) < 0.05
+            done = self.phase == "twist" and twisted
+        elif self.phase == "release":
+            goal, gripper, done = hand.copy(), OPEN, False
+        else:  # retreat, to the end of the episode
+            goal, gripper, done = np.array([*hand[:2], self.travel]), OPEN, False
+        self.advance(done)
+        return move_action(hand, goal, rotation_between(state["robot0_eef_quat"], orientation), gripper)
+
+
+class OpenDrawer(Primitive):
+    """Open a drawer: turn the hand to point horizontally at the cabinet (the fingers then part vertically), rise,
+    come level with the handle in front of it, move in around the bar, close, pull straight out (steering on the
+    handle's live position), open and back away. From above the handle cannot be reached: the drawer above's handle
+    stands over it."""
+
+    PHASES = ("rise", "front", "insert", "close", "pull", "release", "retreat")
+    PHASE_STEPS: ClassVar[dict[str, int]] = {
+        "rise": 60, "front": 80, "insert": 40, "close": 12, "pull": 80, "release": 8
+    }  # fmt: skip
+
+    def __init__(self, cabinet: str, level: str) -> None:
+        self.handle = f"{cabinet}_{level}_handle_pos"
+        self.cabinet = f"{cabinet}_pos"
+
+    def reset(self, observation: Observation, upright: np.ndarray | None = None) -> None:
+        super().reset(observation, upright)
+        state = observation.privileged
+        handle = state[self.handle]
+        outward = (handle - state[self.cabinet])[:2]  # the handle stands out of the cabinet's front, its pull axis
+        self.out = np.array([*(outward / np.linalg.norm(outward)), 0.0])
+        self.start = handle.copy()
+        self.travel = max(state["robot0_eef_pos"][2], handle[2] + 0.05)
+        # the fingers, pointing down (-z), turned a quarter turn to point into the cabinet (-out)
+        axis = np.cross([0.0, 0.0, -1.0], -self.out)
+        self.orientation = quaternion_multiply(axis_angle_to_quaternion(axis * np.pi / 2), self.upright)
+
+    def act(self, observation: Observation) -> np.ndarray:
+        state = observation.privileged
+        hand, handle = state["robot0_eef_pos"], state[self.handle]
+        front = handle + self.out * DRAWER_STANDOFF
+        self.timer += 1
+        if self.phase == "rise":
+            turned = np.linalg.norm(rotation_between(state["robot0_eef_quat"], self.orientation)) < 0.1
+            goal = np.array([*front[:2], self.travel])
+            gripper, done = OPEN, turned and np.linalg.norm(hand - goal) < 0.02
+        elif self.phase == "front":
+            goal, gripper, done = front, OPEN, np.linalg.norm(hand - front) < 0.01
+        elif self.phase in ("insert", "close"):
+            goal, gripper = handle, CLOSED if self.phase == "close" else OPEN
+            done = self.phase == "insert" and np.linalg.norm(hand - handle) < REACHED
+        elif self.phase == "pull":
+            goal, gripper = handle + self.out * POSITION_SCALE, CLOSED
+            done = float(np.dot(handle - self.start, self.out)) > DRAWER_PULL
+        elif self.phase == "release":
+            goal, gripper, done = hand.copy(), OPEN, False
+        else:  # retreat, to the end of the episode
+            goal, gripper, done = front, OPEN, False
+        self.advance(done)
+        return move_action(hand, goal, rotation_between(state["robot0_eef_quat"], self.orientation), gripper)

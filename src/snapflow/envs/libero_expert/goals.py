@@ -1,0 +1,69 @@
+"""Which controller achieves a LIBERO goal: the one place that reads a task's BDDL goal predicates."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+
+from snapflow.envs.libero_expert.fixtures import OpenDrawer, TurnOn
+from snapflow.envs.libero_expert.motion import Primitive
+from snapflow.envs.libero_expert.pick_and_place import PickAndPlace
+from snapflow.envs.libero_expert.push import PUSHED, Push
+from snapflow.envs.libero_expert.sequence import InSequence
+from snapflow.errors import InvalidInputError
+
+OBJECT_NAME = r"[a-z_]+_\d+"  # an object instance of a BDDL scene (plate_1); regions and sides end otherwise
+# fixture sites an object is put on from above (not into: drawers, the microwave, the caddy's compartments)
+SURFACES = ("_cook_region", "_top_side", "wine_rack_1_top_region")
+TABLE_REGION = r"[a-z_]+_table_[a-z_]+_region"  # a region of the table (to the right of the plate, ...)
+DRAWER = r"(.+_cabinet_\d+)_(top|middle)_region"  # a cabinet's drawer with a known handle: its cabinet and level
+# objects put on one fixture's surface side by side stand this far apart along x (the first the farthest)
+SHARED_SURFACE_SPACING = 0.09
+
+LiberoExpert = Primitive | InSequence
+
+
+class NoExpertError(InvalidInputError):
+    """No scripted controller covers this task's goal."""
+
+
+def _primitive(predicate: str, arguments: Sequence[str]) -> Primitive | None:
+    """The controller of one goal predicate, or None where none covers it."""
+    drawer = re.fullmatch(DRAWER, arguments[-1]) if arguments else None
+    if predicate == "open" and len(arguments) == 1 and drawer:
+        return OpenDrawer(*drawer.groups())
+    if predicate == "turnon" and len(arguments) == 1 and arguments[0].startswith("flat_stove"):
+        return TurnOn(arguments[0])
+    if predicate in ("on", "in") and len(arguments) == 2 and re.fullmatch(OBJECT_NAME, arguments[0]):
+        obj, target = arguments
+        target = target.removesuffix("_contain_region")  # "in the basket": over the basket itself
+        if re.fullmatch(OBJECT_NAME, target):
+            return PickAndPlace(obj, target)
+        if target.startswith("main_table_") and obj.startswith(PUSHED):  # a region of the table: slide it there
+            return Push(obj, target)
+        # a fixture's surface or a region of the table (a site): from the extras
+        if target.endswith(SURFACES) or re.fullmatch(TABLE_REGION, target):
+            return PickAndPlace(obj, target, onto_site=True)
+    return None
+
+
+def _share_surfaces(steps: Sequence[Primitive]) -> None:
+    """Spread the objects put on one fixture's surface along x, so that each stands clear of the others."""
+    for target in {step.target for step in steps if isinstance(step, PickAndPlace) and step.onto_site}:
+        sharing = [step for step in steps if isinstance(step, PickAndPlace) and step.target == target]
+        for index, step in enumerate(sharing):
+            step.offset[0] = SHARED_SURFACE_SPACING * ((len(sharing) - 1) / 2 - index)
+
+
+def make_libero_expert(goal_state: Sequence[Sequence[str]]) -> LiberoExpert:
+    """The controller of a LIBERO goal (its BDDL ``goal_state``), or :class:`NoExpertError` naming it."""
+    steps = [_primitive(predicate, arguments) for predicate, *arguments in goal_state]
+    if not steps or None in steps:
+        raise NoExpertError(f"no scripted controller covers the goal {[list(predicate) for predicate in goal_state]}")
+    if len(steps) == 1:
+        return steps[0]
+    _share_surfaces(steps)
+    for step in steps:
+        if isinstance(step, PickAndPlace):
+            step.over_others = True
+    return InSequence(steps)

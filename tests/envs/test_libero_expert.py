@@ -1,0 +1,111 @@
+"""The LIBERO experts' parts: the grip on a cup's rim, objects sharing a surface, sequences of primitives, and the
+scene geometry they read, checked by hand and on the real simulator."""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+import pytest
+
+from snapflow.envs.base import Observation
+from snapflow.envs.libero_expert import InSequence, PickAndPlace, TurnOn, make_libero_expert
+from snapflow.envs.libero_expert.goals import SHARED_SURFACE_SPACING
+from snapflow.envs.libero_expert.motion import SETTLED_STEPS, Primitive
+from snapflow.envs.libero_expert.pick_and_place import cup_side, side_turn
+
+
+def test_a_cup_is_gripped_on_the_robots_side_unless_its_handle_is_there():
+    """Sides are angles about the vertical: the robot's is pi (-x). A handle at +y (pi/2) is 90 degrees from it:
+    grip there. A handle at -x (pi) rules out every side within 75 degrees of it: pi, pi +- 30 and pi +- 60 degrees;
+    the first clear one tried is pi + 90 degrees (-y). The hand turns a quarter turn from the side gripped."""
+    rim = lambda handle: np.array([0.0, 0.0, 0.04, 0.1, np.cos(handle), np.sin(handle)])  # noqa: E731
+    assert cup_side(rim(np.pi / 2)) == pytest.approx(np.pi)
+    assert cup_side(rim(np.pi)) == pytest.approx(1.5 * np.pi)
+    assert cup_side(rim(0.0)) == pytest.approx(np.pi)
+    assert side_turn(np.pi) == pytest.approx(-np.pi / 2)  # the bowls' turn, as before cups had a rim of their own
+    assert side_turn(1.5 * np.pi) == pytest.approx(0.0)
+
+
+def test_objects_put_on_one_surface_stand_side_by_side_and_are_carried_over_the_others():
+    """LIBERO-10's "put both moka pots on the stove": each pot goes 4.5 cm from the burner's centre along x (the
+    first the farther), both inside its 7.5 cm half-width; a goal of one predicate keeps the centre and the plain
+    carry height."""
+    both = make_libero_expert(
+        [
+            ["on", "moka_pot_1", "flat_stove_1_cook_region"],
+            ["on", "moka_pot_2", "flat_stove_1_cook_region"],
+            ["turnon", "flat_stove_1"],
+        ]
+    )
+    assert isinstance(both, InSequence) and [type(step) for step in both.steps] == [PickAndPlace, PickAndPlace, TurnOn]
+    first, second = both.steps[0], both.steps[1]
+    assert first.offset[0] == pytest.approx(SHARED_SURFACE_SPACING / 2) == pytest.approx(0.045)
+    assert second.offset[0] == pytest.approx(-0.045) and first.over_others and second.over_others
+    alone = make_libero_expert([["on", "moka_pot_1", "flat_stove_1_cook_region"]])
+    assert isinstance(alone, PickAndPlace) and not alone.over_others and np.all(alone.offset == 0.0)
+    basket = make_libero_expert(
+        [["in", "alphabet_soup_1", "basket_1_contain_region"], ["in", "tomato_sauce_1", "basket_1_contain_region"]]
+    )
+    assert all(np.all(step.offset == 0.0) for step in basket.steps)  # into an object, not onto a surface
+
+
+class Hold(Primitive):
+    """A primitive that holds the gripper at a fixed command for ``steps`` steps of work, then its last phase."""
+
+    PHASES = ("work", "retreat")
+    PHASE_STEPS: ClassVar[dict[str, int]] = {}
+
+    def __init__(self, gripper: float, steps: int) -> None:
+        self.gripper, self.steps, self.resets = gripper, steps, []
+
+    def reset(self, observation: Observation, upright: np.ndarray | None = None) -> None:
+        super().reset(observation, upright)
+        self.resets.append(self.upright.copy())
+
+    def act(self, observation: Observation) -> np.ndarray:
+        self.timer += 1
+        self.advance(self.phase == "work" and self.timer >= self.steps)
+        return np.array([0, 0, 0, 0, 0, 0, self.gripper], dtype=np.float32)
+
+
+def _observation(quaternion: np.ndarray) -> Observation:
+    return Observation(np.zeros(8), "task", None, {}, {"robot0_eef_quat": quaternion})
+
+
+def test_a_sequence_hands_over_once_a_primitive_has_risen_clear_and_turns_from_the_first_orientation():
+    """The first primitive works 3 steps, then spends SETTLED_STEPS in its last phase; the second takes over on the
+    step after, planned from that step's observation but turning from the hand's orientation at the episode's start,
+    and keeps acting to the end (the last never hands over)."""
+    first, second = Hold(-1.0, 3), Hold(1.0, 2)
+    sequence = InSequence([first, second])
+    start, later = np.array([0.0, 1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0, 0.0])
+    sequence.reset(_observation(start))
+    grippers = [sequence.act(_observation(later))[-1] for _ in range(3 + SETTLED_STEPS + 10)]
+    assert grippers == [-1.0] * (3 + SETTLED_STEPS) + [1.0] * 10
+    assert len(second.resets) == 1 and np.array_equal(second.resets[0], start)
+    with pytest.raises(ValueError, match="at least one"):
+        InSequence([])
+
+
+@pytest.mark.slow
+def test_the_scene_gives_each_mugs_rim_and_each_objects_extent():
+    """LIBERO-10's two mugs and plates: a mug's rim (the ring of its wall boxes) is centred within 2 cm of its origin,
+    4.3 cm in radius, its top 10 cm above the table, and its handle stands out along y; a plate's extent is 2 cm."""
+    from snapflow.envs.libero import LiberoEnv
+
+    env = LiberoEnv("libero_10_4", "eval")
+    try:
+        state = env.reset(0, render=False).privileged
+    finally:
+        env.close()
+    for mug in ("porcelain_mug_1", "white_yellow_mug_1"):
+        centre_x, centre_y, radius, top, handle_x, handle_y = state[f"{mug}_rim"]
+        assert np.linalg.norm([centre_x, centre_y] - state[f"{mug}_pos"][:2]) < 0.02
+        assert (
+            radius == pytest.approx(0.043, abs=0.003)
+            and abs(handle_y) > 0.99
+            and np.hypot(handle_x, handle_y) == pytest.approx(1.0)
+        )
+        assert top - state[f"{mug}_bottom"][0] == pytest.approx(0.10, abs=0.01)
+    assert state["plate_1_top"][0] - state["plate_1_bottom"][0] == pytest.approx(0.02, abs=0.005)
