@@ -35,6 +35,17 @@ SMOLVLM_SIZES = {
     "small": SmolVLMSize(
         vision_hidden=64, vision_layers=2, text_hidden=192, text_layers=4, text_heads=6, text_kv_heads=2
     ),
+    # 11.6M parameters over LIBERO's words (small: 2.0M): twice small's widths, two more layers in each tower; the
+    # candidate for forty LIBERO tasks, where small may lack the capacity (smolvla-libero-four-suites.toml compares them)
+    "medium": SmolVLMSize(
+        vision_hidden=128,
+        vision_layers=4,
+        vision_heads=4,
+        text_hidden=384,
+        text_layers=6,
+        text_heads=6,
+        text_kv_heads=2,
+    ),
     # SmolVLA's own, HuggingFaceTB/SmolVLM2-500M-Video-Instruct's dimensions (a SigLIP at 512 px, SmolLM2's 32 text
     # layers of which SmolVLA keeps 16), with the word-level vocabulary written here: for timing at full size
     "full": SmolVLMSize(
