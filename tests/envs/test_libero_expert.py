@@ -12,7 +12,7 @@ from snapflow.envs.base import Observation
 from snapflow.envs.libero_expert import InSequence, PickAndPlace, TurnOn, make_libero_expert
 from snapflow.envs.libero_expert.goals import SHARED_SURFACE_SPACING
 from snapflow.envs.libero_expert.motion import SETTLED_STEPS, Primitive
-from snapflow.envs.libero_expert.pick_and_place import cup_side, side_turn
+from snapflow.envs.libero_expert.pick_and_place import cup_side, half_turn, side_turn
 
 
 def test_a_cup_is_gripped_on_the_robots_side_unless_its_handle_is_there():
@@ -25,6 +25,16 @@ def test_a_cup_is_gripped_on_the_robots_side_unless_its_handle_is_there():
     assert cup_side(rim(0.0)) == pytest.approx(np.pi)
     assert side_turn(np.pi) == pytest.approx(-np.pi / 2)  # the bowls' turn, as before cups had a rim of their own
     assert side_turn(1.5 * np.pi) == pytest.approx(0.0)
+
+
+def test_a_direction_the_fingers_close_along_is_taken_modulo_a_half_turn():
+    """The fingers close along the hand's y axis, either way: a thin side at yaw 0.865 (LIBERO-10 task 5's book) is
+    met by turning the hand 0.865 - pi/2 = -0.706 rad; a slot along x (yaw 0) then wants -pi/2, which is the same
+    direction as +pi/2: the shorter way from -0.706 is -pi/2 (0.865 rad more), not +pi/2."""
+    assert half_turn(np.pi) == pytest.approx(0.0) and half_turn(0.3) == pytest.approx(0.3)
+    assert half_turn(0.865 - np.pi / 2) == pytest.approx(-0.706, abs=1e-3)
+    grip = half_turn(0.865 - np.pi / 2)
+    assert grip + half_turn(half_turn(0.0 - np.pi / 2) - grip) == pytest.approx(-np.pi / 2)
 
 
 def test_objects_put_on_one_surface_stand_side_by_side_and_are_carried_over_the_others():

@@ -9,11 +9,12 @@ Each primitive is a module: pick-and-place (``pick_and_place.py``) covers every 
 black bowl ... and place it on the plate") and LIBERO-Object ("pick up the X and place it in the basket"), and the
 goals of the same form whose target is an object (the plate, the basket, the bowl), a fixture's surface (the stove's
 burner, the cabinet's top, the wine rack) or a region of the table ("to the right of the plate"); mugs are gripped by
-the rim clear of their handle, the moka pot and the wine bottle below the top read from their geoms (``scene.py``). A
+the rim clear of their handle, the moka pot and the wine bottle below the top read from their geoms (``scene.py``), a
+book across its thickness, turned on the way to stand upright in the caddy's compartment. A
 fixture's joint (``fixtures.py``: "open the middle drawer", "turn on the stove"); a push (``push.py``: "push the plate
 to the front of the stove"). A goal of several predicates (LIBERO-10's "put both ... in the basket") runs their
 primitives in sequence (``sequence.py``). ``goals.py`` maps a goal to its controller; any other (an object put into a
-drawer, the microwave or the caddy; a drawer or a door closed) raises :class:`NoExpertError` naming it.
+drawer or the microwave; a drawer or a door closed) raises :class:`NoExpertError` naming it.
 """
 
 from snapflow.envs.libero_expert.fixtures import OpenDrawer, TurnOn

@@ -15,6 +15,7 @@ from snapflow.errors import InvalidInputError
 OBJECT_NAME = r"[a-z_]+_\d+"  # an object instance of a BDDL scene (plate_1); regions and sides end otherwise
 # fixture sites an object is put on from above (not into: drawers, the microwave, the caddy's compartments)
 SURFACES = ("_cook_region", "_top_side", "wine_rack_1_top_region")
+CADDY_SLOT = r"desk_caddy_\d+_(back|front)_contain_region"  # the caddy's compartments long along y
 TABLE_REGION = r"[a-z_]+_table_[a-z_]+_region"  # a region of the table (to the right of the plate, ...)
 DRAWER = r"(.+_cabinet_\d+)_(top|middle)_region"  # a cabinet's drawer with a known handle: its cabinet and level
 # objects put on one fixture's surface side by side stand this far apart along x (the first the farthest)
@@ -36,6 +37,8 @@ def _primitive(predicate: str, arguments: Sequence[str]) -> Primitive | None:
         return TurnOn(arguments[0])
     if predicate in ("on", "in") and len(arguments) == 2 and re.fullmatch(OBJECT_NAME, arguments[0]):
         obj, target = arguments
+        if re.fullmatch(CADDY_SLOT, target):  # a compartment of the desk caddy: upright, its thin side along x
+            return PickAndPlace(obj, target, onto_site=True, slot_yaw=0.0)
         target = target.removesuffix("_contain_region")  # "in the basket": over the basket itself
         if re.fullmatch(OBJECT_NAME, target):
             return PickAndPlace(obj, target)

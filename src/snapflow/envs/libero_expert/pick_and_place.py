@@ -18,7 +18,10 @@ RIM_SIDE = np.pi
 TOP_GRIP_DEPTH = 0.025  # fingers close this far below an object's top
 # objects whose LIBERO model gives no top of its own: gripped this far below the top read from their geoms
 # (``<object>_top``); the moka pot by its lid's knob, between its spout and its handle
-MEASURED_GRIP_DEPTH = {"moka_pot": 0.01, "wine_bottle": 0.025}
+MEASURED_GRIP_DEPTH = {"moka_pot": 0.01, "wine_bottle": 0.025, "black_book": 0.03}
+# an object put upright into a slot is carried over it to within 5 mm and let go with its bottom this far above the
+# table's level
+SLOT_CARRIED, SLOT_RELEASE_GAP = 0.005, 0.03
 CUP_GRIP_DEPTH = 0.02  # a cup's rim (read from the scene, ``<cup>_rim``): the fingers close this far below its top
 # a cup is gripped on the side nearest the robot's (-x) that is at least this far round from its handle
 HANDLE_CLEARANCE = np.deg2rad(75)
@@ -37,6 +40,11 @@ OBSTACLE_MARGIN = 0.03  # an object carried over the others clears their tops by
 def side_turn(side: float) -> float:
     """The turn of the hand about the vertical that puts its fingers across a rim gripped at angle ``side``."""
     return (side + np.pi) % np.pi - np.pi / 2
+
+
+def half_turn(angle: float) -> float:
+    """``angle`` modulo a half turn, in [-pi/2, pi/2): a direction the fingers close along, either way."""
+    return (angle + np.pi / 2) % np.pi - np.pi / 2
 
 
 def cup_side(rim: np.ndarray) -> float:
@@ -70,8 +78,11 @@ class PickAndPlace(Primitive):
         onto_site: bool = False,
         offset: tuple[float, float] = (0.0, 0.0),
         over_others: bool = False,
+        slot_yaw: float | None = None,
     ) -> None:
         self.obj, self.target, self.onto_site, self.over_others = obj, target, onto_site, over_others
+        # the target is a narrow slot: the object, gripped across its thin side, goes in with that side at this yaw
+        self.slot_yaw = slot_yaw
         self.offset = np.array([*offset, 0.0])  # where on the target (xy, m from its centre) the object is put
         self.release_height = next((height for kind, height in RELEASE_HEIGHT.items() if target.startswith(kind)), 0.05)
         self.carry_height = next((height for kind, height in CARRY_HEIGHT.items() if target.startswith(kind)), 0.0)
@@ -87,8 +98,17 @@ class PickAndPlace(Primitive):
         if f"{self.obj}_rim" in state:
             self.side = cup_side(state[f"{self.obj}_rim"])
         # the fingers close along the hand's y axis, across the rim at the side gripped: a quarter turn from it
-        turn = axis_angle_to_quaternion(np.array([0.0, 0.0, 0.0 if self.side is None else side_turn(self.side)]))
-        self.orientation = quaternion_multiply(turn, self.upright)
+        grip_turn = 0.0 if self.side is None else side_turn(self.side)
+        self.placing_turn = grip_turn
+        if f"{self.obj}_thin_axis" in state:  # the fingers (the hand's y, at yaw pi/2) close across the thin side
+            grip_turn = half_turn(float(state[f"{self.obj}_thin_axis"][0]) - np.pi / 2)
+            slot = grip_turn if self.slot_yaw is None else half_turn(self.slot_yaw - np.pi / 2)
+            self.placing_turn = grip_turn + half_turn(slot - grip_turn)  # the shorter way round
+        self.orientation = quaternion_multiply(axis_angle_to_quaternion(np.array([0.0, 0.0, grip_turn])), self.upright)
+        self.placing = quaternion_multiply(
+            axis_angle_to_quaternion(np.array([0.0, 0.0, self.placing_turn])), self.upright
+        )
+        self.floor = float(state[f"{self.obj}_bottom"][0])
         self.held = np.zeros(3)  # the object's offset from the hand once gripped
         others = [key for key in state if key.endswith("_top") and key != f"{self.obj}_top"]
         self.obstacles = max((float(state[key][0]) for key in others), default=-np.inf) if self.over_others else -np.inf
@@ -133,15 +153,24 @@ class PickAndPlace(Primitive):
         elif self.phase == "lift":
             goal, gripper, done = np.array([*hand[:2], self.carry]), CLOSED, hand[2] > self.carry - 0.03
         elif self.phase == "carry":
+            if self.slot_yaw is not None:  # turning, the object swings round the hand: steer on where it is now
+                over_target = target - (obj - hand)
             goal, gripper = np.array([*over_target[:2], self.carry]), CLOSED
-            done = np.linalg.norm((obj - target)[:2]) < CARRIED
+            turned = np.linalg.norm(rotation_between(state["robot0_eef_quat"], self.placing)) < 0.05
+            tolerance = CARRIED if self.slot_yaw is None else SLOT_CARRIED
+            done = np.linalg.norm((obj - target)[:2]) < tolerance and (turned or self.slot_yaw is None)
         elif self.phase == "lower":
-            goal, gripper = np.array([*over_target[:2], target[2] + self.release_height - self.held[2]]), CLOSED
+            height = target[2] + self.release_height - self.held[2]
+            if self.slot_yaw is not None:  # down into the slot, the object's bottom just above the table's level
+                over_target = target - (obj - hand)
+                height = self.floor + SLOT_RELEASE_GAP + hand[2] - float(state[f"{self.obj}_bottom"][0])
+            goal, gripper = np.array([*over_target[:2], height]), CLOSED
             done = hand[2] - goal[2] < 0.01
         elif self.phase == "release":
             goal, gripper, done = hand.copy(), OPEN, False
         else:  # retreat, to the end of the episode
             goal, gripper, done = np.array([*hand[:2], self.travel]), OPEN, False
         self.advance(done)
-        rotation = rotation_between(state["robot0_eef_quat"], self.orientation)
+        held = self.phase in ("lift", "carry", "lower", "release", "retreat")
+        rotation = rotation_between(state["robot0_eef_quat"], self.placing if held else self.orientation)
         return move_action(hand, goal, rotation, gripper)

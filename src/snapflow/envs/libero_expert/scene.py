@@ -10,6 +10,7 @@ from snapflow.envs.libero_expert.fixtures import DRAWER_HANDLES
 
 MUGS = ("_mug",)  # open cups with a handle, gripped by the rim: their walls are read from the model
 BOX_GEOM = 6  # MuJoCo's mjGEOM_BOX: LIBERO builds a mug's walls and handle of boxes
+BOOKS = ("black_book",)  # one flat box: its thinnest side's direction is read (``<book>_thin_axis``, a yaw)
 
 
 def privileged_extras(env: Any) -> dict[str, np.ndarray]:
@@ -23,6 +24,8 @@ def privileged_extras(env: Any) -> dict[str, np.ndarray]:
         extras[f"{name}_top_offset"] = np.array([obj.top_offset[2]])
         extras[f"{name}_bottom_offset"] = np.array([obj.bottom_offset[2]])
         extras[f"{name}_bottom"], extras[f"{name}_top"] = object_extent(sim, inner.obj_body_id[name])
+        if name.startswith(BOOKS):
+            extras[f"{name}_thin_axis"] = np.array([thin_axis(sim, inner.obj_body_id[name])])
         if any(kind in name for kind in MUGS):
             extras[f"{name}_rim"] = cup_rim(sim, inner.obj_body_id[name])
     for name in inner.fixtures_dict:
@@ -65,3 +68,11 @@ def object_extent(sim: Any, body: int) -> tuple[np.ndarray, np.ndarray]:
     middles = data.geom_xpos[geoms, 2] + np.sum(upward * centre, axis=1)
     reach = np.sum(np.abs(upward) * half, axis=1)
     return np.array([(middles - reach).min()]), np.array([(middles + reach).max()])
+
+
+def thin_axis(sim: Any, body: int) -> float:
+    """The yaw (about the vertical) of the thinnest side of a body's first collision box: a book's thickness."""
+    model, data = sim.model, sim.data
+    box = np.flatnonzero((model.geom_bodyid == body) & (model.geom_type == BOX_GEOM) & (model.geom_contype > 0))[0]
+    axis = data.geom_xmat[box].reshape(3, 3)[:, int(np.argmin(model.geom_size[box]))]
+    return float(np.arctan2(axis[1], axis[0]))
