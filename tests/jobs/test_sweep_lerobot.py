@@ -13,7 +13,9 @@ import pytest
 from snapflow.adapters.lerobot_types import PLUGIN_LEROBOT, lerobot_loads_plugins
 from snapflow.cli import main
 from snapflow.jobs.sweep import TrainJob, jobs, load_sweep
-from snapflow.jobs.sweep.planning import EvalJob, LeRobotDatasetJob, train_job
+from snapflow.jobs.sweep.data_jobs import LeRobotDatasetJob
+from snapflow.jobs.sweep.eval_jobs import EvalJob
+from snapflow.jobs.sweep.planning import train_job
 from snapflow.policies.loaded import CheckpointError
 from snapflow.sources import open_policy
 
@@ -245,7 +247,7 @@ def test_a_lerobot_eval_rows_finished_tasks_are_kept_and_go_on_from_the_next_on_
     from snapflow.evaluation.lerobot_eval import EVAL_INFO, TIMING, run_lerobot_eval
     from snapflow.flow.modes import SNAPFLOW_1
     from snapflow.jobs.runner import record
-    from snapflow.jobs.sweep.planning import KEPT_JOB
+    from snapflow.jobs.sweep.eval_jobs import KEPT_JOB
     from snapflow.reporting.files import write_json
 
     config = load_sweep(write_libero_config(tmp_path))

@@ -35,8 +35,12 @@ from snapflow._lazy import lazy_exports
 __getattr__, __dir__, __all__ = lazy_exports(
     __name__,
     {
-        "snapflow.jobs.sweep.schema": ["SweepConfig", "load_sweep"],
-        "snapflow.jobs.sweep.planning": ["CollectJob", "DataJob", "TrainJob", "EvalJob", "jobs", "plan", "run_sweeps"],
+        "snapflow.jobs.sweep.specs": ["SweepConfig"],
+        "snapflow.jobs.sweep.schema": ["load_sweep"],
+        "snapflow.jobs.sweep.data_jobs": ["CollectJob", "DataJob"],
+        "snapflow.jobs.sweep.training_jobs": ["TrainJob"],
+        "snapflow.jobs.sweep.eval_jobs": ["EvalJob"],
+        "snapflow.jobs.sweep.planning": ["jobs", "plan", "run_sweeps"],
         "snapflow.jobs.sweep.aggregate": ["SweepRow", "TableResult", "table_results"],
         "snapflow.jobs.sweep.markdown": ["replace_block"],
         "snapflow.jobs.sweep.results": ["write_results"],

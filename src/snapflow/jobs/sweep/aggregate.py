@@ -13,7 +13,7 @@ import numpy as np
 from snapflow.evaluation.results import EvaluationRow
 from snapflow.jobs.runner import is_recorded, read_record
 from snapflow.jobs.sweep.planning import eval_job, train_job
-from snapflow.jobs.sweep.schema import RowSpec, SweepConfig, TableSpec
+from snapflow.jobs.sweep.specs import RowSpec, SweepConfig, TableSpec
 from snapflow.reporting.machine import warn_simulator_differences
 from snapflow.reporting.statistics import mean_std, paired_difference, wilson_interval
 from snapflow.training.trainer import HISTORY

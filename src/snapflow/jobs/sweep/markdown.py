@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from snapflow.jobs.sweep.aggregate import SweepRow, TableResult
-from snapflow.jobs.sweep.schema import SweepConfig
+from snapflow.jobs.sweep.specs import SweepConfig
 from snapflow.reporting.tables import markdown_table
 
 

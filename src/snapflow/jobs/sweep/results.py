@@ -12,7 +12,7 @@ from typing import Any
 from snapflow.jobs.sweep.aggregate import TableResult, table_results
 from snapflow.jobs.sweep.markdown import markdown_blocks, replace_block, tables_markdown
 from snapflow.jobs.sweep.plots import plot_table
-from snapflow.jobs.sweep.schema import SweepConfig
+from snapflow.jobs.sweep.specs import SweepConfig
 from snapflow.reporting.files import write_json, write_text
 
 

@@ -5,179 +5,34 @@ from __future__ import annotations
 
 import re
 import tomllib
-from dataclasses import dataclass, fields, replace
+from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
 from snapflow.adapters.lerobot_config import SMOLVLM_SIZES
 from snapflow.adapters.lerobot_types import lerobot_teachers
-from snapflow.data.collect import EPISODES_PER_TASK
 from snapflow.data.demonstrations import check_action_noise
 from snapflow.envs.factory import DEFAULT_BENCHMARK, make_benchmark
 from snapflow.errors import InvalidInputError
 from snapflow.evaluation.config import N_ACT
 from snapflow.flow.modes import SamplingMode
 from snapflow.jobs.demo import EVAL_EPISODES
+from snapflow.jobs.sweep.specs import (
+    EVALUATORS,
+    TRAINERS,
+    DataSpec,
+    LeRobotSpec,
+    RowSpec,
+    RunSpec,
+    SweepConfig,
+    TableSpec,
+)
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import default_config, policy_type
-from snapflow.reporting.records import added_option
-from snapflow.training.config import TEACHER_TRAINING, TrainConfig
-from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES, DistillSettings, Recipe
+from snapflow.training.config import TEACHER_TRAINING
+from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES, Recipe
 
 DEFAULT_POLICY = "minivla"
-
-
-@dataclass(frozen=True)
-class DataSpec:
-    """The demonstrations every run of the sweep trains on; ``tasks``: all of the benchmark's unless given."""
-
-    env: str = DEFAULT_BENCHMARK
-    tasks: tuple[str, ...] = ()
-    episodes_per_task: int = EPISODES_PER_TASK
-    image_size: int | None = None
-    # the benchmark's cameras beside the main one whose frames are stored (None: all; a camera costs its rendering)
-    extra_cameras: tuple[str, ...] | None = added_option(None)
-    # the standard deviation of the noise added to the experts' executed actions (DART; the recorded actions are the
-    # experts' own): states off the experts' paths in the data, labelled with the way back
-    action_noise: float = added_option(0.0)
-
-
-@dataclass(frozen=True)
-class LeRobotSpec:
-    """A LeRobot policy trained from scratch on the sweep's demonstrations, written as a LeRobotDataset: ``snapflow
-    train --policy-type <policy_type>``'s settings (SmolVLA over a SmolVLM of size ``smolvlm`` reading the frames at
-    ``image_size``, None: that size's own)."""
-
-    policy_type: str = "smolvla"
-    smolvlm: str = "small"
-    image_size: int | None = None
-    chunk_size: int = 8
-    n_action_steps: int = 4
-
-
-#: how a student of a LeRobot teacher is distilled: snapflow's trainer (``snapflow distill``) or LeRobot's own
-#: (``lerobot-train`` on the teacher written as its ``snapflow_<type>`` student)
-TRAINERS = ("snapflow", "lerobot-train")
-# who runs a table's episodes: snapflow's evaluator (with offline metrics), or LeRobot's own lerobot-eval on LeRobot's
-# LIBERO environment, from the same initial states (LeRobot policies only; no offline metrics)
-EVALUATORS = ("snapflow", "lerobot-eval")
-
-
-@dataclass(frozen=True)
-class RunSpec:
-    """A teacher (``teacher is None``: flow matching on the data, ``policy`` resolved) or a student distilled from
-    one; ``train.seed`` is replaced by each of ``seeds``."""
-
-    name: str
-    seeds: tuple[int, ...]
-    train: TrainConfig
-    policy: PolicyConfig | None = None
-    teacher: str | None = None
-    distill: DistillSettings | None = None
-    # its checkpoint kept beside its ledger record, to be committed: the latest while it trains, the policy once it
-    # has finished, so a fresh machine continues the run, or distils and evaluates it, instead of training it again
-    commit_checkpoint: bool = False
-    lerobot: LeRobotSpec | None = None  # a LeRobot teacher (``policy`` is then None); its students are LeRobot's too
-    trainer: str = TRAINERS[0]  # a LeRobot teacher's student: which trainer distils it
-
-
-@dataclass(frozen=True)
-class RowSpec:
-    label: str
-    run: str
-    mode: SamplingMode
-    n_act: int
-    series: str | None = None
-    x: float | None = None
-    # the sweep whose run the row evaluates, when not the table's own (same benchmark and tasks, so its cells pair
-    # with the table's on the same initial states): read from that sweep's records, never run from this one
-    sweep: SweepConfig | None = None
-
-    def owner(self, config: SweepConfig) -> SweepConfig:
-        """The sweep whose run and evaluations the row reads, in a table of ``config``."""
-        return self.sweep if self.sweep is not None else config
-
-
-@dataclass(frozen=True)
-class TableSpec:
-    name: str
-    title: str
-    rows: tuple[RowSpec, ...]
-    seeds: tuple[int, ...]
-    episodes_per_task: int
-    per_task: bool = False
-    x_label: str | None = None
-    reference: str | None = None  # the row every other is compared with, paired (default: the first)
-    first_variation: int = 0  # each task's episodes on its evaluation variations from this one on (LIBERO's states)
-    evaluator: str = EVALUATORS[0]  # who runs the episodes: snapflow's evaluator, or LeRobot's own lerobot-eval
-
-    @property
-    def reference_row(self) -> RowSpec:
-        return next(row for row in self.rows if row.label == (self.reference or self.rows[0].label))
-
-
-@dataclass(frozen=True)
-class SweepConfig:
-    name: str
-    title: str
-    source: Path
-    output_dir: Path
-    results_dir: Path
-    data: DataSpec
-    runs: dict[str, RunSpec]
-    tables: tuple[TableSpec, ...]
-
-    def run_dir(self, run: str, seed: int) -> Path:
-        return self.output_dir / run / f"seed-{seed}"
-
-    def table_names(self, names: list[str] | None) -> list[str]:
-        """``names`` (every table if None), each checked to be one of this sweep's tables."""
-        known = [table.name for table in self.tables]
-        if names is None:
-            return known
-        unknown = [name for name in names if name not in known]
-        if unknown:
-            raise InvalidInputError(f"{self.source}: no table {unknown[0]!r}; its tables are {known}")
-        return list(names)
-
-    def only(self, names: list[str] | None) -> SweepConfig:
-        """The sweep narrowed to the tables ``names`` (all if None): running it runs only what they need."""
-        chosen = self.table_names(names)
-        return replace(self, tables=tuple(table for table in self.tables if table.name in chosen))
-
-    @property
-    def data_dir(self) -> Path:
-        return self.output_dir / "data"
-
-    @property
-    def lerobot_dataset_dir(self) -> Path:
-        """The demonstrations written as a LeRobotDataset, which the LeRobot runs train on."""
-        return self.output_dir / "lerobot"
-
-    def collect_dir(self, task: str) -> Path:
-        """Where one task's demonstrations are collected before :attr:`data_dir` puts them together."""
-        return self.output_dir / "collect" / task
-
-    def eval_path(
-        self,
-        run: str,
-        seed: int,
-        mode: SamplingMode,
-        n_act: int,
-        episodes_per_task: int,
-        first_variation: int = 0,
-        evaluator: str = EVALUATORS[0],
-    ) -> Path:
-        # from the first variation by snapflow's evaluator, the name evaluations had before either could be chosen
-        start = f"_from{first_variation}" if first_variation else ""
-        by = "" if evaluator == EVALUATORS[0] else f"_{evaluator}"
-        name = f"{mode.name}_nact{n_act}_eps{episodes_per_task}{start}{by}.json"
-        return self.output_dir / "evals" / run / f"seed-{seed}" / name
-
-    def ledger_path(self, record: Path) -> Path:
-        """Where the committed copy of the record at ``record`` (inside :attr:`output_dir`) is kept: under the
-        results, so that a fresh checkout continues the sweep instead of repeating what it finished."""
-        return self.results_dir / "records" / record.relative_to(self.output_dir)
 
 
 def _checked(section: str, table: Any, allowed: set[str], required: frozenset[str] = frozenset()) -> dict[str, Any]:
@@ -514,4 +369,4 @@ def load_sweep(path: str | Path, loading: tuple[Path, ...] = ()) -> SweepConfig:
     )
 
 
-__all__ = ["TRAINERS", "DataSpec", "LeRobotSpec", "RunSpec", "RowSpec", "TableSpec", "SweepConfig", "load_sweep"]
+__all__ = ["DEFAULT_POLICY", "load_sweep"]

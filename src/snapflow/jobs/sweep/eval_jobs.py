@@ -1,0 +1,159 @@
+"""A sweep's evaluation as a job: one (policy, sampling mode, actions per chunk, episodes per task), by snapflow's
+evaluator or LeRobot's own lerobot-eval."""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar
+
+from snapflow.envs.factory import make_benchmark
+from snapflow.evaluation.config import OFFLINE_SAMPLES
+from snapflow.evaluation.pipeline import evaluate
+from snapflow.flow.modes import SamplingMode
+from snapflow.jobs.runner import Job, holds_record_of, record
+from snapflow.jobs.sweep.specs import EVALUATORS
+from snapflow.jobs.sweep.training_jobs import TrainJob
+from snapflow.reporting.files import write_json
+from snapflow.reporting.records import as_record
+from snapflow.sources import open_policy
+from snapflow.training.config import VAL_FRACTION
+
+KEPT_JOB = "job.json"  # beside a lerobot-eval row's kept tasks: the record of the job they belong to
+
+
+@dataclass(frozen=True)
+class EvalJob(Job):
+    """One (policy, sampling mode, actions per chunk, episodes per task): closed-loop success and offline metrics on
+    the held-out demonstrations; its record, at ``path``, holds the evaluation row."""
+
+    kind: ClassVar[str] = "eval"
+    policy: TrainJob
+    mode: SamplingMode
+    n_act: int
+    episodes_per_task: int
+    path: Path
+    ledger: Path | None = None
+    first_variation: int = 0  # each task's episodes from this evaluation variation on
+    evaluator: str = EVALUATORS[0]  # snapflow's evaluator, or LeRobot's lerobot-eval (no offline metrics)
+
+    @property
+    def by_lerobot_eval(self) -> bool:
+        """Whether LeRobot's ``lerobot-eval`` runs its episodes rather than snapflow's evaluator."""
+        return self.evaluator != EVALUATORS[0]
+
+    def settings(self) -> dict[str, Any]:
+        return {
+            "mode": as_record(self.mode),
+            "n_act": self.n_act,
+            "episodes_per_task": self.episodes_per_task,
+            "seed": self.policy.seed,
+            **({} if self.by_lerobot_eval else {"offline_samples": OFFLINE_SAMPLES}),
+            # only where set: the records made before they could be chosen are of the first variations, by snapflow's
+            **({"first_variation": self.first_variation} if self.first_variation else {}),
+            **({"evaluator": self.evaluator} if self.by_lerobot_eval else {}),
+        }
+
+    @property
+    def dependencies(self) -> tuple[Job, ...]:
+        return (self.policy, self.policy.data)
+
+    @property
+    def record_path(self) -> Path:
+        return self.path
+
+    @property
+    def ledger_path(self) -> Path | None:
+        return self.ledger
+
+    @property
+    def episodes_dir(self) -> Path:
+        """Where its episodes are logged as they finish (by lerobot-eval: each task's run): an interrupted evaluation
+        goes on from them."""
+        return self.path.with_name(f"{self.path.stem}.episodes")
+
+    @property
+    def outputs(self) -> tuple[Path, ...]:
+        return (self.episodes_dir,)
+
+    def run(self) -> dict[str, Any]:
+        if self.by_lerobot_eval:
+            return self._run_lerobot_eval()
+        collected = self.policy.data
+        loaded = open_policy(str(self.policy.policy_path))
+        # the runner clears the log of a run with other settings, so what is left is this evaluation's to resume
+        report = evaluate(
+            [(self.mode.name, loaded, self.mode)],
+            make_benchmark(collected.data.env),
+            list(collected.data.tasks),
+            self.episodes_per_task,
+            self.n_act,
+            collected.directory,
+            seed=self.policy.seed,
+            progress=False,
+            timing=False,
+            episode_logs=self.episodes_dir,
+            resume=True,
+            first_variation=self.first_variation,
+            # lerobot-train records no held-out share: it trained on its teacher's split, every run's here
+            val_fraction=VAL_FRACTION if self.policy.trainer == "lerobot-train" else None,
+        )
+        return report.rows[self.mode.name].to_dict()
+
+    def reads_outputs_of(self, dependency: Job) -> bool:
+        """lerobot-eval reads the policy alone: the demonstrations (offline metrics) are snapflow's evaluator's."""
+        return not self.by_lerobot_eval or dependency != self.policy.data
+
+    @property
+    def kept_tasks(self) -> Path | None:
+        """By lerobot-eval, beside the ledger's record: each finished task's ``eval_info.json`` and wall time, and the
+        job they belong to (``job.json``), so that another machine goes on from the next task."""
+        if self.ledger is None or not self.by_lerobot_eval:
+            return None
+        return self.ledger.with_suffix("")
+
+    def _kept_by_this_job(self) -> bool:
+        kept = self.kept_tasks
+        return kept is not None and holds_record_of(kept / KEPT_JOB, self)
+
+    def restore_progress(self) -> bool:
+        from snapflow.evaluation.lerobot_eval import restore_kept_tasks
+
+        if not self._kept_by_this_job():
+            return False
+        return bool(restore_kept_tasks(self.kept_tasks, self.episodes_dir))
+
+    def _run_lerobot_eval(self) -> dict[str, Any]:
+        """LeRobot's ``lerobot-eval`` on each task, its ``eval_info.json`` files kept beside the ledger's record."""
+        import torch
+
+        from snapflow.evaluation.lerobot_eval import run_lerobot_eval
+
+        data = self.policy.data.data
+        kept = self.kept_tasks
+        if kept is not None and not self._kept_by_this_job():  # tasks another job's settings kept are not this one's
+            shutil.rmtree(kept, ignore_errors=True)
+            write_json(kept / KEPT_JOB, record(self))
+        row = run_lerobot_eval(
+            self.policy.policy_path,
+            list(data.tasks),
+            self.episodes_per_task,
+            data.image_size,
+            self.n_act,
+            self.mode,
+            self.episodes_dir,
+            threads=torch.get_num_threads(),
+            kept=kept,
+        )
+        return row.to_dict()
+
+    def describe(self) -> str:
+        policy = self.policy
+        by = f", by {self.evaluator}" if self.by_lerobot_eval else ""
+        return (
+            f"{policy.sweep}: evaluate {policy.run_name} seed {policy.seed} ({self.mode.name}; n_act {self.n_act}{by})"
+        )
+
+
+__all__ = ["KEPT_JOB", "EvalJob"]
