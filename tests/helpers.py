@@ -80,7 +80,7 @@ class RecordingPolicy(nn.Module):
 
 
 def run_short_lerobot_chain(folder: Path, bench: str) -> Path:
-    """The README's LeRobot SmolVLA chain in its short form (``SHORT=1 BENCH=<bench> scripts/lerobot-smolvla.sh``)
+    """The LeRobot SmolVLA chain of the LeRobot guide (docs/guides/lerobot.md) in its short form (``SHORT=1 BENCH=<bench> scripts/lerobot-smolvla.sh``)
     into ``folder``, which it returns, keeping its checkpoints in ``folder/kept``; the chain's stderr tail is the
     failure message."""
     finished = subprocess.run(

@@ -1,4 +1,5 @@
-"""The README's first contact: its Python example runs as written, and its commands are the CLI's."""
+"""The README and its guides (``docs/guides/``), as a user meets them: the Python example runs as written, and every
+``snapflow ...`` command they show is one the CLI accepts."""
 
 from __future__ import annotations
 
@@ -9,14 +10,14 @@ from pathlib import Path
 
 import pytest
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+GUIDES = sorted((ROOT / "docs" / "guides").glob("*.md"))
 
 
 def _python_example() -> str:
-    text = README.read_text()
-    start = text.index("## Python API")
-    section = text[start : text.index("\n## ", start + 1)]
-    return re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    text = (ROOT / "docs" / "guides" / "python-api.md").read_text()
+    return re.search(r"```python\n(.*?)```", text, re.S).group(1)
 
 
 @pytest.mark.slow
@@ -32,20 +33,31 @@ def test_the_python_example_runs_as_written_and_samples_every_mode(tmp_path):
     assert errors["snapflow-1"] < 0.7 * errors["naive"] and errors["teacher-10"] < 0.7 * errors["naive"]
 
 
-def test_every_command_the_readme_shows_parses():
-    """Each ``snapflow ...`` line in the README's code blocks is a command line the CLI accepts (placeholders in
-    angle brackets filled in)."""
+def test_every_command_the_readme_and_its_guides_show_parses():
+    """Each ``snapflow ...`` line in the code blocks of the README and of the guides it links to is a command line
+    the CLI accepts (placeholders in angle brackets filled in)."""
     from snapflow.cli import build_parser
 
     parser = build_parser()
-    blocks = re.findall(r"```bash\n(.*?)```", README.read_text(), re.S)
+    text = "\n".join(path.read_text() for path in (README, *GUIDES))
+    blocks = re.findall(r"```bash\n(.*?)```", text, re.S)
     commands = [
         re.sub(r"<[^>]*>", "x", line.split("#")[0].replace("\\", " ")).split()
         for block in blocks
         for line in block.replace("\\\n", " ").splitlines()
         if line.strip().startswith("snapflow ")
     ]
-    assert len(commands) >= 5
+    assert len(commands) >= 20
     for words in commands:
         args = parser.parse_args(words[1:])
         assert args.command == words[1]
+
+
+def test_the_readme_is_short_and_every_link_it_and_its_guides_give_exists():
+    """At most 150 lines; every relative link of the README and of the guides names a file or folder that exists
+    (anchors aside)."""
+    assert len(README.read_text().splitlines()) <= 150
+    for page in (README, *GUIDES):
+        for target in re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", page.read_text()):
+            if not target.startswith(("http://", "https://")):
+                assert (page.parent / target).exists(), f"{page.relative_to(ROOT)} links to a missing {target}"

@@ -1,4 +1,4 @@
-"""LeRobot on LIBERO end to end (the README's chain, ``BENCH=libero SHORT=1 bash scripts/lerobot-smolvla.sh``):
+"""LeRobot on LIBERO end to end (the LIBERO guide's chain, ``BENCH=libero SHORT=1 bash scripts/lerobot-smolvla.sh``):
 `snapflow collect --env libero --lerobot-dataset` writes the scripted experts' episodes with LeRobot's own writer,
 LeRobot's ``LeRobotDataset`` reads them back, their features are those LeRobot's own LIBERO environment gives a
 policy (so ``lerobot-eval --env.type=libero`` runs a policy trained on them unchanged), and a SmolVLA teacher trained
@@ -21,7 +21,7 @@ pytest.importorskip("libero")
 IMAGE_SIZE = 32  # the short chain's
 
 
-# ~220 s on CI's two cores, paid once for the module's tests: the README's whole LeRobot chain on LIBERO, whose
+# ~220 s on CI's two cores, paid once for the module's tests: the LIBERO guide's whole LeRobot chain on LIBERO, whose
 # environments alone take 4-9 s to make and ~20 ms a step; its parts (collection, dataset, training, both evaluators)
 # are each at their smallest (two demonstrations, four training steps, one episode a row).
 @pytest.fixture(scope="module")

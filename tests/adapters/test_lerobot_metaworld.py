@@ -1,6 +1,6 @@
 """LeRobot on Meta-World end to end: `snapflow collect --lerobot-dataset` writes the same demonstrations as the npz
 with LeRobot's own writer (read back by LeRobot's ``LeRobotDataset``); a SmolVLA teacher trained on it, distilled,
-and evaluated closed loop by snapflow's evaluator through LeRobot's processors (the README's chain, short form)."""
+and evaluated closed loop by snapflow's evaluator through LeRobot's processors (the LeRobot guide's chain, short form)."""
 
 from __future__ import annotations
 
@@ -21,11 +21,11 @@ from tests.helpers import run_short_lerobot_chain  # noqa: E402
 IMAGE_SIZE = 32  # the short chain's
 
 
-# ~75 s on CI's two cores, paid once for the module's tests: the README's whole LeRobot chain, each stage at its
+# ~75 s on CI's two cores, paid once for the module's tests: the LeRobot guide's whole chain, each stage at its
 # smallest (two tasks, two demonstrations each, a few training steps, one episode a row).
 @pytest.fixture(scope="module")
 def collected(tmp_path_factory):
-    """The README's LeRobot SmolVLA chain in its short form (scripts/lerobot-smolvla.sh, SHORT=1): two
+    """The LeRobot SmolVLA chain of the LeRobot guide (docs/guides/lerobot.md) in its short form (scripts/lerobot-smolvla.sh, SHORT=1): two
     tasks, two demonstrations each with 32-pixel images as npz and as a LeRobotDataset, a tiny SmolVLA teacher,
     its student, and their evaluation."""
     return run_short_lerobot_chain(tmp_path_factory.mktemp("chain"), "mt10")
