@@ -1,0 +1,48 @@
+"""The documentation site builds as a user builds it, with warnings as errors (a broken link, a missing page or an
+unresolved API reference fails it), and its command-line reference is the CLI's own help."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_cli_reference_holds_every_commands_help_as_the_parser_prints_it():
+    from snapflow.cli import build_parser
+
+    spec = importlib.util.spec_from_file_location("cli_reference", ROOT / "scripts" / "mkdocs_cli_reference.py")
+    hook = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hook)
+    page = hook.on_page_markdown(f"# Reference\n\n{hook.MARKER}\n", page=None)
+    assert hook.MARKER not in page
+    commands = next(action for action in build_parser()._actions if action.dest == "command").choices
+    assert len(commands) >= 15
+    for name, command in commands.items():
+        assert f"## snapflow {name}\n\n```text\n{command.format_help()}```" in page
+    assert hook.on_page_markdown("# Another page\n", page=None) == "# Another page\n"
+
+
+@pytest.mark.skipif(shutil.which("mkdocs") is None, reason="the docs extra is installed by the README's test command")
+def test_the_site_builds_with_warnings_as_errors(tmp_path):
+    result = subprocess.run(
+        [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(tmp_path / "site")],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env={**os.environ, "NO_MKDOCS_2_WARNING": "1"},
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    site = tmp_path / "site"
+    assert "snapflow distill" in (site / "reference" / "cli" / "index.html").read_text()
+    assert "FlowPolicy" in (site / "reference" / "api" / "index.html").read_text()
+    for page in ("guides/libero", "RESULTS", "ARCHITECTURE", "changelog"):
+        assert (site / page / "index.html").exists()
