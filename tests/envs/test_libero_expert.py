@@ -60,6 +60,20 @@ def test_objects_put_on_one_surface_stand_side_by_side_and_are_carried_over_the_
     assert all(np.all(step.offset == 0.0) for step in basket.steps)  # into an object, not onto a surface
 
 
+def test_what_goes_into_a_drawer_goes_in_before_it_is_shut_and_a_shut_drawer_is_not_filled():
+    """LIBERO-10 task 3 lists "close the bottom drawer" first: the bowl goes in before; LIBERO-Goal task 3 puts the
+    bowl into a drawer that starts shut and that the goal does not close: refused."""
+    from snapflow.envs.libero_expert import CloseDrawer, NoExpertError
+    from snapflow.envs.libero_expert.goals import _in_order
+
+    goal = [["close", "white_cabinet_1_bottom_region"], ["in", "akita_black_bowl_1", "white_cabinet_1_bottom_region"]]
+    assert _in_order(goal) == [tuple(goal[1]), tuple(goal[0])]
+    steps = make_libero_expert(goal).steps
+    assert isinstance(steps[1], CloseDrawer) and steps[0].drawer == "white_cabinet_1_bottom"
+    with pytest.raises(NoExpertError, match="wooden_cabinet_1_top_region"):
+        make_libero_expert([["in", "akita_black_bowl_1", "wooden_cabinet_1_top_region"]])
+
+
 class Hold(Primitive):
     """A primitive that holds the gripper at a fixed command for ``steps`` steps of work, then its last phase."""
 

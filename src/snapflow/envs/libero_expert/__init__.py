@@ -11,13 +11,14 @@ goals of the same form whose target is an object (the plate, the basket, the bow
 burner, the cabinet's top, the wine rack) or a region of the table ("to the right of the plate"); mugs are gripped by
 the rim clear of their handle, the moka pot and the wine bottle below the top read from their geoms (``scene.py``), a
 book across its thickness, turned on the way to stand upright in the caddy's compartment. A
-fixture's joint (``fixtures.py``: "open the middle drawer", "turn on the stove"); a push (``push.py``: "push the plate
+fixture's joint (``fixtures.py``: "open the middle drawer", "turn on the stove", a drawer pushed shut); a push (``push.py``: "push the plate
 to the front of the stove"). A goal of several predicates (LIBERO-10's "put both ... in the basket") runs their
-primitives in sequence (``sequence.py``). ``goals.py`` maps a goal to its controller; any other (an object put into a
-drawer or the microwave; a drawer or a door closed) raises :class:`NoExpertError` naming it.
+primitives in sequence (``sequence.py``): "put the black bowl in the bottom drawer and close it" puts the bowl near
+the open drawer's front, then pushes the drawer shut. ``goals.py`` maps a goal to its controller; any other (an object
+into a drawer that starts shut, or into the microwave) raises :class:`NoExpertError` naming it.
 """
 
-from snapflow.envs.libero_expert.fixtures import OpenDrawer, TurnOn
+from snapflow.envs.libero_expert.fixtures import CloseDrawer, OpenDrawer, TurnOn
 from snapflow.envs.libero_expert.goals import LiberoExpert, NoExpertError, make_libero_expert
 from snapflow.envs.libero_expert.pick_and_place import PickAndPlace
 from snapflow.envs.libero_expert.push import Push
@@ -25,6 +26,7 @@ from snapflow.envs.libero_expert.scene import privileged_extras
 from snapflow.envs.libero_expert.sequence import InSequence
 
 __all__ = [
+    "CloseDrawer",
     "InSequence",
     "LiberoExpert",
     "NoExpertError",

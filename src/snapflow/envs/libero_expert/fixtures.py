@@ -1,4 +1,4 @@
-"""Work a fixture's joint: twist a stove's knob, pull a drawer open."""
+"""Work a fixture's joint: twist a stove's knob, pull a drawer open, push one shut."""
 
 from __future__ import annotations
 
@@ -21,9 +21,18 @@ from snapflow.envs.rotations import axis_angle_to_quaternion, quaternion_multipl
 KNOB_GRIP_HEIGHT = 0.035  # the stove knob's fin: gripped this far above the stove's origin, on the knob's axis
 KNOB_TURN = 1.0  # radians the hand twists the knob by (on from 0.5, its stop at 2.1)
 # LIBERO's wooden cabinet: each drawer's handle bar in its drawer body's frame (the drawer slides out along -y)
-DRAWER_HANDLES = {"top": (-0.00278, -0.10161, 0.18393), "middle": (-0.00278, -0.10161, 0.11041)}
+DRAWER_HANDLES = {
+    "top": (-0.00278, -0.10161, 0.18393),
+    "middle": (-0.00278, -0.10161, 0.11041),
+    "bottom": (-0.00278, -0.10161, 0.0411),
+}
 DRAWER_STANDOFF = 0.1  # the hand comes level with the handle this far in front of it, then moves in
 DRAWER_PULL = 0.15  # how far the handle is pulled (LIBERO's "open" from 0.14 out; the drawer's stop at 0.16)
+DRAWER_SHUT = 0.002  # a drawer is pushed until it is this close to shut (LIBERO's "closed": 0 out)
+# the hand pushing a drawer shut points down and this far (rad) into the cabinet: its fingertips reach a bottom
+# drawer's face while its forearm stays clear of the cabinet's top (pointing down, the forearm meets the top with the
+# drawer 7 cm out; pointing in, the hand's width keeps it 10 cm above the handle, on the drawer above)
+DRAWER_PUSH_PITCH = 0.8
 
 
 class TurnOn(Primitive):
@@ -122,3 +131,44 @@ class OpenDrawer(Primitive):
             goal, gripper, done = front, OPEN, False
         self.advance(done)
         return move_action(hand, goal, rotation_between(state["robot0_eef_quat"], self.orientation), gripper)
+
+
+class CloseDrawer(Primitive):
+    """Close an open drawer: the closed fingers, the hand pitched into the cabinet, come level with the handle in front
+    of it and push it in along its slide (steering on the handle's live position) until the drawer is shut; then the
+    hand backs away."""
+
+    PHASES = ("rise", "front", "push", "retreat")
+    PHASE_STEPS: ClassVar[dict[str, int]] = {"rise": 60, "front": 80, "push": 150}
+
+    def __init__(self, cabinet: str, level: str) -> None:
+        self.handle = f"{cabinet}_{level}_handle_pos"
+        self.drawer = f"{cabinet}_{level}_drawer_out"  # the drawer's offset from where it sits shut
+
+    def reset(self, observation: Observation, upright: np.ndarray | None = None) -> None:
+        super().reset(observation, upright)
+        state = observation.privileged
+        out = state[self.drawer]
+        self.out = np.array([*(out[:2] / max(np.linalg.norm(out[:2]), 1e-6)), 0.0])
+        self.travel = max(state["robot0_eef_pos"][2], state[self.handle][2] + 0.05)
+        axis = np.cross([0.0, 0.0, -1.0], -self.out)  # turning the fingers from pointing down towards the cabinet
+        self.orientation = quaternion_multiply(axis_angle_to_quaternion(axis * DRAWER_PUSH_PITCH), self.upright)
+
+    def act(self, observation: Observation) -> np.ndarray:
+        state = observation.privileged
+        hand, handle = state["robot0_eef_pos"], state[self.handle]
+        front = handle + self.out * DRAWER_STANDOFF
+        self.timer += 1
+        if self.phase == "rise":
+            turned = np.linalg.norm(rotation_between(state["robot0_eef_quat"], self.orientation)) < 0.1
+            goal = np.array([*front[:2], self.travel])
+            done = turned and np.linalg.norm(hand - goal) < 0.02
+        elif self.phase == "front":
+            goal, done = front, np.linalg.norm(hand - front) < 0.01
+        elif self.phase == "push":
+            goal = handle - self.out * POSITION_SCALE  # a full step past the handle, which the fingers lean on
+            done = float(np.dot(state[self.drawer], self.out)) < DRAWER_SHUT
+        else:  # retreat, to the end of the episode
+            goal, done = front, False
+        self.advance(done)
+        return move_action(hand, goal, rotation_between(state["robot0_eef_quat"], self.orientation), CLOSED)

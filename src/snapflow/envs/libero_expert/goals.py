@@ -5,7 +5,7 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 
-from snapflow.envs.libero_expert.fixtures import OpenDrawer, TurnOn
+from snapflow.envs.libero_expert.fixtures import CloseDrawer, OpenDrawer, TurnOn
 from snapflow.envs.libero_expert.motion import Primitive
 from snapflow.envs.libero_expert.pick_and_place import PickAndPlace
 from snapflow.envs.libero_expert.push import PUSHED, Push
@@ -17,7 +17,7 @@ OBJECT_NAME = r"[a-z_]+_\d+"  # an object instance of a BDDL scene (plate_1); re
 SURFACES = ("_cook_region", "_top_side", "wine_rack_1_top_region")
 CADDY_SLOT = r"desk_caddy_\d+_(back|front)_contain_region"  # the caddy's compartments long along y
 TABLE_REGION = r"[a-z_]+_table_[a-z_]+_region"  # a region of the table (to the right of the plate, ...)
-DRAWER = r"(.+_cabinet_\d+)_(top|middle)_region"  # a cabinet's drawer with a known handle: its cabinet and level
+DRAWER = r"(.+_cabinet_\d+)_(top|middle|bottom)_region"  # a cabinet's drawer: its cabinet and level
 # objects put on one fixture's surface side by side stand this far apart along x (the first the farthest)
 SHARED_SURFACE_SPACING = 0.09
 
@@ -33,6 +33,8 @@ def _primitive(predicate: str, arguments: Sequence[str]) -> Primitive | None:
     drawer = re.fullmatch(DRAWER, arguments[-1]) if arguments else None
     if predicate == "open" and len(arguments) == 1 and drawer:
         return OpenDrawer(*drawer.groups())
+    if predicate == "close" and len(arguments) == 1 and drawer:
+        return CloseDrawer(*drawer.groups())
     if predicate == "turnon" and len(arguments) == 1 and arguments[0].startswith("flat_stove"):
         return TurnOn(arguments[0])
     if predicate in ("on", "in") and len(arguments) == 2 and re.fullmatch(OBJECT_NAME, arguments[0]):
@@ -47,6 +49,8 @@ def _primitive(predicate: str, arguments: Sequence[str]) -> Primitive | None:
         # a fixture's surface or a region of the table (a site): from the extras
         if target.endswith(SURFACES) or re.fullmatch(TABLE_REGION, target):
             return PickAndPlace(obj, target, onto_site=True)
+        if drawer:  # into a drawer the goal shuts afterwards, so open from the start (see make_libero_expert)
+            return PickAndPlace(obj, target, onto_site=True, drawer="_".join(drawer.groups()))
     return None
 
 
@@ -58,10 +62,20 @@ def _share_surfaces(steps: Sequence[Primitive]) -> None:
             step.offset[0] = SHARED_SURFACE_SPACING * ((len(sharing) - 1) / 2 - index)
 
 
+def _in_order(goal_state: Sequence[Sequence[str]]) -> list[tuple[str, ...]]:
+    """The goal's predicates in the order they are achieved: what goes into a drawer before the drawer is shut. An
+    object into a drawer that the goal does not shut (a drawer that starts shut) is left out, so the goal is refused:
+    the open drawer would stand 1-2 cm from every grip of the bowl's rim (LIBERO-Goal's task 3)."""
+    predicates = sorted((tuple(predicate) for predicate in goal_state), key=lambda predicate: predicate[0] == "close")
+    shut = {predicate[1] for predicate in predicates if predicate[0] == "close"}
+    return [p for p in predicates if not (p[0] == "in" and re.fullmatch(DRAWER, p[-1]) and p[-1] not in shut)]
+
+
 def make_libero_expert(goal_state: Sequence[Sequence[str]]) -> LiberoExpert:
     """The controller of a LIBERO goal (its BDDL ``goal_state``), or :class:`NoExpertError` naming it."""
-    steps = [_primitive(predicate, arguments) for predicate, *arguments in goal_state]
-    if not steps or None in steps:
+    predicates = _in_order(goal_state)
+    steps = [_primitive(predicate, arguments) for predicate, *arguments in predicates]
+    if not steps or None in steps or len(predicates) < len(goal_state):
         raise NoExpertError(f"no scripted controller covers the goal {[list(predicate) for predicate in goal_state]}")
     if len(steps) == 1:
         return steps[0]

@@ -19,8 +19,8 @@ TOP_GRIP_DEPTH = 0.025  # fingers close this far below an object's top
 # objects whose LIBERO model gives no top of its own: gripped this far below the top read from their geoms
 # (``<object>_top``); the moka pot by its lid's knob, between its spout and its handle
 MEASURED_GRIP_DEPTH = {"moka_pot": 0.01, "wine_bottle": 0.025, "black_book": 0.03}
-# an object put upright into a slot is carried over it to within 5 mm and let go with its bottom this far above the
-# table's level
+# an object put upright into a slot, or into a drawer, is carried over it to within 5 mm; into a slot it is let go with
+# its bottom this far above the table's level
 SLOT_CARRIED, SLOT_RELEASE_GAP = 0.005, 0.03
 CUP_GRIP_DEPTH = 0.02  # a cup's rim (read from the scene, ``<cup>_rim``): the fingers close this far below its top
 # a cup is gripped on the side nearest the robot's (-x) that is at least this far round from its handle
@@ -34,6 +34,9 @@ CARRIED = 0.02  # position tolerance (m) of the object over the target
 # a fixture's surface (a site): the object is released with its bottom this far above it, and carried at least this
 # much higher than that (over the cabinet's walls, not into them)
 SITE_RELEASE_GAP, SITE_CARRY_MARGIN = 0.015, 0.06
+# an object put into an open drawer goes this far from the drawer's centre towards its open end: midway between the
+# drawer's front wall and the cabinet's face (a bowl has 3 mm to spare on each side)
+DRAWER_PLACE_OUT = 0.023
 OBSTACLE_MARGIN = 0.03  # an object carried over the others clears their tops by this much
 
 
@@ -79,10 +82,12 @@ class PickAndPlace(Primitive):
         offset: tuple[float, float] = (0.0, 0.0),
         over_others: bool = False,
         slot_yaw: float | None = None,
+        drawer: str | None = None,
     ) -> None:
         self.obj, self.target, self.onto_site, self.over_others = obj, target, onto_site, over_others
         # the target is a narrow slot: the object, gripped across its thin side, goes in with that side at this yaw
         self.slot_yaw = slot_yaw
+        self.drawer = drawer  # the target is inside this open drawer (``<cabinet>_<level>``)
         self.offset = np.array([*offset, 0.0])  # where on the target (xy, m from its centre) the object is put
         self.release_height = next((height for kind, height in RELEASE_HEIGHT.items() if target.startswith(kind)), 0.05)
         self.carry_height = next((height for kind, height in CARRY_HEIGHT.items() if target.startswith(kind)), 0.0)
@@ -110,6 +115,9 @@ class PickAndPlace(Primitive):
         )
         self.floor = float(state[f"{self.obj}_bottom"][0])
         self.held = np.zeros(3)  # the object's offset from the hand once gripped
+        if self.drawer is not None:
+            out = state[f"{self.drawer}_drawer_out"][:2]
+            self.offset[:2] = out / max(float(np.linalg.norm(out)), 1e-6) * DRAWER_PLACE_OUT
         others = [key for key in state if key.endswith("_top") and key != f"{self.obj}_top"]
         self.obstacles = max((float(state[key][0]) for key in others), default=-np.inf) if self.over_others else -np.inf
         if self.onto_site:  # the object's bottom just above the surface: its origin this high above the site
@@ -157,7 +165,7 @@ class PickAndPlace(Primitive):
                 over_target = target - (obj - hand)
             goal, gripper = np.array([*over_target[:2], self.carry]), CLOSED
             turned = np.linalg.norm(rotation_between(state["robot0_eef_quat"], self.placing)) < 0.05
-            tolerance = CARRIED if self.slot_yaw is None else SLOT_CARRIED
+            tolerance = CARRIED if self.slot_yaw is None and self.drawer is None else SLOT_CARRIED
             done = np.linalg.norm((obj - target)[:2]) < tolerance and (turned or self.slot_yaw is None)
         elif self.phase == "lower":
             height = target[2] + self.release_height - self.held[2]

@@ -37,6 +37,8 @@ def privileged_extras(env: Any) -> dict[str, np.ndarray]:
                 extras[f"{name}_{level}_handle_pos"] = (
                     sim.data.body_xpos[body] + sim.data.body_xmat[body].reshape(3, 3) @ offset
                 )
+                # a drawer's body sits at its cabinet's origin when shut
+                extras[f"{name}_{level}_drawer_out"] = sim.data.body_xpos[body] - extras[f"{name}_pos"]
     for name in inner.object_sites_dict:
         extras[f"{name}_pos"] = np.array(sim.data.get_site_xpos(name))
     return extras
