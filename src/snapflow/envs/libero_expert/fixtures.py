@@ -35,6 +35,13 @@ DRAWER_SHUT = 0.002  # a drawer is pushed until it is this close to shut (LIBERO
 DRAWER_PUSH_PITCH = 0.8
 
 
+def pitched_into(out: np.ndarray, pitch: float, upright: np.ndarray) -> np.ndarray:
+    """The hand's orientation with its fingers turned by ``pitch`` (rad) from pointing down (-z) towards a cabinet
+    whose front faces ``out``: a quarter turn points them straight into it."""
+    axis = np.cross([0.0, 0.0, -1.0], -out)
+    return quaternion_multiply(axis_angle_to_quaternion(axis * pitch), upright)
+
+
 class TurnOn(Primitive):
     """Turn on a stove: rise, move above its knob, descend onto the knob's fin (the open fingers close across it:
     the hand's default orientation), grip it, twist the hand about the knob's vertical axis, open and rise."""
@@ -104,9 +111,7 @@ class OpenDrawer(Primitive):
         self.out = np.array([*(outward / np.linalg.norm(outward)), 0.0])
         self.start = handle.copy()
         self.travel = max(state["robot0_eef_pos"][2], handle[2] + 0.05)
-        # the fingers, pointing down (-z), turned a quarter turn to point into the cabinet (-out)
-        axis = np.cross([0.0, 0.0, -1.0], -self.out)
-        self.orientation = quaternion_multiply(axis_angle_to_quaternion(axis * np.pi / 2), self.upright)
+        self.orientation = pitched_into(self.out, np.pi / 2, self.upright)  # the fingers point into the cabinet
 
     def act(self, observation: Observation) -> np.ndarray:
         state = observation.privileged
@@ -151,8 +156,7 @@ class CloseDrawer(Primitive):
         out = state[self.drawer]
         self.out = np.array([*(out[:2] / max(np.linalg.norm(out[:2]), 1e-6)), 0.0])
         self.travel = max(state["robot0_eef_pos"][2], state[self.handle][2] + 0.05)
-        axis = np.cross([0.0, 0.0, -1.0], -self.out)  # turning the fingers from pointing down towards the cabinet
-        self.orientation = quaternion_multiply(axis_angle_to_quaternion(axis * DRAWER_PUSH_PITCH), self.upright)
+        self.orientation = pitched_into(self.out, DRAWER_PUSH_PITCH, self.upright)
 
     def act(self, observation: Observation) -> np.ndarray:
         state = observation.privileged
