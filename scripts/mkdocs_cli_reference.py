@@ -3,7 +3,6 @@ from them (``mkdocs.yml`` names it under ``hooks``)."""
 
 from __future__ import annotations
 
-import argparse
 from typing import Any
 
 MARKER = "<!-- cli-reference -->"
@@ -11,12 +10,11 @@ MARKER = "<!-- cli-reference -->"
 
 def cli_reference() -> str:
     """Every ``snapflow`` command's help, in the order ``snapflow --help`` lists them, as Markdown."""
-    from snapflow.cli import build_parser
+    from snapflow.cli import build_parser, command_parsers
 
     parser = build_parser()
-    commands = next(action for action in parser._actions if isinstance(action, argparse._SubParsersAction))
     sections = [f"```text\n{parser.format_help()}```"]
-    for name, command in commands.choices.items():
+    for name, command in command_parsers(parser).items():
         sections.append(f"## snapflow {name}\n\n```text\n{command.format_help()}```")
     return "\n\n".join(sections)
 

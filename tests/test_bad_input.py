@@ -6,7 +6,6 @@ Each property counts what it tried in ``TRIED`` (printed by ``pytest -s``) and w
 
 from __future__ import annotations
 
-import argparse
 import json
 import signal
 import string
@@ -438,11 +437,9 @@ def test_argument_mistakes_are_refused_in_one_line_before_torch_loads(tmp_path, 
 
 
 def test_help_and_version_load_no_torch_and_every_option_says_what_it_does():
-    from snapflow.cli import build_parser
+    from snapflow.cli import build_parser, command_parsers
 
-    parser = build_parser()
-    commands = next(action for action in parser._actions if isinstance(action, argparse._SubParsersAction))
-    for name, command in commands.choices.items():
+    for name, command in command_parsers(build_parser()).items():
         for action in command._actions:
             assert action.help, f"snapflow {name} {'/'.join(action.option_strings) or action.dest} has no help"
         # one name for where a command writes (the sweep writes where its config says; serve writes nothing; the

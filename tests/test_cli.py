@@ -10,14 +10,13 @@ import numpy as np
 import pytest
 
 from snapflow.adapters.lerobot_types import lerobot_loads_plugins
-from snapflow.cli import COMMANDS, build_parser, main
+from snapflow.cli import COMMANDS, build_parser, command_parsers, main
 from snapflow.data.demonstrations import Demonstrations, Episode
 from snapflow.policies.checkpoint import load_policy
 
 
 def _commands() -> dict[str, argparse.ArgumentParser]:
-    parser = build_parser()
-    return next(action for action in parser._actions if isinstance(action, argparse._SubParsersAction)).choices
+    return command_parsers(build_parser())
 
 
 def test_each_sub_command_is_one_module_that_declares_its_flags_and_runs_them():

@@ -16,14 +16,14 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_the_cli_reference_holds_every_commands_help_as_the_parser_prints_it():
-    from snapflow.cli import build_parser
+    from snapflow.cli import build_parser, command_parsers
 
     spec = importlib.util.spec_from_file_location("cli_reference", ROOT / "scripts" / "mkdocs_cli_reference.py")
     hook = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(hook)
     page = hook.on_page_markdown(f"# Reference\n\n{hook.MARKER}\n", page=None)
     assert hook.MARKER not in page
-    commands = next(action for action in build_parser()._actions if action.dest == "command").choices
+    commands = command_parsers(build_parser())
     assert len(commands) >= 15
     for name, command in commands.items():
         assert f"## snapflow {name}\n\n```text\n{command.format_help()}```" in page

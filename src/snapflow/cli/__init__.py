@@ -70,6 +70,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def command_parsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    """Each sub-command's parser in ``parser`` (:func:`build_parser`'s), by name, in the order ``--help`` lists them."""
+    return next(action for action in parser._actions if isinstance(action, argparse._SubParsersAction)).choices
+
+
 def main(argv: list[str] | None = None) -> int:
     """``snapflow ARGV`` (default: the process's arguments): the exit code (see :func:`.common.run_command`)."""
     return run_command(build_parser().parse_args(argv))
@@ -89,4 +94,4 @@ def entry_point() -> NoReturn:
     sys.exit(code)
 
 
-__all__ = ["build_parser", "entry_point", "main"]
+__all__ = ["build_parser", "command_parsers", "entry_point", "main"]
