@@ -40,14 +40,15 @@ DRAWER_PLACE_OUT = 0.023
 OBSTACLE_MARGIN = 0.03  # an object carried over the others clears their tops by this much
 
 
-def side_turn(side: float) -> float:
-    """The turn of the hand about the vertical that puts its fingers across a rim gripped at angle ``side``."""
-    return (side + np.pi) % np.pi - np.pi / 2
-
-
 def half_turn(angle: float) -> float:
     """``angle`` modulo a half turn, in [-pi/2, pi/2): a direction the fingers close along, either way."""
     return (angle + np.pi / 2) % np.pi - np.pi / 2
+
+
+def side_turn(side: float) -> float:
+    """The turn of the hand about the vertical that puts its fingers (the hand's y, at yaw pi/2) across a rim gripped
+    at angle ``side``: along the radius there."""
+    return half_turn(side - np.pi / 2)
 
 
 def cup_side(rim: np.ndarray) -> float:

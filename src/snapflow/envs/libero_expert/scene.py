@@ -16,8 +16,9 @@ BOOKS = ("black_book",)  # one flat box: its thinnest side's direction is read (
 def privileged_extras(env: Any) -> dict[str, np.ndarray]:
     """What the controllers read beyond robosuite's observation, from the live LIBERO environment ``env``: each
     object's top and bottom above its origin (how deep to grip it, how high to release it), each fixture's position
-    (the stove's knob is at its origin), each region's (a site's), each object's lowest and highest points (:func:`object_extent`) and
-    each mug's rim (:func:`cup_rim`)."""
+    (the stove's knob is at its origin), each region's (a site's), each object's lowest and highest points
+    (:func:`object_extent`), each mug's rim (:func:`cup_rim`), a book's thin side (:func:`thin_axis`), and each drawer's
+    handle and how far it is out."""
     sim, inner = env.env.sim, env.env
     extras = {}
     for name, obj in inner.objects_dict.items():
@@ -44,13 +45,19 @@ def privileged_extras(env: Any) -> dict[str, np.ndarray]:
     return extras
 
 
+def collision_geoms(model: Any, body: int, boxes_only: bool = False) -> np.ndarray:
+    """The ids of a body's geoms that collide (LIBERO's visual meshes do not), its boxes alone with ``boxes_only``."""
+    chosen = (model.geom_bodyid == body) & (model.geom_contype > 0)
+    return np.flatnonzero(chosen & (model.geom_type == BOX_GEOM) if boxes_only else chosen)
+
+
 def cup_rim(sim: Any, body: int) -> np.ndarray:
     """A cup's rim from its collision boxes, as ``[centre x, centre y, radius, top z, handle x, handle y]`` (the
     handle's direction from the centre, a unit vector). The walls are a ring of upright boxes reaching the top: their
     median position is the centre (the one or two handle boxes that reach as high do not move it), their median
     distance from it the radius; what stands farther out is the handle."""
     model, data = sim.model, sim.data
-    boxes = np.flatnonzero((model.geom_bodyid == body) & (model.geom_type == BOX_GEOM) & (model.geom_contype > 0))
+    boxes = collision_geoms(model, body, boxes_only=True)
     tops = data.geom_xpos[boxes, 2] + model.geom_size[boxes, 2]
     walls = boxes[tops > tops.max() - 0.01]
     centre = np.median(data.geom_xpos[walls, :2], axis=0)
@@ -64,7 +71,7 @@ def object_extent(sim: Any, body: int) -> tuple[np.ndarray, np.ndarray]:
     """The heights of the lowest and the highest points of a body's collision geoms (their bounding boxes, turned with
     them), where LIBERO's object model gives no top of its own."""
     model, data = sim.model, sim.data
-    geoms = np.flatnonzero((model.geom_bodyid == body) & (model.geom_contype > 0))
+    geoms = collision_geoms(model, body)
     centre, half = model.geom_aabb[geoms, :3], model.geom_aabb[geoms, 3:]
     upward = data.geom_xmat[geoms].reshape(-1, 3, 3)[:, 2, :]  # each geom's axes' vertical components
     middles = data.geom_xpos[geoms, 2] + np.sum(upward * centre, axis=1)
@@ -75,6 +82,6 @@ def object_extent(sim: Any, body: int) -> tuple[np.ndarray, np.ndarray]:
 def thin_axis(sim: Any, body: int) -> float:
     """The yaw (about the vertical) of the thinnest side of a body's first collision box: a book's thickness."""
     model, data = sim.model, sim.data
-    box = np.flatnonzero((model.geom_bodyid == body) & (model.geom_type == BOX_GEOM) & (model.geom_contype > 0))[0]
+    box = collision_geoms(model, body, boxes_only=True)[0]
     axis = data.geom_xmat[box].reshape(3, 3)[:, int(np.argmin(model.geom_size[box]))]
     return float(np.arctan2(axis[1], axis[0]))
