@@ -88,7 +88,31 @@ class TurnOn(Primitive):
         return move_action(hand, goal, rotation_between(state["robot0_eef_quat"], orientation), gripper)
 
 
-class OpenDrawer(Primitive):
+class DrawerPrimitive(Primitive):
+    """What opening and shutting a drawer share: its handle, the direction it slides out, and the approach: turn the
+    hand pitched towards the cabinet while rising to a travel height in front of the handle, then come level with it
+    there."""
+
+    def __init__(self, cabinet: str, level: str) -> None:
+        self.handle = f"{cabinet}_{level}_handle_pos"
+
+    def _face(self, state: dict[str, np.ndarray], out: np.ndarray, pitch: float) -> None:
+        """Plan the approach to a drawer sliding out along ``out`` (xy), the hand pitched by ``pitch`` (rad)."""
+        self.out = np.array([*(out[:2] / max(float(np.linalg.norm(out[:2])), 1e-6)), 0.0])
+        self.travel = max(state["robot0_eef_pos"][2], state[self.handle][2] + 0.05)
+        self.orientation = pitched_into(self.out, pitch, self.upright)
+
+    def _approach(self, state: dict[str, np.ndarray], front: np.ndarray) -> tuple[np.ndarray, bool]:
+        """The goal of the ``rise`` or ``front`` phase, and whether it is reached."""
+        hand = state["robot0_eef_pos"]
+        if self.phase == "rise":
+            turned = np.linalg.norm(rotation_between(state["robot0_eef_quat"], self.orientation)) < 0.1
+            goal = np.array([*front[:2], self.travel])
+            return goal, bool(turned and np.linalg.norm(hand - goal) < 0.02)
+        return front, bool(np.linalg.norm(hand - front) < 0.01)
+
+
+class OpenDrawer(DrawerPrimitive):
     """Open a drawer: turn the hand to point horizontally at the cabinet (the fingers then part vertically), rise,
     come level with the handle in front of it, move in around the bar, close, pull straight out (steering on the
     handle's live position), open and back away. From above the handle cannot be reached: the drawer above's handle
@@ -100,30 +124,23 @@ class OpenDrawer(Primitive):
     }  # fmt: skip
 
     def __init__(self, cabinet: str, level: str) -> None:
-        self.handle = f"{cabinet}_{level}_handle_pos"
+        super().__init__(cabinet, level)
         self.cabinet = f"{cabinet}_pos"
 
     def reset(self, observation: Observation, upright: np.ndarray | None = None) -> None:
         super().reset(observation, upright)
         state = observation.privileged
-        handle = state[self.handle]
-        outward = (handle - state[self.cabinet])[:2]  # the handle stands out of the cabinet's front, its pull axis
-        self.out = np.array([*(outward / np.linalg.norm(outward)), 0.0])
-        self.start = handle.copy()
-        self.travel = max(state["robot0_eef_pos"][2], handle[2] + 0.05)
-        self.orientation = pitched_into(self.out, np.pi / 2, self.upright)  # the fingers point into the cabinet
+        self.start = state[self.handle].copy()
+        # the handle stands out of the cabinet's front, its pull axis; the fingers point into the cabinet
+        self._face(state, self.start - state[self.cabinet], np.pi / 2)
 
     def act(self, observation: Observation) -> np.ndarray:
         state = observation.privileged
         hand, handle = state["robot0_eef_pos"], state[self.handle]
         front = handle + self.out * DRAWER_STANDOFF
         self.timer += 1
-        if self.phase == "rise":
-            turned = np.linalg.norm(rotation_between(state["robot0_eef_quat"], self.orientation)) < 0.1
-            goal = np.array([*front[:2], self.travel])
-            gripper, done = OPEN, turned and np.linalg.norm(hand - goal) < 0.02
-        elif self.phase == "front":
-            goal, gripper, done = front, OPEN, np.linalg.norm(hand - front) < 0.01
+        if self.phase in ("rise", "front"):
+            (goal, done), gripper = self._approach(state, front), OPEN
         elif self.phase in ("insert", "close"):
             goal, gripper = handle, CLOSED if self.phase == "close" else OPEN
             done = self.phase == "insert" and np.linalg.norm(hand - handle) < REACHED
@@ -138,7 +155,7 @@ class OpenDrawer(Primitive):
         return move_action(hand, goal, rotation_between(state["robot0_eef_quat"], self.orientation), gripper)
 
 
-class CloseDrawer(Primitive):
+class CloseDrawer(DrawerPrimitive):
     """Close an open drawer: the closed fingers, the hand pitched into the cabinet, come level with the handle in front
     of it and push it in along its slide (steering on the handle's live position) until the drawer is shut; then the
     hand backs away."""
@@ -147,28 +164,21 @@ class CloseDrawer(Primitive):
     PHASE_STEPS: ClassVar[dict[str, int]] = {"rise": 60, "front": 80, "push": 150}
 
     def __init__(self, cabinet: str, level: str) -> None:
-        self.handle = f"{cabinet}_{level}_handle_pos"
+        super().__init__(cabinet, level)
         self.drawer = f"{cabinet}_{level}_drawer_out"  # the drawer's offset from where it sits shut
 
     def reset(self, observation: Observation, upright: np.ndarray | None = None) -> None:
         super().reset(observation, upright)
         state = observation.privileged
-        out = state[self.drawer]
-        self.out = np.array([*(out[:2] / max(np.linalg.norm(out[:2]), 1e-6)), 0.0])
-        self.travel = max(state["robot0_eef_pos"][2], state[self.handle][2] + 0.05)
-        self.orientation = pitched_into(self.out, DRAWER_PUSH_PITCH, self.upright)
+        self._face(state, state[self.drawer], DRAWER_PUSH_PITCH)
 
     def act(self, observation: Observation) -> np.ndarray:
         state = observation.privileged
         hand, handle = state["robot0_eef_pos"], state[self.handle]
         front = handle + self.out * DRAWER_STANDOFF
         self.timer += 1
-        if self.phase == "rise":
-            turned = np.linalg.norm(rotation_between(state["robot0_eef_quat"], self.orientation)) < 0.1
-            goal = np.array([*front[:2], self.travel])
-            done = turned and np.linalg.norm(hand - goal) < 0.02
-        elif self.phase == "front":
-            goal, done = front, np.linalg.norm(hand - front) < 0.01
+        if self.phase in ("rise", "front"):
+            goal, done = self._approach(state, front)
         elif self.phase == "push":
             goal = handle - self.out * POSITION_SCALE  # a full step past the handle, which the fingers lean on
             done = float(np.dot(state[self.drawer], self.out)) < DRAWER_SHUT
