@@ -190,7 +190,7 @@ class Recipe:
 _PAPER_BUDGET = f"{PAPER_STUDENT_TRAINING.steps} steps at lr {PAPER_STUDENT_TRAINING.learning_rate:g}"
 RECIPES: dict[str, Recipe] = {
     "snapflow": Recipe(
-        "snapflow's recipe (docs/RESULTS.md, 'One step as good as ten'): the paper's objective and budget with "
+        "snapflow's recipe (docs/results/metaworld.md, 'One step as good as ten'): the paper's objective and budget with "
         f"lambda 3 ({_PAPER_BUDGET})",
         PAPER_STUDENT_TRAINING,
         {"consistency_weight": 3.0},

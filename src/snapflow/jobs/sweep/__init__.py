@@ -7,7 +7,7 @@ teachers -> distill students -> evaluate, in dependency order and on several wor
 its record holds its current full settings and those of the jobs it reads, so an interrupted sweep picks up where it
 stopped, adding a seed or a row runs only what is new, and changing a setting re-runs exactly the jobs downstream of
 it. ``write_results`` then turns the cached evaluations into ``results.json``, one PNG per table and Markdown tables,
-which it writes between markers in a results document (``docs/RESULTS.md``) and leaves the prose around them alone.
+which it writes between markers in a results document (``docs/results/metaworld.md``) and leaves the prose around them alone.
 
 Config layout (see ``configs/sweeps/*.toml``)::
 

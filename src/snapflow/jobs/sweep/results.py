@@ -1,5 +1,5 @@
 """A finished sweep's results: ``results.json``, one PNG per table, ``tables.md``, and the tables' blocks between
-markers in a results document such as ``docs/RESULTS.md`` (rows in :mod:`~snapflow.jobs.sweep.aggregate`, Markdown in
+markers in a results document such as ``docs/results/metaworld.md`` (rows in :mod:`~snapflow.jobs.sweep.aggregate`, Markdown in
 :mod:`~snapflow.jobs.sweep.markdown`, figures in :mod:`~snapflow.jobs.sweep.plots`)."""
 
 from __future__ import annotations
