@@ -37,6 +37,7 @@ def test_a_distilled_smolvla_exports_to_one_graph_that_gives_its_actions(vlm_dir
     import onnx
 
     student = save_tiny_student(vlm_directory, tmp_path / "student", STATE_DIM, "observation.images.top", IMAGE_SIZE)
+    (student / "snapflow.json").unlink()  # as lerobot-train leaves its checkpoint: the student config's label alone
     output = tmp_path / "onnx"
     assert main(["export", "--policy", str(student), "--output", str(output)]) == 0
     assert "largest difference to PyTorch" in capsys.readouterr().out

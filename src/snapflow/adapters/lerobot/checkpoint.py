@@ -23,14 +23,13 @@ SAFETENSORS_FILE = "model.safetensors"  # LeRobot's name for a policy's weights
 PREPROCESSOR_FILE = "policy_preprocessor.json"  # LeRobot's name for a saved pre-processor
 
 
+def marker_of(policy_type: str, distilled: bool, val_fraction: float) -> dict[str, Any]:
+    """``snapflow.json``'s content for a LeRobot policy folder of ``policy_type``."""
+    return {"format": "snapflow-lerobot", "policy": policy_type, "target_time": distilled, "val_fraction": val_fraction}
+
+
 def _write_marker(directory: Path, policy_type: str, distilled: bool, val_fraction: float) -> None:
-    marker = {
-        "format": "snapflow-lerobot",
-        "policy": policy_type,
-        "target_time": distilled,
-        "val_fraction": val_fraction,
-    }
-    write_marker(directory, marker)
+    write_marker(directory, marker_of(policy_type, distilled, val_fraction))
 
 
 def write_marker(directory: str | Path, marker: dict[str, Any]) -> None:
@@ -144,6 +143,7 @@ __all__ = [
     "SAFETENSORS_FILE",
     "SNAPFLOW_MARKER",
     "write_marker",
+    "marker_of",
     "load_student_config",
     "read_marker",
     "save_distilled",

@@ -29,6 +29,7 @@ from snapflow.adapters.lerobot.checkpoint import (
     load_distilled,
     load_pretrained_policy,
     load_student_config,
+    marker_of,
     read_marker,
     write_marker,
 )
@@ -190,7 +191,9 @@ class LoadedLeRobotPolicy(OpenedPolicy):
             if source.is_file() and source.name not in {SAFETENSORS_FILE, SNAPFLOW_MARKER, entry.file}:
                 atomic_write(output / source.name, lambda target, source=source: shutil.copyfile(source, target))
         _pad_prompts_to_full_length(output)
-        write_marker(output, {**self.marker, format: record})  # last: it makes the export whole
+        # a lerobot-train checkpoint has no marker of its own: the export's names what it was exported from
+        source = {**marker_of(adapter.policy_type, True, self.val_fraction), **self.marker}
+        write_marker(output, {**source, format: record})  # last: it makes the export whole
         return record
 
 
