@@ -1,0 +1,115 @@
+"""The tutorials (``docs/tutorials/``) as a reader follows them: every code block, top to bottom, typed into one shell
+at the root of a clone of the repository (Python blocks as that shell's ``python``). A block that needs what a test
+machine lacks says so on the line before it (``<!-- needs: gpu -->``, ``hub``, ``robot`` or ``hours``) and is only
+checked to parse. The LeRobot tutorials continue one another (each starts from the first one's student), so they run
+as one session, in order."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from snapflow.adapters.lerobot_types import PLUGIN_LEROBOT, lerobot_loads_plugins
+
+ROOT = Path(__file__).resolve().parents[1]
+TUTORIALS = ROOT / "docs" / "tutorials"
+#: what a block may need that a test machine lacks: it is shown, its commands parse, it does not run
+NEEDS = {"gpu", "hub", "robot", "hours"}
+#: the LeRobot tutorials, each starting from the first one's student: one shell session, in this order
+LEROBOT_SESSION = ["distil-lerobot", "serve", "deploy", "onnx"]
+ON_THEIR_OWN = ["reproduce-libero", "own-policy"]
+
+
+@dataclass(frozen=True)
+class Block:
+    language: str
+    code: str
+    needs: str | None
+
+
+def tutorial_blocks(name: str) -> list[Block]:
+    """The fenced code blocks of tutorial ``name``, each with what its marker says it needs."""
+    text = (TUTORIALS / f"{name}.md").read_text()
+    pattern = r"(?:<!-- needs: (\w+) -->\n)?```(\w*)\n(.*?)```"
+    return [Block(language, code, needs or None) for needs, language, code in re.findall(pattern, text, re.S)]
+
+
+def as_one_shell_session(names: list[str]) -> str:
+    """The runnable blocks of the tutorials ``names`` as one bash script, stopping at the first failing command."""
+    lines = ["set -euo pipefail"]
+    for name in names:
+        for block in tutorial_blocks(name):
+            if block.needs is None:
+                lines.append(block.code if block.language == "bash" else f"python - <<'PYTHON'\n{block.code}PYTHON")
+    return "\n".join(lines) + "\n"
+
+
+def run_in_a_clone(names: list[str], tmp_path: Path) -> str:
+    clone = tmp_path / "snapflow"
+    subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True)
+    environment = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    finished = subprocess.run(
+        ["bash", "-c", as_one_shell_session(names)],
+        cwd=clone,
+        env=environment,
+        capture_output=True,
+        text=True,
+        stdin=subprocess.DEVNULL,
+        timeout=1800,
+    )
+    assert finished.returncode == 0, f"{finished.stdout[-2000:]}\n{finished.stderr[-4000:]}"
+    return finished.stdout
+
+
+def test_every_tutorial_runs_here_and_every_block_runs_or_names_what_it_needs():
+    from snapflow.cli import build_parser
+
+    assert {path.stem for path in TUTORIALS.glob("*.md")} == set(LEROBOT_SESSION + ON_THEIR_OWN)
+    parser = build_parser()
+    for name in LEROBOT_SESSION + ON_THEIR_OWN:
+        blocks = tutorial_blocks(name)
+        assert any(block.needs is None for block in blocks), f"{name}: no block runs"
+        for block in blocks:
+            assert block.language in {"bash", "python"} and block.needs in NEEDS | {None}, (name, block)
+            if block.language == "python":
+                compile(block.code, name, "exec")
+            for line in block.code.replace("\\\n", " ").splitlines():
+                if line.strip().startswith("snapflow "):
+                    words = line.split("#")[0].replace("&", "").split()
+                    assert parser.parse_args(words[1:]).command == words[1], line
+
+
+def test_a_block_marked_as_needing_a_gpu_is_left_out_of_the_session():
+    session = as_one_shell_session(["deploy"])
+    assert "--fast-path deploy" not in session and "snapflow bench --policy" in session
+
+
+@pytest.mark.slow
+@pytest.mark.lerobot
+@pytest.mark.skipif(not lerobot_loads_plugins(), reason=f"LeRobot loads snapflow's plugin from {PLUGIN_LEROBOT} on")
+def test_the_lerobot_tutorials_run_top_to_bottom(tmp_path):
+    output = run_in_a_clone(LEROBOT_SESSION, tmp_path)
+    assert "the executed actions kept: True" in output
+    assert "| snapflow-1 |" in output  # the served episode's summary and the latency table
+    clone = tmp_path / "snapflow" / "outputs" / "tutorial"
+    for mode in ("snapflow-1", "teacher-10"):
+        assert (clone / f"eval-{mode}" / "eval_info.json").is_file(), "lerobot-eval ran in both modes"
+    assert (clone / "onnx" / "model.onnx").is_file() and (clone / "eval-onnx" / "report.json").is_file()
+
+
+@pytest.mark.slow
+def test_the_libero_reproduction_tutorial_runs_top_to_bottom(tmp_path):
+    output = run_in_a_clone(["reproduce-libero"], tmp_path)
+    assert "| teacher-10 |" in output and "| snapflow-1 |" in output
+
+
+@pytest.mark.slow
+def test_the_own_policy_tutorial_runs_as_written(tmp_path):
+    output = run_in_a_clone(["own-policy"], tmp_path)
+    assert "'snapflow-1'" in output
