@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -43,6 +44,9 @@ def test_the_site_builds_with_warnings_as_errors(tmp_path):
     assert result.returncode == 0, result.stderr[-3000:]
     site = tmp_path / "site"
     assert "snapflow distill" in (site / "reference" / "cli" / "index.html").read_text()
-    assert "FlowPolicy" in (site / "reference" / "api" / "index.html").read_text()
+    api = (site / "reference" / "api" / "index.html").read_text()
+    assert "FlowPolicy" in api
+    assert not re.search(r":(class|func|meth|mod|data|attr):<code>", api), "a docstring's Sphinx role left as text"
+    assert "<code>snapflow.nn.SnapFlowPolicy</code>" in api
     for page in ("guides/libero", "RESULTS", "ARCHITECTURE", "changelog"):
         assert (site / page / "index.html").exists()
