@@ -32,13 +32,37 @@ def test_unsupported_policies_and_lerobot_versions_are_named():
     from snapflow.adapters.lerobot import PI05FlowPolicy
     from snapflow.adapters.lerobot.registry import adapter_class
 
-    with pytest.raises(ValueError, match="pi0, pi05, smolvla policies, not 'act'"):
+    with pytest.raises(ValueError, match="pi0, pi05, smolvla policies, not 'act': a transformer that regresses"):
         adapter_class("act")
     if LEROBOT < Version(PI05FlowPolicy.minimum_lerobot):
         with pytest.raises(ValueError, match=f"pi05 adapter needs lerobot >= 0.5 .* lerobot {LEROBOT} is installed"):
             adapter_class("pi05")
     else:
         assert adapter_class("pi05") is PI05FlowPolicy
+
+
+def test_every_policy_type_the_installed_lerobot_knows_is_distilled_or_refused_with_why():
+    """A type a new LeRobot adds cannot go unnoticed: each is declared, or named with why it is not distilled."""
+    from lerobot.configs.policies import PreTrainedConfig
+
+    import lerobot.policies  # noqa: F401  (registers LeRobot's policy configs)
+    from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES, NOT_DISTILLED
+
+    assert set(PreTrainedConfig.get_known_choices()) <= set(LEROBOT_POLICY_TYPES) | set(NOT_DISTILLED)
+    assert not set(LEROBOT_POLICY_TYPES) & set(NOT_DISTILLED)
+
+
+@pytest.mark.parametrize(("policy_type", "why"), [("pi0_fast", "autoregressive"), ("diffusion", "DDPM / DDIM")])
+def test_a_policy_folder_of_a_type_snapflow_does_not_distil_is_refused_with_why(policy_type, why, tmp_path, capsys):
+    from snapflow.cli import main
+
+    (tmp_path / "policy").mkdir()
+    (tmp_path / "policy" / "config.json").write_text(f'{{"type": "{policy_type}"}}')
+    arguments = ["eval", "--policy", str(tmp_path / "policy"), "--episodes", "1", "--output", str(tmp_path / "out")]
+    assert main(arguments) == 2
+    error = capsys.readouterr().err
+    assert f"not '{policy_type}': " in error and why in error
+    assert not (tmp_path / "out").exists()
 
 
 @pytest.mark.slow

@@ -54,11 +54,35 @@ def register_lerobot_policy_type(declaration: LeRobotPolicyType) -> None:
     LEROBOT_POLICY_TYPES[declaration.name] = declaration
 
 
+#: LeRobot 0.6's other policy types, each with why snapflow does not distil it: no velocity field for a jump to
+#: replace, or one that no adapter reaches yet (issue 58 surveys them)
+NOT_DISTILLED: dict[str, str] = {
+    "pi0_fast": "autoregressive: it decodes FAST action tokens one at a time, with no velocity field to jump along",
+    "act": "a transformer that regresses its action chunk in one pass: there are no denoising steps to cut",
+    "diffusion": "a DDPM / DDIM denoiser of noise, not a flow-matching velocity field, which SnapFlow's jump averages",
+    "vqbet": "a behaviour transformer over discrete action codes: no ODE",
+    "tdmpc": "a model-based planner (TD-MPC): no ODE",
+    "gaussian_actor": "one Gaussian over the actions: no ODE",
+    "groot": "flow-matching (4 Euler steps of a DiT action head), not adapted yet",
+    "xvla": "flow-matching that predicts the clean action, not adapted yet",
+    "wall_x": "flow-matching (10 steps), not adapted yet",
+    "evo1": "flow-matching (32 steps by default), not adapted yet",
+    "molmoact2": "flow-matching (10 steps), not adapted yet",
+    "fastwam": "flow-matching (10-20 steps), not adapted yet",
+    "lingbot_va": "flow-matching (20-50 steps), not adapted yet",
+    "vla_jepa": "flow-matching (4 steps), not adapted yet",
+    "multi_task_dit": "a diffusion transformer with a flow-matching time grid, not adapted yet",
+    "eo1": "flow-matching, not adapted yet",
+}
+
+
 def lerobot_policy_type(name: str) -> LeRobotPolicyType:
-    """The declared type ``name``, or a ValueError listing the declared ones."""
+    """The declared type ``name``, or an :class:`InvalidInputError` listing the declared ones and saying why
+    ``name`` is not among them where that is known."""
     if name not in LEROBOT_POLICY_TYPES:
+        why = f": {NOT_DISTILLED[name]}" if name in NOT_DISTILLED else ""
         raise InvalidInputError(
-            f"snapflow distills LeRobot's {', '.join(sorted(LEROBOT_POLICY_TYPES))} policies, not {name!r}"
+            f"snapflow distills LeRobot's {', '.join(sorted(LEROBOT_POLICY_TYPES))} policies, not {name!r}{why}"
         )
     return LEROBOT_POLICY_TYPES[name]
 
@@ -127,6 +151,7 @@ __all__ = [
     "register_lerobot_policy_type",
     "lerobot_policy_type",
     "lerobot_teachers",
+    "NOT_DISTILLED",
     "PLUGIN_LEROBOT",
     "lerobot_loads_plugins",
 ]
