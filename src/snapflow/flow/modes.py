@@ -69,8 +69,11 @@ class SamplingMode:
 
 
 TEACHER_10 = SamplingMode(10, jump=False)
+"""The flow-matching teacher's own sampler: ten Euler steps of the instantaneous velocity."""
 NAIVE_1 = SamplingMode(1, jump=False)
+"""One Euler step of the instantaneous velocity, undistilled: the baseline a one-step method must beat."""
 SNAPFLOW_1 = SamplingMode(1, jump=True)
+"""SnapFlow's one jump from noise to actions with the distilled average velocity."""
 # what a comparison of a teacher and its student samples by default: the teacher, the naive step, the student's jump
 STANDARD_MODES: tuple[SamplingMode, ...] = (TEACHER_10, NAIVE_1, SNAPFLOW_1)
 
