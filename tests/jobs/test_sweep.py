@@ -5,6 +5,7 @@ real (slow: Meta-World, training, evaluation, files on disk)."""
 from __future__ import annotations
 
 import json
+import re
 import os
 import shutil
 import signal
@@ -272,6 +273,30 @@ def test_a_table_may_evaluate_other_initial_states_without_touching_the_first_on
     assert later.path.name == "teacher-10_nact4_eps2_from10.json" and later.key != first.key
     path.write_text(path.read_text().replace("first_variation = 10", "first_variation = -1"))
     with pytest.raises(ValueError, match="first_variation must be an integer of at least 0, got -1"):
+        load_sweep(path)
+
+
+def test_a_table_may_evaluate_a_subset_of_the_tasks_without_touching_the_other_tables_records(tmp_path):
+    path = write_config(tmp_path)
+    config = load_sweep(path)
+    path.write_text(path.read_text().replace("per_task = true", 'per_task = true\ntasks = "push-v3"', 1))
+    narrowed = load_sweep(path)
+    assert [table.tasks for table in narrowed.tables] == [("push-v3",), ()]
+    assert narrowed.tasks_of(narrowed.tables[0]) == ("push-v3",) and narrowed.tasks_of(narrowed.tables[1]) == (
+        "reach-v3",
+        "push-v3",
+    )
+    row = narrowed.tables[0].rows[0]
+    every, one = eval_job(config, config.tables[0], row, 0), eval_job(narrowed, narrowed.tables[0], row, 0)
+    # every task keeps its settings and path (every committed record stays valid); a subset is a job of its own
+    assert "tasks" not in every.settings() and every.path.name == "teacher-10_nact4_eps2.json"
+    assert one.settings() == {**every.settings(), "tasks": ["push-v3"]} and one.task_names == ["push-v3"]
+    assert re.fullmatch(r"teacher-10_nact4_eps2_1tasks-[0-9a-f]{8}\.json", one.path.name) and one.key != every.key
+    # naming every task, in any order, is no subset: the table shares the others' evaluations
+    path.write_text(path.read_text().replace('tasks = "push-v3"', 'tasks = ["push-v3", "reach-v3"]'))
+    assert eval_job(load_sweep(path), load_sweep(path).tables[0], row, 0).path == every.path
+    path.write_text(path.read_text().replace('tasks = ["push-v3", "reach-v3"]', 'tasks = "door-open-v3"'))
+    with pytest.raises(ValueError, match=r"tasks \['door-open-v3'\] are not among the data's"):
         load_sweep(path)
 
 

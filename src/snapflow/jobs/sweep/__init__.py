@@ -7,7 +7,7 @@ teachers -> distill students -> evaluate, in dependency order and on several wor
 its record holds its current full settings and those of the jobs it reads, so an interrupted sweep picks up where it
 stopped, adding a seed or a row runs only what is new, and changing a setting re-runs exactly the jobs downstream of
 it. ``write_results`` then turns the cached evaluations into ``results.json``, one PNG per table and Markdown tables,
-which it writes between markers in a results document (``docs/results/metaworld.md``) and leaves the prose around them alone.
+which it writes between markers in a results page (``docs/results/<benchmark>.md``) and leaves the prose around them alone.
 
 Config layout (see ``configs/sweeps/*.toml``)::
 
@@ -21,7 +21,9 @@ Config layout (see ``configs/sweeps/*.toml``)::
     [runs.snapflow]                     # a student: teacher = "teacher", recipe, distill = {DistillSettings
                                         # fields}, train (both override the recipe's)
     [[tables]]                          # name, title, episodes_per_task, n_act, seeds, per_task, x_label,
-                                        # reference (the row the others are compared with, paired)
+                                        # reference (the row the others are compared with, paired),
+                                        # first_variation (LIBERO: the first initial state), evaluator,
+                                        # tasks (a subset of the data's, e.g. "libero_10_0,libero_10_1")
     rows = [{label = "...", run = "snapflow", mode = "snapflow-1", n_act = 4, series = "...", x = 1}]
                                         # sweep = "other.toml": the row reads that sweep's run and evaluations
                                         # (same env and tasks, so its cells pair), never runs them

@@ -146,16 +146,16 @@ def _step_seconds(config: SweepConfig, run: str, seed: int) -> float:
     return history["wall_time_s"] / history["step"]
 
 
-def _cells(config: SweepConfig, evals: list[EvaluationRow]) -> list[float]:
+def _cells(tasks: tuple[str, ...], evals: list[EvaluationRow]) -> list[float]:
     """Success percent per (seed, task): the units a paired comparison matches across rows."""
-    return [100 * e.success[task].success_rate for e in evals for task in config.data.tasks]
+    return [100 * e.success[task].success_rate for e in evals for task in tasks]
 
 
 def table_results(config: SweepConfig, table: TableSpec) -> TableResult:
     """The table's rows from the cached evaluations; a FileNotFoundError names the first one not done."""
     rows = []
-    reference = table.reference_row
-    reference_cells = _cells(config, [_evaluation(config, table, reference, seed) for seed in table.seeds])
+    reference, tasks = table.reference_row, config.tasks_of(table)
+    reference_cells = _cells(tasks, [_evaluation(config, table, reference, seed) for seed in table.seeds])
     for row in table.rows:
         evals = [_evaluation(config, table, row, seed) for seed in table.seeds]
         successes = sum(e.success["mean"].successes for e in evals)
@@ -163,7 +163,7 @@ def table_results(config: SweepConfig, table: TableSpec) -> TableResult:
         low, high = wilson_interval(successes, episodes)
         difference = None
         if row is not reference:
-            cells = _cells(config, evals)
+            cells = _cells(tasks, evals)
             difference = Difference(reference.label, *paired_difference(cells, reference_cells), cells=len(cells))
         rates = [100 * e.success["mean"].success_rate for e in evals]
         mean, std = mean_std(rates)
@@ -191,7 +191,7 @@ def table_results(config: SweepConfig, table: TableSpec) -> TableResult:
                 episodes=episodes,
                 per_task={
                     task: float(np.mean([100 * e.success[task].success_rate for e in evals]))
-                    for task in config.data.tasks
+                    for task in tasks
                 },
                 evaluation_s=sum(e.closed_loop_s for e in evals),
                 training_s=[_training_seconds(row.owner(config), row.run, seed) for seed in table.seeds],

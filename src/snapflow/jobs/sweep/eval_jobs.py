@@ -37,6 +37,7 @@ class EvalJob(Job):
     ledger: Path | None = None
     first_variation: int = 0  # each task's episodes from this evaluation variation on
     evaluator: str = EVALUATORS[0]  # snapflow's evaluator, or LeRobot's lerobot-eval (no offline metrics)
+    tasks: tuple[str, ...] = ()  # a subset of the data's tasks (empty: every one)
 
     @property
     def by_lerobot_eval(self) -> bool:
@@ -53,7 +54,13 @@ class EvalJob(Job):
             # only where set: the records made before they could be chosen are of the first variations, by snapflow's
             **({"first_variation": self.first_variation} if self.first_variation else {}),
             **({"evaluator": self.evaluator} if self.by_lerobot_eval else {}),
+            **({"tasks": list(self.tasks)} if self.tasks else {}),
         }
+
+    @property
+    def task_names(self) -> list[str]:
+        """The tasks its episodes run on."""
+        return list(self.tasks or self.policy.data.data.tasks)
 
     @property
     def dependencies(self) -> tuple[Job, ...]:
@@ -86,7 +93,7 @@ class EvalJob(Job):
         report = evaluate(
             [(self.mode.name, loaded, self.mode)],
             make_benchmark(collected.data.env),
-            list(collected.data.tasks),
+            self.task_names,
             self.episodes_per_task,
             self.n_act,
             collected.directory,
@@ -137,7 +144,7 @@ class EvalJob(Job):
             write_json(kept / KEPT_JOB, record(self))
         row = run_lerobot_eval(
             self.policy.policy_path,
-            list(data.tasks),
+            self.task_names,
             self.episodes_per_task,
             data.image_size,
             self.n_act,

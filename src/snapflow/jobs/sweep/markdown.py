@@ -103,9 +103,10 @@ def markdown_rows(config: SweepConfig, result: TableResult, command: str) -> str
     return "\n".join(lines)
 
 
-def markdown_per_task(config: SweepConfig, result: TableResult) -> str:
+def markdown_per_task(result: TableResult) -> str:
     """Success % per task (mean over seeds), one column per row."""
-    cells = [[task, *(f"{row.per_task[task]:.1f}" for row in result.rows)] for task in config.data.tasks]
+    tasks = result.rows[0].per_task  # the table's own tasks, in the data's order
+    cells = [[task, *(f"{row.per_task[task]:.1f}" for row in result.rows)] for task in tasks]
     return markdown_table(["task", *(row.label for row in result.rows)], cells)
 
 
@@ -129,7 +130,7 @@ def markdown_blocks(config: SweepConfig, results: dict[str, TableResult], direct
         key = f"{config.name}/{table.name}"
         body = markdown_rows(config, results[table.name], command)
         if table.per_task:
-            body += "\n\nPer task, success % (mean over seeds):\n\n" + markdown_per_task(config, results[table.name])
+            body += "\n\nPer task, success % (mean over seeds):\n\n" + markdown_per_task(results[table.name])
         blocks[key] = f"{body}\n\n![{key}]({link}/{table.name}.png)"
     return blocks
 

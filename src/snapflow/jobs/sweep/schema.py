@@ -246,7 +246,7 @@ def _tables(
         raise InvalidInputError(f"{path}: tables must be a list of [[tables]] entries")
     tables = []
     allowed = {"name", "title", "rows", "seeds", "episodes_per_task", "first_variation", "n_act", "per_task"}
-    allowed |= {"x_label", "reference", "evaluator"}
+    allowed |= {"x_label", "reference", "evaluator", "tasks"}
     for index, entry in enumerate(raw):
         section = f"[[tables]] #{index + 1}"
         _checked(section, entry, allowed, frozenset({"name", "rows"}))
@@ -297,6 +297,7 @@ def _tables(
             reference,
             _first_variation(section, entry.get("first_variation", 0)),
             entry.get("evaluator", EVALUATORS[0]),
+            _table_tasks(section, entry.get("tasks"), data),
         )
         if table.evaluator != EVALUATORS[0]:
             _check_lerobot_eval(section, table, runs, data)
@@ -329,6 +330,20 @@ def _check_lerobot_eval(section: str, table: TableSpec, runs: dict[str, RunSpec]
             )
         if row.mode.jump and run.teacher is None:
             raise InvalidInputError(f"{section}: row {row.label!r}: a LeRobot teacher has no jump to sample {row.mode}")
+
+
+def _table_tasks(section: str, value: Any, data: DataSpec) -> tuple[str, ...]:
+    """A table's subset of the data's tasks (task names or the benchmark's sets, e.g. ``"libero_10"``), in the data's
+    order; empty where it names none or all of them, so that such a table shares every other one's evaluations."""
+    if value is None:
+        return ()
+    try:
+        chosen = set(make_benchmark(data.env).resolve_tasks(value))
+    except (TypeError, ValueError) as error:
+        raise InvalidInputError(f"{section}: tasks: {error}") from None
+    if outside := sorted(chosen - set(data.tasks)):
+        raise InvalidInputError(f"{section}: tasks {outside} are not among the data's, whose demonstrations it needs")
+    return () if chosen == set(data.tasks) else tuple(task for task in data.tasks if task in chosen)
 
 
 def _first_variation(section: str, value: Any) -> int:

@@ -3,6 +3,8 @@ goes; :mod:`snapflow.jobs.sweep.schema` reads a TOML file into them."""
 
 from __future__ import annotations
 
+import hashlib
+
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -99,6 +101,7 @@ class TableSpec:
     reference: str | None = None  # the row every other is compared with, paired (default: the first)
     first_variation: int = 0  # each task's episodes on its evaluation variations from this one on (LIBERO's states)
     evaluator: str = EVALUATORS[0]  # who runs the episodes: snapflow's evaluator, or LeRobot's own lerobot-eval
+    tasks: tuple[str, ...] = ()  # the data's tasks it evaluates, in the data's order (empty: every one)
 
     @property
     def reference_row(self) -> RowSpec:
@@ -115,6 +118,10 @@ class SweepConfig:
     data: DataSpec
     runs: dict[str, RunSpec]
     tables: tuple[TableSpec, ...]
+
+    def tasks_of(self, table: TableSpec) -> tuple[str, ...]:
+        """The tasks ``table`` evaluates: its own subset, or every task of the data."""
+        return table.tasks or self.data.tasks
 
     def run_dir(self, run: str, seed: int) -> Path:
         return self.output_dir / run / f"seed-{seed}"
@@ -156,11 +163,14 @@ class SweepConfig:
         episodes_per_task: int,
         first_variation: int = 0,
         evaluator: str = EVALUATORS[0],
+        tasks: tuple[str, ...] = (),
     ) -> Path:
-        # from the first variation by snapflow's evaluator, the name evaluations had before either could be chosen
+        # from the first variation by snapflow's evaluator on every task, the name evaluations had before any of
+        # these could be chosen; a subset of the tasks is named by its size and a digest of its names
         start = f"_from{first_variation}" if first_variation else ""
         by = "" if evaluator == EVALUATORS[0] else f"_{evaluator}"
-        name = f"{mode.name}_nact{n_act}_eps{episodes_per_task}{start}{by}.json"
+        subset = f"_{len(tasks)}tasks-{hashlib.sha1(','.join(tasks).encode()).hexdigest()[:8]}" if tasks else ""
+        name = f"{mode.name}_nact{n_act}_eps{episodes_per_task}{start}{by}{subset}.json"
         return self.output_dir / "evals" / run / f"seed-{seed}" / name
 
     def ledger_path(self, record: Path) -> Path:
