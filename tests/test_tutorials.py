@@ -24,6 +24,8 @@ NEEDS = {"gpu", "hub", "robot", "hours"}
 #: the LeRobot tutorials, each starting from the first one's student: one shell session, in this order
 LEROBOT_SESSION = ["distil-lerobot", "serve", "deploy", "onnx"]
 ON_THEIR_OWN = ["reproduce-libero", "own-policy"]
+#: the most characters of a code line the site shows at desktop width without scrolling its box
+CODE_WIDTH = 84
 
 
 @dataclass(frozen=True)
@@ -77,11 +79,13 @@ def test_every_tutorial_runs_here_and_every_block_runs_or_names_what_it_needs():
         assert any(block.needs is None for block in blocks), f"{name}: no block runs"
         for block in blocks:
             assert block.language in {"bash", "python"} and block.needs in NEEDS | {None}, (name, block)
+            # a line the site shows whole, without scrolling its code box sideways (measured by screenshot)
+            assert max(map(len, block.code.splitlines())) <= CODE_WIDTH, (name, block.code)
             if block.language == "python":
                 compile(block.code, name, "exec")
             for line in block.code.replace("\\\n", " ").splitlines():
                 if line.strip().startswith("snapflow "):
-                    words = line.split("#")[0].replace("&", "").split()
+                    words = line.split("#")[0].split("|")[0].replace("&", "").split()
                     assert parser.parse_args(words[1:]).command == words[1], line
 
 
