@@ -41,8 +41,16 @@ def served(site: Path) -> Iterator[str]:
 def screenshot(browser: str, url: str, size: tuple[int, int], output: Path) -> None:
     width, height = size
     subprocess.run(
-        [browser, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", f"--window-size={width},{height}",
-         f"--screenshot={output}", url],
+        [
+            browser,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--hide-scrollbars",
+            f"--window-size={width},{height}",
+            f"--screenshot={output}",
+            url,
+        ],
         check=True,
         capture_output=True,
         timeout=120,
@@ -60,7 +68,9 @@ def main() -> int:
     args.output.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as scratch:
         site = Path(scratch) / "site"
-        subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(site)], cwd=ROOT, check=True)
+        subprocess.run(
+            [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(site)], cwd=ROOT, check=True
+        )
         with served(site) as base:
             for page, path in PAGES.items():
                 for name, size in WIDTHS.items():

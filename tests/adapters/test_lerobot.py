@@ -43,9 +43,9 @@ def test_unsupported_policies_and_lerobot_versions_are_named():
 
 def test_every_policy_type_the_installed_lerobot_knows_is_distilled_or_refused_with_why():
     """A type a new LeRobot adds cannot go unnoticed: each is declared, or named with why it is not distilled."""
+    import lerobot.policies  # noqa: F401  (registers LeRobot's policy configs)
     from lerobot.configs.policies import PreTrainedConfig
 
-    import lerobot.policies  # noqa: F401  (registers LeRobot's policy configs)
     from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES, NOT_DISTILLED
 
     lerobots_own = {  # beside LeRobot's own types: the student types and any a test declared

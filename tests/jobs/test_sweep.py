@@ -5,8 +5,8 @@ real (slow: Meta-World, training, evaluation, files on disk)."""
 from __future__ import annotations
 
 import json
-import re
 import os
+import re
 import shutil
 import signal
 from dataclasses import asdict, dataclass, replace
@@ -317,7 +317,10 @@ def test_the_via_point_sweep_collects_on_its_own_benchmark():
 @pytest.mark.parametrize(
     ("name", "page"),
     [
-        *((name, "metaworld") for name in ("mt10-state", "mt10-camera", "mt10-via-points", "mt10-levers", "mt50-state")),
+        *(
+            (name, "metaworld")
+            for name in ("mt10-state", "mt10-camera", "mt10-via-points", "mt10-levers", "mt50-state")
+        ),
         *((name, "libero") for name in ("libero-spatial", "libero-object")),
     ],
 )

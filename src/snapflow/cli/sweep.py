@@ -20,7 +20,8 @@ def add_parser(subparsers: Any) -> None:
         help="jobs run side by side, each on --threads torch threads (default: cores / workers)",
     )
     parser.add_argument(
-        "--document", help="also write the tables between their markers in this Markdown file (e.g. docs/results/metaworld.md)"
+        "--document",
+        help="also write the tables between their markers in this Markdown file (e.g. docs/results/metaworld.md)",
     )
     parser.add_argument("--report-only", action="store_true", help="only rebuild the results from finished runs")
     parser.add_argument(

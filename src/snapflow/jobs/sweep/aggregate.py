@@ -189,10 +189,7 @@ def table_results(config: SweepConfig, table: TableSpec) -> TableResult:
                 success_per_seed=rates,
                 successes=successes,
                 episodes=episodes,
-                per_task={
-                    task: float(np.mean([100 * e.success[task].success_rate for e in evals]))
-                    for task in tasks
-                },
+                per_task={task: float(np.mean([100 * e.success[task].success_rate for e in evals])) for task in tasks},
                 evaluation_s=sum(e.closed_loop_s for e in evals),
                 training_s=[_training_seconds(row.owner(config), row.run, seed) for seed in table.seeds],
                 step_s=[_step_seconds(row.owner(config), row.run, seed) for seed in table.seeds],

@@ -4,7 +4,6 @@ goes; :mod:`snapflow.jobs.sweep.schema` reads a TOML file into them."""
 from __future__ import annotations
 
 import hashlib
-
 from dataclasses import dataclass, replace
 from pathlib import Path
 
