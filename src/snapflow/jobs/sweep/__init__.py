@@ -23,7 +23,9 @@ Config layout (see ``configs/sweeps/*.toml``)::
     [[tables]]                          # name, title, episodes_per_task, n_act, seeds, per_task, x_label,
                                         # reference (the row the others are compared with, paired),
                                         # first_variation (LIBERO: the first initial state), evaluator,
-                                        # tasks (a subset of the data's, e.g. "libero_10_0,libero_10_1")
+                                        # tasks (a subset of the data's, e.g. "libero_10_0,libero_10_1"),
+                                        # per_set (each row on each named set of tasks: LIBERO's suites),
+                                        # contrasts ([row, against] pairs: paired differences beside the reference's)
     rows = [{label = "...", run = "snapflow", mode = "snapflow-1", n_act = 4, series = "...", x = 1}]
                                         # sweep = "other.toml": the row reads that sweep's run and evaluations
                                         # (same env and tasks, so its cells pair), never runs them

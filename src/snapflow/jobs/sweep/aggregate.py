@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from snapflow.envs.factory import make_benchmark
 from snapflow.evaluation.results import EvaluationRow
 from snapflow.jobs.runner import is_recorded, read_record
 from snapflow.jobs.sweep.planning import eval_job, train_job
@@ -43,6 +44,46 @@ class Difference:
 
 
 @dataclass(frozen=True)
+class SetSummary:
+    """A row on one named set of the table's tasks (one of LIBERO's suites): its mean success over the set's
+    (seed, task) cells, its pooled episodes with their 95% Wilson interval, and its difference to the reference row
+    paired over the same cells (None for the reference itself)."""
+
+    tasks: int
+    success_mean: float
+    successes: int
+    episodes: int
+    success_interval: tuple[float, float]
+    difference: Difference | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        summary = {**asdict(self), "success_interval": list(self.success_interval)}
+        if self.difference is None:
+            del summary["difference"]
+        return summary
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> SetSummary:
+        difference = Difference(**data["difference"]) if "difference" in data else None
+        return cls(**{**data, "success_interval": tuple(data["success_interval"]), "difference": difference})
+
+
+@dataclass(frozen=True)
+class Contrast:
+    """One row's success minus another's (``against``), paired over their (seed, task) cells: over every task of the
+    table, and on each named set of them."""
+
+    row: str
+    overall: Difference
+    per_set: dict[str, Difference]
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Contrast:
+        per_set = {name: Difference(**difference) for name, difference in data["per_set"].items()}
+        return cls(data["row"], Difference(**data["overall"]), per_set)
+
+
+@dataclass(frozen=True)
 class SweepRow:
     """One table row over its seeds: success (percent; mean, sample std, per seed; episode counts), per task, the
     offline metrics when every seed has them, and wall times (evaluation summed; training per seed)."""
@@ -68,16 +109,19 @@ class SweepRow:
     success_interval: tuple[float, float] | None = None  # 95% Wilson interval of the pooled episodes, percent
     difference: Difference | None = None  # against the table's reference row (None for the reference itself)
     sweep: str | None = None  # the sweep whose run the row evaluates, when not the table's own
+    per_set: dict[str, SetSummary] | None = None  # on each named set of the tasks, where the table asks for it
 
     def to_dict(self) -> dict[str, Any]:
         """As results.json holds it (the interval a list; what a row lacks left out), so that
         ``from_dict(d).to_dict() == d``."""
         row = asdict(self)
-        for optional in ("offline", "success_interval", "difference", "sweep"):
+        for optional in ("offline", "success_interval", "difference", "sweep", "per_set"):
             if row[optional] is None:
                 del row[optional]
         if "success_interval" in row:
             row["success_interval"] = list(row["success_interval"])
+        if self.per_set is not None:
+            row["per_set"] = {name: summary.to_dict() for name, summary in self.per_set.items()}
         return row
 
     @classmethod
@@ -88,6 +132,11 @@ class SweepRow:
                 "offline": OfflineSummary(**data["offline"]) if "offline" in data else None,
                 "success_interval": tuple(data["success_interval"]) if "success_interval" in data else None,
                 "difference": Difference(**data["difference"]) if "difference" in data else None,
+                "per_set": (
+                    {name: SetSummary.from_dict(summary) for name, summary in data["per_set"].items()}
+                    if "per_set" in data
+                    else None
+                ),
             }
         )
 
@@ -101,16 +150,21 @@ class TableResult:
     x_label: str | None
     rows: list[SweepRow]
     first_variation: int = 0  # each task's episodes from this evaluation variation on
+    contrasts: list[Contrast] | None = None  # the pairs of rows the table compares beside its reference
 
     def to_dict(self) -> dict[str, Any]:
         table = {**asdict(self), "rows": [row.to_dict() for row in self.rows]}
         if not self.first_variation:  # the tables written before it could be chosen: the first variations
             del table["first_variation"]
+        if self.contrasts is None:
+            del table["contrasts"]
         return table
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> TableResult:
-        return cls(**{**data, "rows": [SweepRow.from_dict(row) for row in data["rows"]]})
+        contrasts = [Contrast.from_dict(contrast) for contrast in data["contrasts"]] if "contrasts" in data else None
+        rows = [SweepRow.from_dict(row) for row in data["rows"]]
+        return cls(**{**data, "rows": rows, "contrasts": contrasts})
 
 
 def _evaluation(config: SweepConfig, table: TableSpec, row: RowSpec, seed: int) -> EvaluationRow:
@@ -151,20 +205,52 @@ def _cells(tasks: tuple[str, ...], evals: list[EvaluationRow]) -> list[float]:
     return [100 * e.success[task].success_rate for e in evals for task in tasks]
 
 
+def _difference(
+    against: str, evals: list[EvaluationRow], others: list[EvaluationRow], tasks: tuple[str, ...]
+) -> Difference:
+    """``evals``' success minus ``others``' (the row ``against``), paired over their (seed, task) cells on ``tasks``."""
+    cells = _cells(tasks, evals)
+    return Difference(against, *paired_difference(cells, _cells(tasks, others)), cells=len(cells))
+
+
+def _task_sets(config: SweepConfig, tasks: tuple[str, ...]) -> dict[str, tuple[str, ...]]:
+    """The benchmark's named sets of tasks (LIBERO's suites), each with those of ``tasks`` it holds, if any."""
+    sets = make_benchmark(config.data.env).task_sets
+    chosen = {name: tuple(task for task in tasks if task in members) for name, members in sets.items()}
+    return {name: members for name, members in chosen.items() if members}
+
+
+def _set_summaries(
+    sets: dict[str, tuple[str, ...]], evals: list[EvaluationRow], reference: tuple[str, list[EvaluationRow]] | None
+) -> dict[str, SetSummary]:
+    """A row on each set of tasks; ``reference``: the reference row's label and evaluations (None: it is that row)."""
+    summaries = {}
+    for name, members in sets.items():
+        counts = [e.success[task] for e in evals for task in members]
+        successes, episodes = sum(count.successes for count in counts), sum(count.episodes for count in counts)
+        low, high = wilson_interval(successes, episodes)
+        difference = None if reference is None else _difference(reference[0], evals, reference[1], members)
+        mean = float(np.mean(_cells(members, evals)))
+        summaries[name] = SetSummary(len(members), mean, successes, episodes, (100 * low, 100 * high), difference)
+    return summaries
+
+
 def table_results(config: SweepConfig, table: TableSpec) -> TableResult:
     """The table's rows from the cached evaluations; a FileNotFoundError names the first one not done."""
     rows = []
     reference, tasks = table.reference_row, config.tasks_of(table)
-    reference_cells = _cells(tasks, [_evaluation(config, table, reference, seed) for seed in table.seeds])
+    evaluations = {row.label: [_evaluation(config, table, row, seed) for seed in table.seeds] for row in table.rows}
+    reference_evals = evaluations[reference.label]
+    sets = _task_sets(config, tasks) if table.per_set else None
     for row in table.rows:
-        evals = [_evaluation(config, table, row, seed) for seed in table.seeds]
+        evals = evaluations[row.label]
         successes = sum(e.success["mean"].successes for e in evals)
         episodes = sum(e.success["mean"].episodes for e in evals)
         low, high = wilson_interval(successes, episodes)
-        difference = None
-        if row is not reference:
-            cells = _cells(tasks, evals)
-            difference = Difference(reference.label, *paired_difference(cells, reference_cells), cells=len(cells))
+        difference = None if row is reference else _difference(reference.label, evals, reference_evals, tasks)
+        per_set = None
+        if sets is not None:
+            per_set = _set_summaries(sets, evals, None if row is reference else (reference.label, reference_evals))
         rates = [100 * e.success["mean"].success_rate for e in evals]
         mean, std = mean_std(rates)
         offline = None
@@ -197,8 +283,20 @@ def table_results(config: SweepConfig, table: TableSpec) -> TableResult:
                 success_interval=(100 * low, 100 * high),
                 difference=difference,
                 sweep=None if row.sweep is None else row.sweep.name,
+                per_set=per_set,
             )
         )
+    contrasts = [
+        Contrast(
+            label,
+            _difference(against, evaluations[label], evaluations[against], tasks),
+            {
+                name: _difference(against, evaluations[label], evaluations[against], members)
+                for name, members in (sets or {}).items()
+            },
+        )
+        for label, against in table.contrasts
+    ]
     return TableResult(
         table.name,
         table.title,
@@ -207,7 +305,8 @@ def table_results(config: SweepConfig, table: TableSpec) -> TableResult:
         table.x_label,
         rows,
         table.first_variation,
+        contrasts or None,
     )
 
 
-__all__ = ["OfflineSummary", "Difference", "SweepRow", "TableResult", "table_results"]
+__all__ = ["OfflineSummary", "Difference", "SetSummary", "Contrast", "SweepRow", "TableResult", "table_results"]

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from snapflow.jobs.sweep.aggregate import SweepRow, TableResult
+from snapflow.jobs.sweep.aggregate import SetSummary, SweepRow, TableResult
 from snapflow.jobs.sweep.specs import SweepConfig
 from snapflow.reporting.tables import markdown_table
 
@@ -110,6 +110,32 @@ def markdown_per_task(result: TableResult) -> str:
     return markdown_table(["task", *(row.label for row in result.rows)], cells)
 
 
+def _summary_cell(summary: SetSummary) -> str:
+    low, high = summary.success_interval
+    cell = f"{summary.success_mean:.1f} ({low:.1f}-{high:.1f})"
+    if summary.difference is not None:
+        difference = summary.difference
+        cell += f"; {difference.mean:+.1f} ({difference.low:+.1f}, {difference.high:+.1f})"
+    return cell
+
+
+def markdown_per_set(result: TableResult) -> str:
+    """Each row on each named set of the tasks: success % (95% Wilson) and the paired difference to the reference
+    row (95% bootstrap), then each contrast of two rows, overall and per set."""
+    sets = result.rows[0].per_set or {}
+    header = ["row", *(f"{name} ({summary.tasks} tasks)" for name, summary in sets.items())]
+    cells = [[row.label, *(_summary_cell(summary) for summary in (row.per_set or {}).values())] for row in result.rows]
+    lines = [markdown_table(header, cells)] if sets else []
+    for contrast in result.contrasts or []:
+        parts = [("overall", contrast.overall), *contrast.per_set.items()]
+        described = "; ".join(
+            f"{name} {difference.mean:+.1f} ({difference.low:+.1f}, {difference.high:+.1f}; {difference.cells} cells)"
+            for name, difference in parts
+        )
+        lines.append(f"- {contrast.row} minus {contrast.overall.reference}, paired: {described}")
+    return "\n\n".join(lines)
+
+
 def replace_block(document: str, key: str, body: str) -> str:
     """Put ``body`` between the ``<!-- sweep:KEY -->`` and ``<!-- /sweep:KEY -->`` markers (appended if absent)."""
     start, end = f"<!-- sweep:{key} -->", f"<!-- /sweep:{key} -->"
@@ -131,6 +157,11 @@ def markdown_blocks(config: SweepConfig, results: dict[str, TableResult], direct
         body = markdown_rows(config, results[table.name], command)
         if table.per_task:
             body += "\n\nPer task, success % (mean over seeds):\n\n" + markdown_per_task(results[table.name])
+        if table.per_set or table.contrasts:
+            body += (
+                "\n\nPer set of tasks, success % (95% Wilson interval); points from the reference row, paired over "
+                "the set's (seed, task) cells (95% bootstrap interval):\n\n" + markdown_per_set(results[table.name])
+            )
         blocks[key] = f"{body}\n\n![{key}]({link}/{table.name}.png)"
     return blocks
 
@@ -143,4 +174,11 @@ def tables_markdown(config: SweepConfig, results: dict[str, TableResult]) -> str
     return f"# {config.title}\n\n{tables}\n"
 
 
-__all__ = ["markdown_rows", "markdown_per_task", "replace_block", "markdown_blocks", "tables_markdown"]
+__all__ = [
+    "markdown_rows",
+    "markdown_per_task",
+    "markdown_per_set",
+    "replace_block",
+    "markdown_blocks",
+    "tables_markdown",
+]

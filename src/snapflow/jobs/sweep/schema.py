@@ -246,7 +246,7 @@ def _tables(
         raise InvalidInputError(f"{path}: tables must be a list of [[tables]] entries")
     tables = []
     allowed = {"name", "title", "rows", "seeds", "episodes_per_task", "first_variation", "n_act", "per_task"}
-    allowed |= {"x_label", "reference", "evaluator", "tasks"}
+    allowed |= {"x_label", "reference", "evaluator", "tasks", "per_set", "contrasts"}
     for index, entry in enumerate(raw):
         section = f"[[tables]] #{index + 1}"
         _checked(section, entry, allowed, frozenset({"name", "rows"}))
@@ -281,11 +281,15 @@ def _tables(
                 raise InvalidInputError(f"{section}: row {row['label']!r}: {error}") from None
             n_act = _count(f"{section}: row {row['label']!r}", "n_act", row.get("n_act", entry.get("n_act", N_ACT)))
             rows.append(RowSpec(row["label"], row["run"], mode, n_act, row.get("series"), row.get("x"), other))
+        labels = [row.label for row in rows]
         reference = entry.get("reference")
-        if reference is not None and reference not in [row.label for row in rows]:
-            raise InvalidInputError(
-                f"{section}: reference {reference!r} is not one of its rows {[row.label for row in rows]}"
-            )
+        if reference is not None and reference not in labels:
+            raise InvalidInputError(f"{section}: reference {reference!r} is not one of its rows {labels}")
+        contrasts = entry.get("contrasts", [])
+        if not isinstance(contrasts, list) or not all(
+            isinstance(pair, list) and len(pair) == 2 and set(pair) <= set(labels) for pair in contrasts
+        ):
+            raise InvalidInputError(f"{section}: contrasts must be [row, against] pairs of its rows {labels}")
         table = TableSpec(
             entry["name"],
             entry.get("title", entry["name"]),
@@ -298,6 +302,8 @@ def _tables(
             _first_variation(section, entry.get("first_variation", 0)),
             entry.get("evaluator", EVALUATORS[0]),
             _table_tasks(section, entry.get("tasks"), data),
+            bool(entry.get("per_set", False)),
+            tuple(tuple(pair) for pair in contrasts),
         )
         if table.evaluator != EVALUATORS[0]:
             _check_lerobot_eval(section, table, runs, data)

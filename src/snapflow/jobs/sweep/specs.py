@@ -101,6 +101,9 @@ class TableSpec:
     first_variation: int = 0  # each task's episodes on its evaluation variations from this one on (LIBERO's states)
     evaluator: str = EVALUATORS[0]  # who runs the episodes: snapflow's evaluator, or LeRobot's own lerobot-eval
     tasks: tuple[str, ...] = ()  # the data's tasks it evaluates, in the data's order (empty: every one)
+    per_set: bool = False  # each row also on each named set of the benchmark's tasks (LIBERO's suites)
+    # (row, against) label pairs: the first row's success minus the second's, paired, overall and per set
+    contrasts: tuple[tuple[str, str], ...] = ()
 
     @property
     def reference_row(self) -> RowSpec:
