@@ -2,7 +2,7 @@
 at the root of a clone of the repository (Python blocks as that shell's ``python``). A block that needs what a test
 machine lacks says so on the line before it (``<!-- needs: gpu -->``, ``hub``, ``robot`` or ``hours``) and is only
 checked to parse. The LeRobot tutorials continue one another (each starts from the first one's student), so they run
-as one session, in order."""
+as one session, in order (``tests/test_tutorials_lerobot.py``)."""
 
 from __future__ import annotations
 
@@ -99,19 +99,6 @@ def test_a_block_marked_as_needing_a_gpu_is_left_out_of_the_session():
 NEEDS_PLUGINS = pytest.mark.skipif(
     not lerobot_loads_plugins(), reason=f"LeRobot loads snapflow's plugin from {PLUGIN_LEROBOT} on"
 )
-
-
-@pytest.mark.slow
-@pytest.mark.lerobot
-@NEEDS_PLUGINS
-def test_the_lerobot_tutorials_run_top_to_bottom(tmp_path):
-    output = run_in_a_clone(LEROBOT_SESSION, tmp_path)
-    assert "the executed actions kept: True" in output
-    assert "| snapflow-1 |" in output  # the served episode's summary and the latency table
-    clone = tmp_path / "snapflow" / "outputs" / "tutorial"
-    for mode in ("snapflow-1", "teacher-10"):
-        assert (clone / f"eval-{mode}" / "eval_info.json").is_file(), "lerobot-eval ran in both modes"
-    assert (clone / "onnx" / "model.onnx").is_file() and (clone / "eval-onnx" / "report.json").is_file()
 
 
 @pytest.mark.slow
