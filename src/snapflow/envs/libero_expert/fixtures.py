@@ -91,7 +91,9 @@ class TurnOn(Primitive):
 class DrawerPrimitive(Primitive):
     """What opening and shutting a drawer share: its handle, the direction it slides out, and the approach: turn the
     hand pitched towards the cabinet while rising to a travel height in front of the handle, then come level with it
-    there."""
+    there. A subclass gives the gripper during the approach and the phases at the handle (:meth:`_at_handle`)."""
+
+    APPROACH_GRIPPER: ClassVar[float]
 
     def __init__(self, cabinet: str, level: str) -> None:
         self.handle = f"{cabinet}_{level}_handle_pos"
@@ -111,6 +113,24 @@ class DrawerPrimitive(Primitive):
             return goal, bool(turned and np.linalg.norm(hand - goal) < 0.02)
         return front, bool(np.linalg.norm(hand - front) < 0.01)
 
+    def _at_handle(
+        self, state: dict[str, np.ndarray], handle: np.ndarray, front: np.ndarray
+    ) -> tuple[np.ndarray, float, bool]:
+        """The goal, the gripper and whether the phase is done, in the phases after the approach."""
+        raise NotImplementedError
+
+    def act(self, observation: Observation) -> np.ndarray:
+        state = observation.privileged
+        hand, handle = state["robot0_eef_pos"], state[self.handle]
+        front = handle + self.out * DRAWER_STANDOFF
+        self.timer += 1
+        if self.phase in ("rise", "front"):
+            (goal, done), gripper = self._approach(state, front), self.APPROACH_GRIPPER
+        else:
+            goal, gripper, done = self._at_handle(state, handle, front)
+        self.advance(done)
+        return move_action(hand, goal, rotation_between(state["robot0_eef_quat"], self.orientation), gripper)
+
 
 class OpenDrawer(DrawerPrimitive):
     """Open a drawer: turn the hand to point horizontally at the cabinet (the fingers then part vertically), rise,
@@ -119,6 +139,7 @@ class OpenDrawer(DrawerPrimitive):
     stands over it."""
 
     PHASES = ("rise", "front", "insert", "close", "pull", "release", "retreat")
+    APPROACH_GRIPPER = OPEN  # open, to close round the handle's bar
     PHASE_STEPS: ClassVar[dict[str, int]] = {
         "rise": 60, "front": 80, "insert": 40, "close": 12, "pull": 80, "release": 8
     }  # fmt: skip
@@ -134,25 +155,22 @@ class OpenDrawer(DrawerPrimitive):
         # the handle stands out of the cabinet's front, its pull axis; the fingers point into the cabinet
         self._face(state, self.start - state[self.cabinet], np.pi / 2)
 
-    def act(self, observation: Observation) -> np.ndarray:
-        state = observation.privileged
-        hand, handle = state["robot0_eef_pos"], state[self.handle]
-        front = handle + self.out * DRAWER_STANDOFF
-        self.timer += 1
-        if self.phase in ("rise", "front"):
-            (goal, done), gripper = self._approach(state, front), OPEN
-        elif self.phase in ("insert", "close"):
-            goal, gripper = handle, CLOSED if self.phase == "close" else OPEN
+    def _at_handle(
+        self, state: dict[str, np.ndarray], handle: np.ndarray, front: np.ndarray
+    ) -> tuple[np.ndarray, float, bool]:
+        hand = state["robot0_eef_pos"]
+        if self.phase in ("insert", "close"):
             done = self.phase == "insert" and np.linalg.norm(hand - handle) < REACHED
-        elif self.phase == "pull":
-            goal, gripper = handle + self.out * POSITION_SCALE, CLOSED
-            done = float(np.dot(handle - self.start, self.out)) > DRAWER_PULL
-        elif self.phase == "release":
-            goal, gripper, done = hand.copy(), OPEN, False
-        else:  # retreat, to the end of the episode
-            goal, gripper, done = front, OPEN, False
-        self.advance(done)
-        return move_action(hand, goal, rotation_between(state["robot0_eef_quat"], self.orientation), gripper)
+            return handle, CLOSED if self.phase == "close" else OPEN, done
+        if self.phase == "pull":
+            return (
+                handle + self.out * POSITION_SCALE,
+                CLOSED,
+                float(np.dot(handle - self.start, self.out)) > DRAWER_PULL,
+            )
+        if self.phase == "release":
+            return hand.copy(), OPEN, False
+        return front, OPEN, False  # retreat, to the end of the episode
 
 
 class CloseDrawer(DrawerPrimitive):
@@ -161,6 +179,7 @@ class CloseDrawer(DrawerPrimitive):
     hand backs away."""
 
     PHASES = ("rise", "front", "push", "retreat")
+    APPROACH_GRIPPER = CLOSED  # the closed fingers push on the handle
     PHASE_STEPS: ClassVar[dict[str, int]] = {"rise": 60, "front": 80, "push": 150}
 
     def __init__(self, cabinet: str, level: str) -> None:
@@ -172,17 +191,10 @@ class CloseDrawer(DrawerPrimitive):
         state = observation.privileged
         self._face(state, state[self.drawer], DRAWER_PUSH_PITCH)
 
-    def act(self, observation: Observation) -> np.ndarray:
-        state = observation.privileged
-        hand, handle = state["robot0_eef_pos"], state[self.handle]
-        front = handle + self.out * DRAWER_STANDOFF
-        self.timer += 1
-        if self.phase in ("rise", "front"):
-            goal, done = self._approach(state, front)
-        elif self.phase == "push":
-            goal = handle - self.out * POSITION_SCALE  # a full step past the handle, which the fingers lean on
-            done = float(np.dot(state[self.drawer], self.out)) < DRAWER_SHUT
-        else:  # retreat, to the end of the episode
-            goal, done = front, False
-        self.advance(done)
-        return move_action(hand, goal, rotation_between(state["robot0_eef_quat"], self.orientation), CLOSED)
+    def _at_handle(
+        self, state: dict[str, np.ndarray], handle: np.ndarray, front: np.ndarray
+    ) -> tuple[np.ndarray, float, bool]:
+        if self.phase == "push":  # a full step past the handle, which the fingers lean on
+            shut = float(np.dot(state[self.drawer], self.out)) < DRAWER_SHUT
+            return handle - self.out * POSITION_SCALE, CLOSED, shut
+        return front, CLOSED, False  # retreat, to the end of the episode
