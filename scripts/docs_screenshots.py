@@ -1,6 +1,6 @@
 """Screenshots of the documentation site as a reader sees it, at desktop and at phone width, by headless Chromium
-(Debian's ``chromium``): the home page, a tutorial, the Python API reference and the results' overview (a wide table). The site is built with
-``mkdocs build --strict`` and served on the loopback for the shots.
+(Debian's ``chromium``): the home page, a tutorial, the Python API reference and the results' overview (a wide
+table). The site is built with ``mkdocs build --strict`` and served on the loopback for the shots.
 
     python scripts/docs_screenshots.py docs/screenshots
 """
