@@ -5,6 +5,7 @@ checkpointing, and the CLI end to end (distill on a local LeRobotDataset, eval i
 from __future__ import annotations
 
 import shutil
+from pathlib import Path
 
 import pytest
 import torch
@@ -43,10 +44,23 @@ def test_unsupported_policies_and_lerobot_versions_are_named():
 
 def test_every_policy_type_the_installed_lerobot_knows_is_distilled_or_refused_with_why():
     """A type a new LeRobot adds cannot go unnoticed: each is declared, or named with why it is not distilled."""
-    import lerobot.policies  # noqa: F401  (registers LeRobot's policy configs)
+    import importlib
+
+    import lerobot.policies
     from lerobot.configs.policies import PreTrainedConfig
 
     from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES, NOT_DISTILLED
+
+    # every config module LeRobot ships registers its type on import, whatever another test imported before (some
+    # policy folders have no __init__.py, which pkgutil does not walk into)
+    policies = Path(lerobot.policies.__path__[0])
+    for path in policies.rglob("configuration_*.py"):
+        try:
+            importlib.import_module(
+                ".".join(("lerobot", "policies", *path.relative_to(policies).with_suffix("").parts))
+            )
+        except ImportError:  # a type whose optional dependencies are not installed registers nothing
+            continue
 
     lerobots_own = {  # beside LeRobot's own types: the student types and any a test declared
         name

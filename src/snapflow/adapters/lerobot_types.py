@@ -54,8 +54,8 @@ def register_lerobot_policy_type(declaration: LeRobotPolicyType) -> None:
     LEROBOT_POLICY_TYPES[declaration.name] = declaration
 
 
-#: LeRobot 0.6's other policy types, each with why snapflow does not distil it: no velocity field for a jump to
-#: replace, or one that no adapter reaches yet (issue 58 surveys them)
+#: LeRobot's other policy types (0.4.4's and 0.6's), each with why snapflow does not distil it: no velocity field for
+#: a jump to replace, or one that no adapter reaches yet (issue 58 surveys them)
 NOT_DISTILLED: dict[str, str] = {
     "pi0_fast": "autoregressive: it decodes FAST action tokens one at a time, with no velocity field to jump along",
     "act": "a transformer that regresses its action chunk in one pass: there are no denoising steps to cut",
@@ -63,6 +63,9 @@ NOT_DISTILLED: dict[str, str] = {
     "vqbet": "a behaviour transformer over discrete action codes: no ODE",
     "tdmpc": "a model-based planner (TD-MPC): no ODE",
     "gaussian_actor": "one Gaussian over the actions: no ODE",
+    "sac": "a soft actor-critic's actor, one Gaussian over the actions: no ODE",
+    "reward_classifier": "a reward model, not a policy",
+    "sarm": "a reward model (stage-aware), not a policy",
     "groot": "flow-matching (4 Euler steps of a DiT action head), not adapted yet",
     "xvla": "flow-matching that predicts the clean action, not adapted yet",
     "wall_x": "flow-matching (10 steps), not adapted yet",
