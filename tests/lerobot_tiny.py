@@ -191,6 +191,9 @@ def model_inputs(policy, batch: dict[str, torch.Tensor]) -> tuple:
 
     language = batch["observation.language.tokens"], batch["observation.language.attention_mask"]
     policy_type = base_policy_type(policy.config)
+    if policy_type == "xvla":
+        inputs = policy._build_model_inputs(batch)
+        return tuple(inputs[name] for name in ("input_ids", "image_input", "image_mask", "domain_id", "proprio"))
     if policy_type == "smolvla":
         return *policy.prepare_images(batch), *language, policy.prepare_state(batch)
     state = (policy.prepare_state(batch),) if policy_type == "pi0" else ()  # pi0.5's state is in its prompt

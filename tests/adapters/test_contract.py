@@ -302,21 +302,37 @@ class LeRobotAdapterContract(FlowPolicyContract):
             build_tiny_smolvla(self.vlm_directory) if self.policy_type == "smolvla" else build_tiny_pi(self.policy_type)
         )
 
+    def lerobot_own_sample(self, lerobot: nn.Module, observation: Any, noise: Tensor, steps: int) -> Tensor:
+        """``steps`` Euler steps by LeRobot's own sampler of ``lerobot`` (a policy, wrapped or not)."""
+        from tests.lerobot_tiny import lerobot_sample
+
+        return lerobot_sample(lerobot, observation, noise, steps)
+
+    def lerobot_own_flow_matching_loss(
+        self, lerobot: nn.Module, observation: Any, actions: Tensor, noise: Tensor, time: Tensor
+    ) -> Tensor:
+        """The flow-matching loss LeRobot's own training forward computes for these noise and times."""
+        from tests.lerobot_tiny import model_inputs
+
+        return lerobot.model.forward(*model_inputs(lerobot, observation), actions, noise, time).mean()
+
+    def lerobot_chunk(self, lerobot: nn.Module, observation: Any, noise: Tensor) -> Tensor:
+        """LeRobot's action API's chunk from ``noise`` (drawn by :meth:`noise_like` with seed 0)."""
+        return lerobot.predict_action_chunk(observation, noise=noise)
+
     def build(self) -> nn.Module:
         from snapflow.adapters.lerobot import wrap_policy
 
         return wrap_policy(self.build_lerobot())
 
     def reference_sample(self, observation: Any, noise: Tensor, steps: int) -> Tensor:
-        from tests.lerobot_tiny import lerobot_sample
-
-        return lerobot_sample(self.build_lerobot(), observation, noise, steps)
+        return self.lerobot_own_sample(self.build_lerobot(), observation, noise, steps)
 
     def make_batch(self, policy: nn.Module) -> tuple[Any, Tensor]:
         from tests.lerobot_tiny import tiny_batch
 
         batch = tiny_batch(self.batch_size)
-        return batch, policy.policy.prepare_action(batch)
+        return batch, policy.action_targets(batch)
 
     def save(self, policy: nn.Module, directory: Path) -> None:
         from snapflow.adapters.lerobot import save_distilled
@@ -331,7 +347,7 @@ class LeRobotAdapterContract(FlowPolicyContract):
     def loading(self) -> contextlib.AbstractContextManager:
         from tests.lerobot_tiny import tiny_pi_configs
 
-        return contextlib.nullcontext() if self.policy_type == "smolvla" else tiny_pi_configs(self.policy_type)
+        return tiny_pi_configs(self.policy_type) if self.policy_type in ("pi0", "pi05") else contextlib.nullcontext()
 
     # ---- what only LeRobot policies have ----------------------------------------------------------------------
     def test_cutting_the_prompts_padding_changes_no_chunk(self, policy, batch):
@@ -340,6 +356,9 @@ class LeRobotAdapterContract(FlowPolicyContract):
 
         randomise_target_time(policy)
         observation, actions = batch
+        if not policy.masks_prompt_padding:  # a policy that attends to its padding keeps it
+            assert policy.without_prompt_padding(observation, multiple=1) is observation
+            return
         mask, noise = observation[MASK], self.noise_like(actions)
         longest = int(mask.sum(dim=1).max())
         cut = policy.without_prompt_padding(observation, multiple=1)
@@ -355,21 +374,18 @@ class LeRobotAdapterContract(FlowPolicyContract):
         assert policy.without_prompt_padding(left_padded, multiple=1) is left_padded, "only right padding is cut"
 
     def test_lerobot_sampling_reads_s_as_t_so_phi_s_changes_only_the_jump(self, policy, batch):
-        from tests.lerobot_tiny import lerobot_sample
-
         randomise_target_time(policy)
         noise = self.noise_like(batch[1])
         # LeRobot's own sampler passes a (B,) time, read as s = t: it is exactly our teacher mode
         assert torch.equal(
-            sample_actions(policy, batch[0], noise, NAIVE_1), lerobot_sample(policy.policy, batch[0], noise, 1)
+            sample_actions(policy, batch[0], noise, NAIVE_1),
+            self.lerobot_own_sample(policy.policy, batch[0], noise, 1),
         )
         assert not torch.allclose(
             sample_actions(policy, batch[0], noise, SNAPFLOW_1), sample_actions(policy, batch[0], noise, NAIVE_1)
         )
 
     def test_loss_equals_a_hand_computation_from_the_policys_own_outputs(self, policy, batch):
-        from tests.lerobot_tiny import lerobot_sample, model_inputs
-
         randomise_target_time(policy)
         observation, actions = batch
         lerobot = policy.policy
@@ -379,9 +395,9 @@ class LeRobotAdapterContract(FlowPolicyContract):
         fm_rows = {key: value[:2] for key, value in observation.items()}
         sc_rows = {key: value[2:] for key, value in observation.items()}
         # FM branch: LeRobot's own joint training forward returns the elementwise squared errors
-        fm = lerobot.model.forward(*model_inputs(lerobot, fm_rows), actions[:2], noise[:2], time).mean()
+        fm = self.lerobot_own_flow_matching_loss(lerobot, fm_rows, actions[:2], noise[:2], time)
         # consistency target: two LeRobot Euler steps from x_1 land on x_1 - target
-        target = noise[2:] - lerobot_sample(lerobot, sc_rows, noise[2:], 2)
+        target = noise[2:] - self.lerobot_own_sample(lerobot, sc_rows, noise[2:], 2)
         jump = policy.velocity(noise[2:], torch.ones(2), torch.zeros(2), policy.encode(sc_rows))
         sc = (jump - target).pow(2).mean()
         assert torch.allclose(output.flow_matching_loss, fm, atol=1e-5)
@@ -412,12 +428,16 @@ class LeRobotAdapterContract(FlowPolicyContract):
             pairs = list(zip(ours, theirs, strict=True)) if isinstance(ours, (list, tuple)) else [(ours, theirs)]
             assert all(torch.equal(a, b) for a, b in pairs)
 
-    def test_the_adapters_own_state_dict_holds_each_tensor_once(self, policy, tmp_path):
-        from safetensors.torch import load_file, save_file
-
-        state = {key: value.contiguous() for key, value in policy.state_dict().items()}
-        save_file(state, tmp_path / "adapter.safetensors")  # safetensors refuses tensors saved under two names
-        assert load_file(tmp_path / "adapter.safetensors").keys() == state.keys()
+    def test_the_adapters_own_state_dict_holds_each_tensor_once(self, policy):
+        # safetensors refuses tensors saved under two names: the adapter adds no second name, to phi_s or anything
+        # else (LeRobot's own ties, as Florence-2's shared embedding, are saved once by LeRobot's writer)
+        lerobot_names = {id(tensor): name for name, tensor in policy.policy.state_dict(keep_vars=True).items()}
+        names: dict[int, list[str]] = {}
+        for name, tensor in policy.state_dict(keep_vars=True).items():
+            names.setdefault(id(tensor), []).append(name)
+        assert all(len(aliases) == 1 or lerobot_names.get(key) for key, aliases in names.items())
+        assert sum(len(aliases) for aliases in names.values()) == len(policy.policy.state_dict())
+        state = policy.state_dict()
         assert sum("target_time_embedding" in key for key in state) == 4, "phi_s: two layers, weight and bias, once"
 
     def test_lerobot_action_api_samples_one_step_by_default_and_the_teacher_on_request(self, policy, batch, tmp_path):
@@ -429,14 +449,14 @@ class LeRobotAdapterContract(FlowPolicyContract):
             reloaded = load_distilled(tmp_path / "distilled")
         observation, actions = batch
         noise = self.noise_like(actions)
-        one_step = reloaded.policy.predict_action_chunk(observation, noise=noise)
+        one_step = self.lerobot_chunk(reloaded.policy, observation, noise)
         assert torch.equal(one_step, sample_actions(policy, observation, noise, SNAPFLOW_1))
         assert reloaded.policy.select_action(observation).shape == (
             self.batch_size,
             4,
         )  # LeRobot's queue of n_action_steps actions
         reloaded.use_sampling_mode(TEACHER_10)
-        teacher = reloaded.policy.predict_action_chunk(observation, noise=noise)
+        teacher = self.lerobot_chunk(reloaded.policy, observation, noise)
         assert torch.equal(teacher, sample_actions(policy, observation, noise, TEACHER_10))
         assert not torch.allclose(teacher, one_step)
 
@@ -449,7 +469,7 @@ class LeRobotAdapterContract(FlowPolicyContract):
         for parameter in policy.parameters():
             parameter.requires_grad_(id(parameter) in trainable)
         observation = tiny_batch(batch_size=8)
-        actions = policy.policy.prepare_action(observation)
+        actions = policy.action_targets(observation)
         # a random tiny teacher has a large FM loss and a small consistency loss: weight the latter up so that a few
         # steps show it falling before the FM updates move the teacher's own two-step target
         objective = SnapFlowObjective(consistency_weight=1.0)
@@ -551,6 +571,68 @@ class TestPI0Adapter(LeRobotAdapterContract):
 @PI_SKIP
 class TestPI05Adapter(LeRobotAdapterContract):
     policy_type = "pi05"
+
+
+@PI_SKIP
+class TestXVLAAdapter(LeRobotAdapterContract):
+    """X-VLA predicts the clean chunk: LeRobot has no velocity of it, so its "own" velocity is written out here by
+    hand from LeRobot's transformer, v = (x_t - a_hat) / t, and Euler-integrated on snapflow's grid."""
+
+    policy_type = "xvla"
+    deploy_graphs = None  # Florence-2's encoder counts the valid views by .item(): its graph breaks there
+
+    def build_lerobot(self) -> nn.Module:
+        from tests.lerobot_tiny_xvla import build_tiny_xvla
+
+        return build_tiny_xvla()
+
+    def load(self, directory: Path) -> nn.Module:
+        from tests.lerobot_tiny_xvla import without_dropout
+
+        return without_dropout(super().load(directory))
+
+    @staticmethod
+    def own_velocity(lerobot: nn.Module, encoded: dict, inputs: dict, x: Tensor, t: Tensor) -> Tensor:
+        proprio, noisy = lerobot.model.action_space.preprocess(inputs["proprio"], x)
+        clean = lerobot.model.transformer(
+            domain_id=inputs["domain_id"], action_with_noise=noisy, proprio=proprio, t=t, **encoded
+        )
+        return (x - clean) / t[:, None, None]
+
+    def lerobot_own_sample(self, lerobot: nn.Module, observation: Any, noise: Tensor, steps: int) -> Tensor:
+        inputs = lerobot._build_model_inputs(observation)
+        grid = torch.linspace(1.0, 0.0, steps + 1)
+        with torch.no_grad():
+            encoded = lerobot.model.forward_vlm(inputs["input_ids"], inputs["image_input"], inputs["image_mask"])
+            x = noise
+            for t, t_next in zip(grid[:-1], grid[1:], strict=True):
+                velocity = self.own_velocity(lerobot, encoded, inputs, x, t.expand(noise.shape[0]))
+                x = x + (t_next - t).expand(noise.shape[0])[:, None, None] * velocity
+        return x
+
+    def lerobot_own_flow_matching_loss(
+        self, lerobot: nn.Module, observation: Any, actions: Tensor, noise: Tensor, time: Tensor
+    ) -> Tensor:
+        inputs = lerobot._build_model_inputs(observation)
+        encoded = lerobot.model.forward_vlm(inputs["input_ids"], inputs["image_input"], inputs["image_mask"])
+        x_t = time[:, None, None] * noise + (1 - time[:, None, None]) * actions
+        return (self.own_velocity(lerobot, encoded, inputs, x_t, time) - (noise - actions)).pow(2).mean()
+
+    def lerobot_chunk(self, lerobot: nn.Module, observation: Any, noise: Tensor) -> Tensor:
+        # X-VLA's action API takes no noise: it draws its own after the prefix, from the global generator
+        torch.manual_seed(0)
+        return lerobot.predict_action_chunk(observation)
+
+    def test_xvlas_own_one_step_sampler_is_the_naive_step(self, policy, batch):
+        """X-VLA's own sampler at one step returns its clean prediction at t = 1: the naive step's x_1 - v."""
+        randomise_target_time(policy)
+        observation, actions = batch
+        inputs = policy.policy._build_model_inputs(observation)
+        torch.manual_seed(0)
+        with torch.no_grad():
+            own = policy.policy.model.generate_actions(**inputs, steps=1)
+        naive = sample_actions(policy, observation, self.noise_like(actions), NAIVE_1)
+        torch.testing.assert_close(own, naive, atol=1e-6, rtol=0)
 
 
 # ---- the built-in policies ------------------------------------------------------------------------------------

@@ -33,7 +33,7 @@ def test_unsupported_policies_and_lerobot_versions_are_named():
     from snapflow.adapters.lerobot import PI05FlowPolicy
     from snapflow.adapters.lerobot.registry import adapter_class
 
-    with pytest.raises(ValueError, match="pi0, pi05, smolvla policies, not 'act': a transformer that regresses"):
+    with pytest.raises(ValueError, match="pi0, pi05, smolvla, xvla policies, not 'act': a transformer that regresses"):
         adapter_class("act")
     if LEROBOT < Version(PI05FlowPolicy.minimum_lerobot):
         with pytest.raises(ValueError, match=f"pi05 adapter needs lerobot >= 0.5 .* lerobot {LEROBOT} is installed"):

@@ -1,4 +1,4 @@
-"""``snapflow export`` of a distilled LeRobot SmolVLA: one ONNX graph over LeRobot's pre-processed batch (prefix
+"""``snapflow export`` of a distilled LeRobot SmolVLA (and X-VLA): one ONNX graph over LeRobot's pre-processed batch (prefix
 and jump), saved beside the policy's config and processors, loaded back by ``snapflow eval`` with those processors,
 giving the PyTorch student's actions."""
 
@@ -20,7 +20,8 @@ from snapflow.cli import main  # noqa: E402
 from snapflow.flow.modes import SNAPFLOW_1, TEACHER_10  # noqa: E402
 from snapflow.flow.solver import sample_actions  # noqa: E402
 from snapflow.policies.checkpoint import CheckpointError  # noqa: E402
-from tests.lerobot_tiny import save_tiny_student  # noqa: E402
+from tests.lerobot_tiny import PI_SKIP, save_tiny_student  # noqa: E402
+from tests.lerobot_tiny_xvla import save_tiny_xvla_student  # noqa: E402
 
 STATE_DIM, IMAGE_SIZE = 6, 64
 
@@ -71,3 +72,21 @@ def test_a_distilled_smolvla_exports_to_one_graph_that_gives_its_actions(vlm_dir
     report = json.loads((tmp_path / "eval" / "report.json").read_text())
     assert [row["mode"] for row in report["rows"].values()] == ["snapflow-1", "snapflow-1"]
     assert all(row["success"]["reach-v3"]["episodes"] == 1 for row in report["rows"].values())
+
+
+@pytest.mark.slow
+@PI_SKIP
+def test_a_distilled_xvla_exports_to_one_graph_that_gives_its_actions(vlm_directory, tmp_path):
+    """A type beyond the pi0 family: X-VLA's Florence-2 prefix (its views counted without a host synchronisation)
+    and the jump in one graph, giving the PyTorch student's actions through the same processors."""
+    student = save_tiny_xvla_student(vlm_directory, tmp_path / "student")
+    output = tmp_path / "onnx"
+    assert main(["export", "--policy", str(student), "--output", str(output)]) == 0
+    assert json.loads((output / "snapflow.json").read_text())["policy"] == "xvla"
+    eager, exported = load_lerobot_policy(student), load_lerobot_policy(output)
+    for rows in (1, 3):
+        raw = _raw_batch(rows, rows)
+        noise = torch.randn(rows, 4, 4, generator=torch.Generator().manual_seed(rows))
+        expected = sample_actions(eager.policy, eager.processor.observation(*raw), noise, SNAPFLOW_1)
+        actions = sample_actions(exported.policy, exported.processor.observation(*raw), noise, SNAPFLOW_1)
+        torch.testing.assert_close(actions, expected, atol=1e-4, rtol=1e-4)

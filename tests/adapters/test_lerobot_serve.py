@@ -1,4 +1,4 @@
-"""``snapflow serve``: LeRobot's own async-inference policy server serves a distilled student (SmolVLA, pi0, pi0.5)
+"""``snapflow serve``: LeRobot's own async-inference policy server serves a distilled student (SmolVLA, pi0, pi0.5, X-VLA)
 to a client made of LeRobot's own gRPC types, one denoising pass a chunk (ten as its teacher), and refuses the student
 asked for under its teacher's type instead of dropping phi_s."""
 
@@ -36,6 +36,7 @@ from tests.lerobot_tiny import (  # noqa: E402
     save_tiny_student,
     tiny_pi_configs,
 )
+from tests.lerobot_tiny_xvla import save_tiny_xvla_student  # noqa: E402
 
 JOINTS = ("shoulder.pos", "elbow.pos", "wrist.pos", "wrist_roll.pos", "forearm.pos", "gripper.pos")
 
@@ -56,12 +57,16 @@ class Served:
         return hw_to_dataset_features(robot, "observation")
 
 
-@pytest.fixture(scope="module", params=["smolvla", "pi0", "pi05"])
+@pytest.fixture(scope="module", params=["smolvla", "pi0", "pi05", "xvla"])
 def student(request, vlm_directory, tmp_path_factory):
     folder = tmp_path_factory.mktemp("serve") / request.param
     if request.param == "smolvla":  # a 4-D state, one front camera
         save_tiny_student(vlm_directory, folder, image_key="observation.images.front", image_size=IMAGE_SIZE)
         yield Served("smolvla", folder, JOINTS[:4], "front", IMAGE_SIZE)
+        return
+    if request.param == "xvla":  # a 6-D state, one top camera
+        save_tiny_xvla_student(vlm_directory, folder)
+        yield Served("xvla", folder, JOINTS, "top", IMAGE_SIZE)
         return
     save_tiny_pi_student(request.param, vlm_directory, folder)  # a 6-D state, one top camera
     with tiny_pi_configs(request.param):  # the server loads it in this process
@@ -79,9 +84,9 @@ def _chunk(stub, policy_server, student: Served, sampling_mode: str, actions_per
         f"snapflow_{student.base_type}", str(student.folder), student.features, actions_per_chunk, "cpu"
     )
     stub.SendPolicyInstructions(services_pb2.PolicySetup(data=pickle.dumps(specs)))
-    model, calls = policy_server.policy.model, []
-    denoise_step = model.denoise_step
-    model.denoise_step = lambda *args, **kwargs: calls.append(1) or denoise_step(*args, **kwargs)
+    adapter, calls = policy_server.policy.snapflow, []  # every type's velocity goes through its adapter's denoise
+    denoise = adapter.denoise
+    adapter.denoise = lambda *args, **kwargs: calls.append(1) or denoise(*args, **kwargs)
     raw = {joint: 0.1 * index for index, joint in enumerate(student.joints)}
     raw |= {student.camera: np.zeros((student.image_size,) * 2 + (3,), np.uint8), "task": "reach the red block"}
     observation = TimedObservation(timestamp=time.time(), observation=raw, timestep=0, must_go=True)

@@ -15,7 +15,7 @@ import torch
 
 pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test command; this environment lacks it")
 
-from snapflow.adapters.lerobot.base import lerobot_time_sampler  # noqa: E402
+from snapflow.adapters.lerobot.registry import lerobot_time_sampler  # noqa: E402
 from snapflow.adapters.lerobot_types import PLUGIN_LEROBOT, lerobot_loads_plugins  # noqa: E402
 from snapflow.flow.modes import SamplingMode  # noqa: E402
 from snapflow.flow.solver import sample_actions  # noqa: E402
@@ -253,3 +253,63 @@ def test_a_teacher_trained_with_a_weight_average_exports_the_average(tmp_path):
     name = "model.action_out_proj.weight"
     assert not torch.equal(average[f"policy.{name}"], raw[f"policy.{name}"])
     assert all(torch.equal(tensor, average[f"policy.{key}"]) for key, tensor in exported.items())
+
+
+@pytest.mark.slow
+@PLUGINS
+def test_lerobot_train_steps_an_xvla_student_by_snapflows_objective(vlm_directory, tmp_path):
+    """A type beyond the pi0 family: an X-VLA teacher written as its student and stepped by ``lerobot-train`` with
+    X-VLA's own optimizer (learning rates by parameter name), only the action expert and phi_s training."""
+    from lerobot.policies.factory import make_pre_post_processors
+    from safetensors.torch import load_file
+
+    from snapflow.training.lerobot_student import write_student
+    from tests.lerobot_tiny import write_tiny_dataset
+    from tests.lerobot_tiny_xvla import build_tiny_xvla
+
+    data = write_tiny_dataset(tmp_path / "data", episodes=2, frames=8)
+    teacher = build_tiny_xvla(tokenizer=str(vlm_directory))
+    teacher.save_pretrained(tmp_path / "teacher")
+    for processor in make_pre_post_processors(teacher.config, dataset_stats=None):
+        processor.save_pretrained(tmp_path / "teacher")
+    student = write_student(str(tmp_path / "teacher"), tmp_path / "student")
+    finished = subprocess.run(
+        [
+            str(Path(sys.executable).with_name("lerobot-train")),
+            f"--policy.path={student}",
+            "--dataset.repo_id=local/tiny",
+            f"--dataset.root={data}",
+            f"--output_dir={tmp_path / 'run'}",
+            "--steps=2",
+            "--batch_size=4",
+            "--num_workers=0",
+            "--save_freq=2",
+            "--log_freq=1",
+            "--wandb.enable=false",
+            "--policy.device=cpu",
+            "--policy.push_to_hub=false",
+        ],
+        env={**os.environ, "HF_HUB_OFFLINE": "1"},
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    assert finished.returncode == 0, finished.stderr[-3000:]
+    assert "consistency_loss" in finished.stderr, "LeRobot logs the objective's parts"
+    checkpoint = tmp_path / "run" / "checkpoints" / "last" / "pretrained_model"
+    config = json.loads((checkpoint / "config.json").read_text())
+    assert config["type"] == "snapflow_xvla" and config["distilled"] is True
+    before, after = load_file(student / "model.safetensors"), load_file(checkpoint / "model.safetensors")
+    moved = {name for name in before if not torch.equal(before[name], after[name])}
+    assert any(name.startswith("model.target_time_embedding.") for name in moved), "phi_s trained"
+    assert any(name.startswith("model.transformer.") for name in moved), "the action expert trained"
+    assert not any(name.startswith("model.vlm.") for name in moved), "Florence-2 stays frozen"
+
+    # snapflow's own trainer distils it too: its run checkpoints save Florence-2's shared embedding once
+    from snapflow.cli import main
+    from snapflow.sources import open_policy
+
+    arguments = ["--policy", str(tmp_path / "teacher"), "--dataset", str(data), "--output", str(tmp_path / "own")]
+    assert main(["distill", *arguments, "--steps", "2", "--batch-size", "4", "--no-progress"]) == 0
+    opened = open_policy(tmp_path / "own" / "lerobot_policy")
+    assert opened.distilled and opened.policy_type == "snapflow_xvla"

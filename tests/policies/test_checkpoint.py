@@ -13,9 +13,12 @@ from snapflow.nn import SnapFlowPolicy
 from snapflow.policies.checkpoint import (
     LATEST,
     POLICY_CONFIG,
+    POLICY_WEIGHTS,
     CheckpointError,
     load_policy,
+    load_state_strict,
     policy_metadata,
+    read_tensors,
     resolve_checkpoint,
     write_policy,
 )
@@ -114,3 +117,26 @@ def test_a_run_folder_resolves_to_the_checkpoint_its_latest_json_names(tmp_path:
     (checkpoint / POLICY_CONFIG).unlink()
     with pytest.raises(CheckpointError, match="holds neither a checkpoint"):
         load_policy(checkpoint)
+
+
+def test_a_tensor_tied_under_two_names_is_saved_once_and_loaded_under_both(tmp_path: Path):
+    """A shared embedding (Florence-2's in X-VLA) is one tensor under two names: safetensors refuses it twice, so it
+    is saved under its first name and read back into both."""
+    from torch import nn
+
+    def tied() -> nn.Module:
+        module = nn.ModuleDict({"shared": nn.Embedding(5, 3), "encoder": nn.ModuleDict({"tokens": nn.Embedding(5, 3)})})
+        module["encoder"]["tokens"].weight = module["shared"].weight
+        return module
+
+    saved = tied()
+    write_policy(tmp_path, saved, {})
+    assert set(read_tensors(tmp_path / POLICY_WEIGHTS)) == {"shared.weight"}
+    loaded = tied()
+    load_state_strict(loaded, read_tensors(tmp_path / POLICY_WEIGHTS), tmp_path / POLICY_WEIGHTS)
+    assert torch.equal(loaded["shared"].weight, saved["shared"].weight)
+    assert loaded["encoder"]["tokens"].weight is loaded["shared"].weight, "still one tensor"
+    with pytest.raises(CheckpointError, match=r"missing \['shared.weight'\]"):  # an untied module needs both
+        load_state_strict(
+            nn.ModuleDict({"shared": nn.Embedding(5, 3)}), {"other.weight": torch.zeros(5, 3)}, tmp_path / "x"
+        )

@@ -67,7 +67,6 @@ NOT_DISTILLED: dict[str, str] = {
     "reward_classifier": "a reward model, not a policy",
     "sarm": "a reward model (stage-aware), not a policy",
     "groot": "flow-matching (4 Euler steps of a DiT action head), not adapted yet",
-    "xvla": "flow-matching that predicts the clean action, not adapted yet",
     "wall_x": "flow-matching (10 steps), not adapted yet",
     "evo1": "flow-matching (32 steps by default), not adapted yet",
     "molmoact2": "flow-matching (10 steps), not adapted yet",
@@ -144,6 +143,29 @@ register_lerobot_policy_type(
         architecture_options={"load_vlm_weights": False},  # timing reads the VLM's config, never its weights
         vlm_option="vlm_model_name",
         paper_latency={"teacher_10_ms": 178.0, "snapflow_1_ms": 50.0},
+    )
+)
+#: X-VLA-0.9B's VLM, Florence-2-large's encoder side (a DaViT and BART-large's encoder), in transformers' own format:
+#: what ``snapflow bench --architecture xvla`` builds with random weights (X-VLA's config names no default)
+XVLA_FLORENCE_LARGE: dict[str, Any] = {
+    "vision_config": {
+        "depths": [1, 1, 9, 1],
+        "embed_dim": [256, 512, 1024, 2048],
+        "num_heads": [8, 16, 32, 64],
+        "num_groups": [8, 16, 32, 64],
+        "window_size": 12,
+        "projection_dim": 1024,
+    },
+    "text_config": {"d_model": 1024, "encoder_layers": 12, "decoder_layers": 12, "vocab_size": 51289},
+}
+register_lerobot_policy_type(
+    LeRobotPolicyType(
+        "xvla",
+        "XVLA",
+        "lerobot.policies.xvla.configuration_xvla:XVLAConfig",
+        "lerobot.policies.xvla.modeling_xvla:XVLAPolicy",
+        "snapflow.adapters.lerobot.xvla:XVLAFlowPolicy",
+        architecture_options={"florence_config": XVLA_FLORENCE_LARGE, "action_mode": "auto"},
     )
 )
 

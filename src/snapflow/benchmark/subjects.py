@@ -127,26 +127,21 @@ def exported_lerobot_subject(loaded: Any, name: str) -> BenchSubject:
 def lerobot_subject(
     policy: nn.Module, name: str, device: torch.device, dtype: torch.dtype, one_step: SamplingMode = SNAPFLOW_1
 ) -> BenchSubject:
-    """Any LeRobot pi0 / pi0.5 / SmolVLA under its SnapFlow adapter (phi_s included, as the student runs), its 1-NFE
+    """Any LeRobot policy of a declared type under its SnapFlow adapter (phi_s included, as the student runs), its 1-NFE
     mode ``one_step``."""
     from snapflow.adapters.lerobot import LeRobotFlowPolicy, wrap_policy
-    from snapflow.adapters.lerobot.base import lerobot_time_sampler
     from snapflow.adapters.lerobot.evaluation import lerobot_observation
+    from snapflow.adapters.lerobot.registry import lerobot_time_sampler
 
     adapter = policy if isinstance(policy, LeRobotFlowPolicy) else wrap_policy(policy)
     inner = adapter.policy
     inner.config.device = str(device)
     adapter.to(device)
     if dtype != torch.float32:
-        if adapter.policy_type == "smolvla" or dtype != torch.bfloat16:
-            raise InvalidInputError(
-                f"LeRobot runs {adapter.policy_type} in {dtype} only through autocast; time it in float32, or pi0 / pi0.5 in bfloat16"
-            )
-        # LeRobot's own mixed precision: the VLM and expert in bfloat16, the layers it keeps in float32 kept
-        inner.model.paligemma_with_expert.to_bfloat16_for_selected_params("bfloat16")
+        adapter.run_in(dtype)
     adapter.eval()
     config = inner.config
-    noise = torch.randn(1, config.chunk_size, config.max_action_dim, device=device)
+    noise = torch.randn(1, *adapter.action_shape, device=device)
     expert = _parameter_count(nn.ModuleList(adapter.expert_modules()))
     return BenchSubject(
         name,

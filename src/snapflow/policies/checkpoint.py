@@ -128,8 +128,23 @@ def read_tensors(path: Path) -> dict[str, torch.Tensor]:
         raise CheckpointError(f"{path} is corrupt or not a safetensors file ({error})") from None
 
 
+def _with_tied_names(module: nn.Module, tensors: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """``tensors`` plus every name of a tensor the module ties to one of them (a shared embedding, saved once by
+    ``safetensors.torch.save_model``), read from the saved one."""
+    names_of: dict[int, list[str]] = {}
+    for name, tensor in module.state_dict(keep_vars=True).items():
+        names_of.setdefault(id(tensor), []).append(name)
+    filled = dict(tensors)
+    for names in names_of.values():
+        saved = next((name for name in names if name in tensors), None)
+        if saved is not None:
+            filled.update({name: tensors[saved] for name in names if name not in tensors})
+    return filled
+
+
 def load_state_strict(module: nn.Module, tensors: dict[str, torch.Tensor], source: Path) -> None:
-    """Load weights, naming every missing, unexpected or differently shaped tensor."""
+    """Load weights, naming every missing, unexpected or differently shaped tensor (a tied one is saved once)."""
+    tensors = _with_tied_names(module, tensors)
     expected = module.state_dict()
     missing = sorted(set(expected) - set(tensors))
     unexpected = sorted(set(tensors) - set(expected))
@@ -153,12 +168,21 @@ def load_state_strict(module: nn.Module, tensors: dict[str, torch.Tensor], sourc
     module.load_state_dict(tensors, strict=True)
 
 
+def untied_state(module: nn.Module) -> dict[str, torch.Tensor]:
+    """``module``'s tensors for a safetensors file, each once: a tensor the module ties under several names (a shared
+    embedding) under its first, as :func:`load_state_strict` reads it back."""
+    state: dict[str, torch.Tensor] = {}
+    seen: set[int] = set()
+    for name, tensor in module.state_dict(keep_vars=True).items():
+        if id(tensor) not in seen:
+            seen.add(id(tensor))
+            state[name] = tensor.detach().cpu().contiguous()
+    return state
+
+
 def write_policy(directory: Path, policy: nn.Module, metadata: dict[str, Any]) -> None:
     """``policy.safetensors`` and ``policy.json`` into ``directory`` (callers make the folder appear atomically)."""
-    save_file(
-        {key: value.detach().cpu().contiguous() for key, value in policy.state_dict().items()},
-        directory / POLICY_WEIGHTS,
-    )
+    save_file(untied_state(policy), directory / POLICY_WEIGHTS)
     write_json(directory / POLICY_CONFIG, metadata)
 
 

@@ -14,12 +14,12 @@ import torch
 from accelerate import PartialState
 
 from snapflow.adapters.hub import check_source, fetch_hub_file
-from snapflow.adapters.lerobot.base import LeRobotFlowPolicy, lerobot_time_sampler
+from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
 from snapflow.adapters.lerobot.checkpoint import PREPROCESSOR_FILE, save_distilled, save_teacher
 from snapflow.adapters.lerobot.data import ActionChunks, LeRobotChunkData
 from snapflow.adapters.lerobot.dataset import policy_features
 from snapflow.adapters.lerobot.local_vlm import bundle_vlm, saved_processors
-from snapflow.adapters.lerobot.registry import wrap_policy
+from snapflow.adapters.lerobot.registry import lerobot_time_sampler, wrap_policy
 from snapflow.adapters.lerobot.smolvlm import smolvla_config, token_budget, words_of, write_smolvlm
 from snapflow.adapters.lerobot_config import SmolVLMSize
 from snapflow.data.demonstrations import split_episodes
@@ -259,7 +259,7 @@ def _train_and_export(
     state = train(
         adapter,
         objective,
-        LeRobotChunkData(dataset, preprocessor, adapter.policy),
+        LeRobotChunkData(dataset, preprocessor, adapter),
         None,
         config,
         output,

@@ -1,6 +1,6 @@
-"""LeRobot's pi0, pi0.5 and SmolVLA under SnapFlow, without editing LeRobot's code.
+"""LeRobot's pi0, pi0.5, SmolVLA and X-VLA under SnapFlow, without editing LeRobot's code.
 
-Needs ``pip install "snapflow-vla[lerobot]"``: lerobot 0.4.4 (SmolVLA) on Python 3.11, lerobot >= 0.5 (all three)
+Needs ``pip install "snapflow-vla[lerobot]"``: lerobot 0.4.4 (SmolVLA) on Python 3.11, lerobot >= 0.5 (all four)
 on Python >= 3.12.
 """
 
@@ -18,12 +18,14 @@ from snapflow.adapters.lerobot.checkpoint import load_distilled, load_pretrained
 from snapflow.adapters.lerobot.pi0 import PI0FlowPolicy, PI05FlowPolicy
 from snapflow.adapters.lerobot.registry import wrap_policy
 from snapflow.adapters.lerobot.smolvla import SmolVLAFlowPolicy
+from snapflow.adapters.lerobot.xvla import XVLAFlowPolicy
 
 __all__ = [
     "LeRobotFlowPolicy",
     "PI0FlowPolicy",
     "PI05FlowPolicy",
     "SmolVLAFlowPolicy",
+    "XVLAFlowPolicy",
     "wrap_policy",
     "load_pretrained_policy",
     "save_distilled",

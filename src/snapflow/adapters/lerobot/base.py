@@ -1,11 +1,12 @@
-"""What every LeRobot flow-matching policy shares under SnapFlow.
+"""What every LeRobot flow-matching policy shares under SnapFlow, naming no one policy's fields.
 
-LeRobot's pi0, pi0.5 and SmolVLA all run ``embed_prefix`` -> one VLM pass that fills a key/value cache ->
-``denoise_step(..., x_t, timestep)`` per Euler step, and all embed the time inside ``embed_suffix``. The
-adapter replaces ``embed_suffix`` on the model *instance* (LeRobot's files stay untouched) by one that reads
-a timestep of shape (B, 2) as [t, s] and adds phi_s(s) where the policy's time embedding enters. A plain
-(B,) timestep means s = t, so LeRobot's own ``forward`` and sampler keep running the flow-matching teacher.
-s travels as an argument, never as hook state, so gradient checkpointing recomputes the same values.
+A type's adapter says three things: where its time embedding enters (it replaces that method on the model
+*instance*, LeRobot's files untouched, by one that reads a timestep of shape (B, 2) as [t, s] and adds phi_s(s)
+there; a plain (B,) timestep means s = t, so LeRobot's own ``forward`` and sampler keep running the flow-matching
+teacher), its prefix pass (the observation through the frozen VLM once) and one velocity from that prefix. The base
+holds the rest: phi_s stored inside LeRobot's model, the frozen prefix pass, the prompt's padding, the training times,
+noise, and LeRobot's own action API sampling any mode. s travels as an argument, never as hook state, so gradient
+checkpointing recomputes the same values. The pi0 family's key/value-cache layout is :mod:`.prefix_cache`.
 """
 
 from __future__ import annotations
@@ -19,7 +20,6 @@ from typing import Any, ClassVar
 
 import torch
 from torch import Tensor, nn
-from transformers import DynamicCache  # here, not in the pass: torch.compile breaks its graph at an import
 
 from snapflow.adapters.lerobot.rtc import rtc_processor_in_force, sample_with_rtc
 from snapflow.errors import InvalidInputError
@@ -32,30 +32,14 @@ OBS_LANGUAGE_ATTENTION_MASK = "observation.language.attention_mask"
 #: a prompt cut of its padding keeps a multiple of this many tokens: a compiled prefix then meets few shapes
 PROMPT_BUCKET = 16
 
+#: ``sample(inputs, noise, inference_delay, prev_chunk_left_over, execution_horizon) -> chunk``: what
+#: :meth:`LeRobotFlowPolicy.use_sampling_mode` hands a type's :meth:`~LeRobotFlowPolicy.install_sampler`
+ChunkSampler = Callable[..., Tensor]
+
 
 def split_timestep(timestep: Tensor) -> tuple[Tensor, Tensor]:
     """(B,) -> (t, t), LeRobot's own calls; (B, 2) -> (t, s), the adapter's calls."""
     return (timestep, timestep) if timestep.ndim == 1 else timestep.unbind(dim=1)
-
-
-def cache_tensors(cache: Any) -> Any:
-    """The prefix cache as plain tensors, so the objective can select batch rows from it.
-
-    LeRobot 0.4.4's SmolVLA keeps a dict of dicts of tensors; newer LeRobot returns a transformers
-    ``DynamicCache``, kept here as one (keys, values) pair per layer.
-    """
-    return cache if isinstance(cache, dict) else tuple((keys, values) for keys, values, *_ in cache)
-
-
-def cache_for_one_pass(tensors: Any) -> Any:
-    """A fresh cache object over the prefix tensors for a single ``denoise_step``.
-
-    ``denoise_step`` appends the suffix to its cache (and SmolVLA crops it back in place): a cache shared
-    between the no-grad teacher passes and the gradient pass would silently hand the latter detached state.
-    """
-    if isinstance(tensors, dict):
-        return {layer: dict(entry) for layer, entry in tensors.items()}
-    return DynamicCache(tensors)
 
 
 @contextlib.contextmanager
@@ -82,37 +66,22 @@ def modeling_module(model: nn.Module) -> types.ModuleType:
     return sys.modules[type(model).__module__]
 
 
-def lerobot_time_sampler(config: Any) -> BetaTimeSampler:
-    """The flow-matching times a LeRobot policy of ``config`` trains on, read from its config where LeRobot keeps
-    them (pi0 / pi0.5: ``time_sampling_beta_alpha`` / ``_beta``); SmolVLA's code fixes Beta(1.5, 1). Every one
-    shifts them into [0.001, 1]."""
-    alpha = getattr(config, "time_sampling_beta_alpha", 1.5)
-    beta = getattr(config, "time_sampling_beta_beta", 1.0)
-    if beta != 1.0:
-        raise InvalidInputError(
-            f"this {config.type} samples times from Beta({alpha}, {beta}); snapflow samples Beta(a, 1) only"
-        )
-    return BetaTimeSampler(concentration=alpha, min_time=0.001)
-
-
 class LeRobotFlowPolicy(nn.Module, ABC):
     """A LeRobot policy seen through :class:`snapflow.protocol.FlowPolicy`.
 
     Batches are what the policy's own pre-processor produces (normalised state, images in [0, 1], language
-    tokens and mask). Actions are (B, chunk_size, max_action_dim), padded as ``policy.prepare_action`` pads them.
-    Subclasses name where time enters and how the policy's prefix and denoising step are called.
+    tokens and mask). Actions are (B, *:attr:`action_shape`), padded as the policy pads its training targets.
+    Subclasses name where time enters, the policy's prefix pass and one velocity, and how LeRobot samples.
     """
 
     policy_type: ClassVar[str]
-    #: the layer whose output phi_s(s) is added to (before the SiLU that follows it)
-    time_fusion_layer: ClassVar[str]
-    #: the policy's ``embed_suffix`` rewritten to read [t, s]; bound to the LeRobot model instance
-    embed_suffix_with_target_time: ClassVar[Callable[..., Any]]
     #: the oldest LeRobot release whose internals the adapter follows
     minimum_lerobot: ClassVar[str] = "0.4.4"
     #: what :func:`snapflow.inference.compile_policy` compiles: the prefix pass LeRobot's sampling calls (``encode``
     #: goes through it too) and the velocity
     compiled_methods: ClassVar[tuple[str, str]] = ("encode_inputs", "velocity")
+    #: whether the prompt's padding is masked out of every attention, so that cutting it changes no chunk
+    masks_prompt_padding: ClassVar[bool] = True
 
     def __init__(self, policy: nn.Module) -> None:
         super().__init__()
@@ -121,18 +90,25 @@ class LeRobotFlowPolicy(nn.Module, ABC):
         self.train_prefix = False
         model = policy.model
         if not hasattr(model, "target_time_embedding"):
-            fusion = getattr(model, self.time_fusion_layer)
-            embedding = TargetTimeEmbedding(
-                fusion.out_features, min_period=model.config.min_period, max_period=model.config.max_period
-            )
-            model.target_time_embedding = embedding.to(fusion.weight.device)
-            model.embed_suffix = types.MethodType(type(self).embed_suffix_with_target_time, model)
+            embedding = self.new_target_time_embedding()
+            device = next(model.parameters()).device
+            model.target_time_embedding = embedding.to(device)
+            self.install_target_time(model)
 
     @property
     def target_time_embedding(self) -> TargetTimeEmbedding:
         """phi_s, stored inside the LeRobot model so that LeRobot's own checkpoints carry it (registered once:
         safetensors refuses tensors saved under two names)."""
         return self.policy.model.target_time_embedding
+
+    @abstractmethod
+    def new_target_time_embedding(self) -> TargetTimeEmbedding:
+        """phi_s at zero, as wide as the layer it is added to, over the sinusoid periods of the policy's own time."""
+
+    @abstractmethod
+    def install_target_time(self, model: nn.Module) -> None:
+        """Replace, on ``model`` (the instance), the method where the policy's time enters by one that reads a
+        (B, 2) timestep as [t, s] and adds ``model.target_time_embedding(s)`` there."""
 
     @abstractmethod
     def expert_modules(self) -> list[nn.Module]:
@@ -144,6 +120,34 @@ class LeRobotFlowPolicy(nn.Module, ABC):
         modules = [*self.expert_modules(), self.target_time_embedding]
         return [parameter for module in modules for parameter in module.parameters()]
 
+    @property
+    def action_shape(self) -> tuple[int, int]:
+        """(chunk length, action width) of the noise and of the chunk the model samples, padding included."""
+        config = self.policy.config
+        return config.chunk_size, config.max_action_dim
+
+    def action_targets(self, batch: dict[str, Tensor]) -> Tensor:
+        """The batch's action chunk as the policy's training forward pads it."""
+        return self.policy.prepare_action(batch)
+
+    @classmethod
+    def training_time_sampler(cls, config: Any) -> BetaTimeSampler:
+        """The flow-matching times a policy of ``config`` trains on, read from its config where LeRobot keeps
+        them (pi0 / pi0.5: ``time_sampling_beta_alpha`` / ``_beta``); SmolVLA's code fixes Beta(1.5, 1). Every one
+        shifts them into [0.001, 1]."""
+        alpha = getattr(config, "time_sampling_beta_alpha", 1.5)
+        beta = getattr(config, "time_sampling_beta_beta", 1.0)
+        if beta != 1.0:
+            raise InvalidInputError(
+                f"this {config.type} samples times from Beta({alpha}, {beta}); snapflow samples Beta(a, 1) only"
+            )
+        return BetaTimeSampler(concentration=alpha, min_time=0.001)
+
+    def run_in(self, dtype: torch.dtype) -> None:
+        """Run the policy in ``dtype`` as LeRobot itself does, or refuse where LeRobot has no such precision (a
+        policy run in another dtype only through autocast)."""
+        raise InvalidInputError(f"LeRobot runs {self.policy_type} in {dtype} only through autocast; time it in float32")
+
     def prefix_pass(self, vlm: nn.Module) -> contextlib.AbstractContextManager:
         """How the prefix runs: :func:`frozen_prefix_pass` unless ``train_prefix``, then as it is, with gradients;
         as it is too where it is frozen already (no gradients, the VLM in eval mode: deployment), which keeps a
@@ -154,16 +158,17 @@ class LeRobotFlowPolicy(nn.Module, ABC):
 
     @abstractmethod
     def model_inputs(self, batch: dict[str, Tensor]) -> tuple[Any, ...]:
-        """The positional inputs LeRobot's ``model.sample_actions`` receives before ``noise``."""
+        """The positional inputs the policy's own sampling hands its model (what :meth:`install_sampler`'s
+        replacement receives)."""
 
     @abstractmethod
     def encode_inputs(self, *inputs: Any) -> dict[str, Any]:
         """Prefix pass from :meth:`model_inputs`: images, instruction (and state) through the frozen VLM once,
-        without gradients, keeping its key/value cache (as tensors) and the prefix padding mask."""
+        without gradients, keeping what each velocity reads (a key/value cache, features) as tensors."""
 
     @abstractmethod
     def denoise(self, context: dict[str, Any], x_t: Tensor, timestep: Tensor) -> Tensor:
-        """One call of the policy's own ``denoise_step`` against a fresh cache over the context's prefix."""
+        """The policy's velocity at ``x_t`` from the context's prefix; ``timestep`` (B,) or (B, 2) as [t, s]."""
 
     def encode(self, batch: dict[str, Tensor]) -> dict[str, Any]:
         return self.encode_inputs(*self.model_inputs(batch))
@@ -172,11 +177,12 @@ class LeRobotFlowPolicy(nn.Module, ABC):
         """``batch`` with its prompt's right padding cut down to its longest prompt, rounded up to ``multiple``
         tokens. Padding is masked out of every attention and position ids count real tokens only, so the chunk is
         the same for fewer tokens through the VLM (LeRobot's pi0.5 pads every prompt to 200 tokens). A batch whose
-        padding is not on the right is returned as it is."""
+        padding is not on the right, or a policy that attends to its padding (:attr:`masks_prompt_padding`), is
+        returned as it is."""
         mask = batch[OBS_LANGUAGE_ATTENTION_MASK]
         width = mask.shape[1]
         keep = min(width, -(-max(int(mask.sum(dim=1).max()), 1) // multiple) * multiple)
-        if keep == width or bool(mask[:, keep:].any()):
+        if not self.masks_prompt_padding or keep == width or bool(mask[:, keep:].any()):
             return batch
         return {
             **batch,
@@ -187,48 +193,70 @@ class LeRobotFlowPolicy(nn.Module, ABC):
     def velocity(self, x_t: Tensor, t: Tensor, s: Tensor, context: dict[str, Any]) -> Tensor:
         return self.denoise(context, x_t, torch.stack([t, s], dim=1))
 
+    def draw_noise(self, context: dict[str, Any], batch_size: int) -> Tensor:
+        """The noise a chunk starts from where LeRobot's caller gives none: a standard normal of
+        (``batch_size``, *:attr:`action_shape`) on the context's device, from torch's global generator."""
+        device = next(tensor for tensor in _tensors(context)).device
+        return torch.randn((batch_size, *self.action_shape), device=device)
+
+    @abstractmethod
+    def install_sampler(self, sample: ChunkSampler) -> None:
+        """Make the policy's own ``predict_action_chunk`` / ``select_action`` call ``sample`` with the inputs it
+        hands its model (:meth:`model_inputs`) and whatever noise and RTC arguments it passes."""
+
     def use_sampling_mode(self, mode: SamplingMode | Callable[[], SamplingMode]) -> None:
         """Make LeRobot's own ``predict_action_chunk`` / ``select_action`` sample with ``mode``: SnapFlow
         1-NFE for deployment, or ``teacher-N`` to run the same checkpoint as the N-step teacher. A callable is
         asked at every chunk (a student reads its config then, and refuses a jump it was never distilled for).
         With RTC enabled in the policy's config, the previous chunk LeRobot passes is continued
         (:mod:`snapflow.adapters.lerobot.rtc`: LeRobot's guided RTC per Euler step, prefix inpainting for jumps)."""
-        adapter = self
         current = mode if callable(mode) else lambda: mode
 
-        def sample_actions(
-            model: nn.Module,
-            *inputs: Any,
+        def sample(
+            inputs: tuple[Any, ...],
             noise: Tensor | None = None,
             inference_delay: int | None = None,
             prev_chunk_left_over: Tensor | None = None,
             execution_horizon: int | None = None,
-            **_: Any,
         ) -> Tensor:
             chosen = current()
-            processor = rtc_processor_in_force(model)
-            context = adapter.encode_inputs(*inputs)
+            processor = rtc_processor_in_force(self.policy.model)
+            context = self.encode_inputs(*inputs)
             if noise is None:
-                masks = context["prefix_pad_masks"]
-                noise = model.sample_noise(
-                    (masks.shape[0], model.config.chunk_size, model.config.max_action_dim), masks.device
-                )
-            velocity = lambda x, t, s: adapter.velocity(x, t, s, context)  # noqa: E731
+                noise = self.draw_noise(context, _batch_size(inputs))
+            velocity = lambda x, t, s: self.velocity(x, t, s, context)  # noqa: E731
             return sample_with_rtc(
                 velocity, noise, chosen, processor, prev_chunk_left_over, inference_delay, execution_horizon
             )
 
-        self.policy.model.sample_actions = types.MethodType(sample_actions, self.policy.model)
+        self.install_sampler(sample)
         self.policy.reset()
+
+
+def _tensors(value: Any) -> Iterator[Tensor]:
+    """Every tensor in a context (nested dicts, lists and tuples)."""
+    if isinstance(value, Tensor):
+        yield value
+    elif isinstance(value, dict):
+        for item in value.values():
+            yield from _tensors(item)
+    elif isinstance(value, (list, tuple)):
+        for item in value:
+            yield from _tensors(item)
+
+
+def _batch_size(inputs: tuple[Any, ...]) -> int:
+    """The batch size of a policy's model inputs: the leading size of their first tensor."""
+    return next(_tensors(inputs)).shape[0]
 
 
 __all__ = [
     "PROMPT_BUCKET",
     "OBS_LANGUAGE_ATTENTION_MASK",
     "OBS_LANGUAGE_TOKENS",
+    "ChunkSampler",
     "LeRobotFlowPolicy",
-    "cache_for_one_pass",
-    "cache_tensors",
+    "frozen_prefix_pass",
     "modeling_module",
     "split_timestep",
 ]

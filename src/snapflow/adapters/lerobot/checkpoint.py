@@ -96,7 +96,7 @@ def save_teacher(adapter: LeRobotFlowPolicy, directory: str | Path, val_fraction
 
 def load_distilled(directory: str | Path, mode: SamplingMode = SNAPFLOW_1) -> LeRobotFlowPolicy:
     """Rebuild a saved SnapFlow policy as its student type, load every tensor strictly, and make LeRobot's own
-    action API sample with ``mode`` (SnapFlow 1-NFE by default). (LeRobot's ``from_pretrained`` loads a plain
+    action API sample with ``mode`` (SnapFlow 1-NFE by default), in eval mode. (LeRobot's ``from_pretrained`` loads a plain
     SmolVLA non-strictly, so on its own it would silently drop phi_s and give back the teacher.)"""
     from snapflow.adapters.lerobot.plugin import student_config, student_policy
 
@@ -113,7 +113,7 @@ def load_distilled(directory: str | Path, mode: SamplingMode = SNAPFLOW_1) -> Le
     adapter_class(policy_type)  # the installed LeRobot serves it
     policy = student_policy(policy_type)(student_config(config, mode))  # a plain config: an older export
     load_state_strict(policy, read_tensors(directory / SAFETENSORS_FILE), directory / SAFETENSORS_FILE)
-    return wrap_policy(policy)
+    return wrap_policy(policy).eval()  # as LeRobot's from_pretrained leaves a policy: X-VLA's dropout off
 
 
 def load_pretrained_policy(path: str) -> nn.Module:

@@ -6,8 +6,10 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch import Tensor, nn
+from torch import Tensor
 from torch.utils.data import default_collate
+
+from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
 
 
 class ActionChunks:
@@ -49,12 +51,12 @@ class LeRobotChunkData:
     The dataset must yield action chunks (``delta_timestamps`` on ``action``) of the policy's chunk size.
     """
 
-    def __init__(self, dataset: Any, preprocessor: Any, policy: nn.Module) -> None:
-        self.dataset, self.preprocessor, self.policy = dataset, preprocessor, policy
+    def __init__(self, dataset: Any, preprocessor: Any, adapter: LeRobotFlowPolicy) -> None:
+        self.dataset, self.preprocessor, self.adapter = dataset, preprocessor, adapter
 
     def __len__(self) -> int:
         return len(self.dataset)
 
     def batch(self, indices: Tensor) -> tuple[dict[str, Any], Tensor]:
         batch = self.preprocessor(default_collate([self.dataset[int(index)] for index in indices]))
-        return batch, self.policy.prepare_action(batch)
+        return batch, self.adapter.action_targets(batch)

@@ -16,12 +16,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from snapflow.adapters.lerobot.base import (
-    OBS_LANGUAGE_ATTENTION_MASK,
-    OBS_LANGUAGE_TOKENS,
-    LeRobotFlowPolicy,
-    lerobot_time_sampler,
-)
+from snapflow.adapters.lerobot.base import OBS_LANGUAGE_ATTENTION_MASK, OBS_LANGUAGE_TOKENS, LeRobotFlowPolicy
 from snapflow.adapters.lerobot.checkpoint import (
     PREPROCESSOR_FILE,
     SAFETENSORS_FILE,
@@ -35,7 +30,7 @@ from snapflow.adapters.lerobot.checkpoint import (
 )
 from snapflow.adapters.lerobot.dataset import IMAGE_PREFIX, STATE
 from snapflow.adapters.lerobot.local_vlm import saved_processors
-from snapflow.adapters.lerobot.registry import wrap_policy
+from snapflow.adapters.lerobot.registry import lerobot_time_sampler, wrap_policy
 from snapflow.errors import InvalidInputError
 from snapflow.flow.time_sampling import BetaTimeSampler
 from snapflow.inference.formats import export_format, export_record

@@ -18,12 +18,10 @@ from torch.nn import functional as F
 from snapflow.adapters.lerobot.base import (
     OBS_LANGUAGE_ATTENTION_MASK,
     OBS_LANGUAGE_TOKENS,
-    LeRobotFlowPolicy,
-    cache_for_one_pass,
-    cache_tensors,
     modeling_module,
     split_timestep,
 )
+from snapflow.adapters.lerobot.prefix_cache import PrefixCacheFlowPolicy, cache_for_one_pass, cache_tensors
 
 
 def _suffix_attention_masks(self: nn.Module, state_tokens: int, like: Tensor) -> Tensor:
@@ -92,7 +90,7 @@ def _pi05_embed_suffix_with_target_time(
     return action_embedding, pad_masks, _suffix_attention_masks(self, 0, action_embedding), adarms_condition
 
 
-class PI0FlowPolicy(LeRobotFlowPolicy):
+class PI0FlowPolicy(PrefixCacheFlowPolicy):
     """SnapFlow view of a LeRobot ``PI0Policy``."""
 
     policy_type = "pi0"
@@ -152,6 +150,13 @@ class PI0FlowPolicy(LeRobotFlowPolicy):
         return self.policy.model.denoise_step(
             context["state"], context["prefix_pad_masks"], cache_for_one_pass(context["cache"]), x_t, timestep
         )
+
+    def run_in(self, dtype: torch.dtype) -> None:
+        """LeRobot's own mixed precision, bfloat16 only: the VLM and expert in bfloat16, the layers it keeps in
+        float32 kept."""
+        if dtype != torch.bfloat16:
+            super().run_in(dtype)
+        self.policy.model.paligemma_with_expert.to_bfloat16_for_selected_params("bfloat16")
 
     def run_vision_in(self, dtype: torch.dtype) -> None:
         """Run the vision tower and its projector in ``dtype``. LeRobot keeps them in float32 under bfloat16 (its

@@ -13,6 +13,7 @@ from snapflow._lazy import resolve
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
 from snapflow.adapters.lerobot_types import lerobot_policy_type
 from snapflow.errors import InvalidInputError
+from snapflow.flow.time_sampling import BetaTimeSampler
 
 
 def adapter_class(policy_type: str) -> type[LeRobotFlowPolicy]:
@@ -33,10 +34,15 @@ def base_policy_type(config: Any) -> str:
     return getattr(config, "base_type", config.type)
 
 
+def lerobot_time_sampler(config: Any) -> BetaTimeSampler:
+    """The flow-matching times a LeRobot policy (or a student) of ``config`` trains on, as its adapter reads them."""
+    return adapter_class(base_policy_type(config)).training_time_sampler(config)
+
+
 def wrap_policy(policy: nn.Module) -> LeRobotFlowPolicy:
-    """The SnapFlow adapter for a LeRobot PI0Policy, PI05Policy or SmolVLAPolicy (phi_s added at zero), or for a
-    SnapFlow student of one (its phi_s kept)."""
+    """The SnapFlow adapter for a LeRobot policy of a declared type (phi_s added at zero), or for a SnapFlow
+    student of one (its phi_s kept)."""
     return adapter_class(base_policy_type(policy.config))(policy)
 
 
-__all__ = ["adapter_class", "base_policy_type", "wrap_policy"]
+__all__ = ["adapter_class", "base_policy_type", "lerobot_time_sampler", "wrap_policy"]

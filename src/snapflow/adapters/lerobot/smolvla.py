@@ -17,12 +17,10 @@ from torch.nn import functional as F
 from snapflow.adapters.lerobot.base import (
     OBS_LANGUAGE_ATTENTION_MASK,
     OBS_LANGUAGE_TOKENS,
-    LeRobotFlowPolicy,
-    cache_for_one_pass,
-    cache_tensors,
     modeling_module,
     split_timestep,
 )
+from snapflow.adapters.lerobot.prefix_cache import PrefixCacheFlowPolicy, cache_for_one_pass, cache_tensors
 
 
 def _embed_suffix_with_target_time(
@@ -77,7 +75,7 @@ def _capturable_embeddings_forward(embeddings: nn.Module) -> Any:
     return forward
 
 
-class SmolVLAFlowPolicy(LeRobotFlowPolicy):
+class SmolVLAFlowPolicy(PrefixCacheFlowPolicy):
     """SnapFlow view of a LeRobot ``SmolVLAPolicy``."""
 
     policy_type = "smolvla"

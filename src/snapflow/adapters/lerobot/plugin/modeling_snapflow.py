@@ -11,9 +11,9 @@ import torch
 from torch import Tensor, nn
 
 from snapflow._lazy import resolve
-from snapflow.adapters.lerobot.base import LeRobotFlowPolicy, lerobot_time_sampler
+from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
 from snapflow.adapters.lerobot.plugin.configuration_snapflow import student_config_class
-from snapflow.adapters.lerobot.registry import adapter_class
+from snapflow.adapters.lerobot.registry import adapter_class, lerobot_time_sampler
 from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES, lerobot_policy_type
 from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SamplingMode
@@ -66,9 +66,15 @@ class SnapFlowStudent:
             )
         return mode
 
-    def get_optim_params(self) -> list[nn.Parameter]:
-        """What distillation trains: the action expert, its projections and phi_s (the VLM stays frozen)."""
-        return self.snapflow.expert_parameters()
+    def get_optim_params(self) -> list[nn.Parameter] | dict[str, nn.Parameter]:
+        """What distillation trains: the action expert, its projections and phi_s (the VLM stays frozen); by name
+        where the policy's own optimizer groups its parameters by name (X-VLA's)."""
+        trainable = self.snapflow.expert_parameters()
+        own = super().get_optim_params()
+        if isinstance(own, dict):
+            ids = {id(parameter) for parameter in trainable}
+            return {name: parameter for name, parameter in own.items() if id(parameter) in ids}
+        return trainable
 
     def distillation_objective(self) -> TwoBranchObjective:
         """The SnapFlow objective with the config's ``distill_*`` settings and the policy's own training times."""
@@ -93,7 +99,7 @@ class SnapFlowStudent:
             raise ValueError(f"a SnapFlow student's loss is a mean over its two branches; reduction={reduction!r}")
         objective = self.distillation_objective()
         output = objective(
-            self.snapflow, batch, self.prepare_action(batch), noise=noise, time=time, generator=generator
+            self.snapflow, batch, self.snapflow.action_targets(batch), noise=noise, time=time, generator=generator
         )
         self._distilled_by_last_forward = output.num_consistency > 0 and objective.consistency_weight > 0
         logs = {
