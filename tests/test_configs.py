@@ -23,7 +23,8 @@ def test_a_committed_sweep_config_loads_and_has_an_expert_for_every_task(path):
 
 
 def test_the_four_suite_sweep_collects_every_task_that_has_an_expert_at_the_size_the_policy_reads():
-    """38 of LIBERO's 40 tasks: the two without an expert are named in its comment; frames at the 64 px read."""
+    """38 of LIBERO's 40 tasks: the two without an expert when it was written are named in its comment; frames at
+    the 64 px read."""
     config = load_sweep(Path(__file__).resolve().parents[1] / "configs" / "sweeps" / "smolvla-libero-four-suites.toml")
     assert len(config.data.tasks) == 38 and config.data.image_size == 64
     assert {run.lerobot.smolvlm for run in config.runs.values()} == {"small", "medium"}

@@ -10,9 +10,11 @@ import pytest
 
 from snapflow.envs.base import Observation
 from snapflow.envs.libero_expert import InSequence, PickAndPlace, TurnOn, make_libero_expert
+from snapflow.envs.libero_expert.clear import ClearDrawer
+from snapflow.envs.libero_expert.fixtures import OpenTopDrawer
 from snapflow.envs.libero_expert.goals import SHARED_SURFACE_SPACING
 from snapflow.envs.libero_expert.motion import SETTLED_STEPS, Primitive
-from snapflow.envs.libero_expert.pick_and_place import cup_side, half_turn, side_turn
+from snapflow.envs.libero_expert.pick_and_place import RIM_OUT_TURN, cup_side, half_turn, side_turn
 
 
 def test_a_cup_is_gripped_on_the_robots_side_unless_its_handle_is_there():
@@ -60,9 +62,10 @@ def test_objects_put_on_one_surface_stand_side_by_side_and_are_carried_over_the_
     assert all(np.all(step.offset == 0.0) for step in basket.steps)  # into an object, not onto a surface
 
 
-def test_what_goes_into_a_drawer_goes_in_before_it_is_shut_and_a_shut_drawer_is_not_filled():
-    """LIBERO-10 task 3 lists "close the bottom drawer" first: the bowl goes in before; LIBERO-Goal task 3 puts the
-    bowl into a drawer that starts shut and that the goal does not close: refused."""
+def test_what_goes_into_a_drawer_goes_in_before_it_is_shut_and_only_a_top_drawer_is_opened_for_it():
+    """LIBERO-10 task 3 lists "close the bottom drawer" first: the bowl goes in before. LIBERO-Goal task 3 puts the
+    bowl into a top drawer that starts shut: the bowl dragged clear, the drawer opened from above, the bowl put in;
+    into a middle drawer that starts shut (its handle under the top drawer's), refused."""
     from snapflow.envs.libero_expert import CloseDrawer, NoExpertError
     from snapflow.envs.libero_expert.goals import _in_order
 
@@ -70,8 +73,39 @@ def test_what_goes_into_a_drawer_goes_in_before_it_is_shut_and_a_shut_drawer_is_
     assert _in_order(goal) == [tuple(goal[1]), tuple(goal[0])]
     steps = make_libero_expert(goal).steps
     assert isinstance(steps[1], CloseDrawer) and steps[0].drawer == "white_cabinet_1_bottom"
-    with pytest.raises(NoExpertError, match="wooden_cabinet_1_top_region"):
-        make_libero_expert([["in", "akita_black_bowl_1", "wooden_cabinet_1_top_region"]])
+    into_top = ["in", "akita_black_bowl_1", "wooden_cabinet_1_top_region"]
+    for goal in ([into_top], [["open", "wooden_cabinet_1_top_region"], into_top]):
+        clear, opening, put = make_libero_expert(goal).steps
+        assert isinstance(clear, ClearDrawer) and isinstance(opening, OpenTopDrawer) and isinstance(put, PickAndPlace)
+        assert put.drawer == "wooden_cabinet_1_top" and put.rim_out and put.onto_site
+    with pytest.raises(NoExpertError, match="wooden_cabinet_1_middle_region"):
+        make_libero_expert([["in", "akita_black_bowl_1", "wooden_cabinet_1_middle_region"]])
+
+
+def test_a_bowl_is_dragged_clear_of_a_drawer_and_gripped_on_the_side_facing_out_of_it():
+    """A cabinet at the origin whose top drawer slides out along +y (its handle at +y), a bowl 12 cm to its -x side and
+    25 cm out: the bowl is dragged halfway between -x and +y. Put into the opened drawer (8 cm out along +y), it is
+    gripped on its rim's +y side turned by RIM_OUT_TURN, the hand turned by as much from upright."""
+    state = {
+        "robot0_eef_quat": np.array([1.0, 0.0, 0.0, 0.0]),
+        "robot0_eef_pos": np.array([-0.2, 0.0, 0.3]),
+        "wooden_cabinet_1_pos": np.zeros(3),
+        "wooden_cabinet_1_top_handle_pos": np.array([0.0, 0.1, 0.18]),
+        "akita_black_bowl_1_pos": np.array([-0.12, 0.25, 0.0]),
+    }
+    clear = ClearDrawer("akita_black_bowl_1", "wooden_cabinet_1", "top")
+    clear.reset(Observation(np.zeros(8), "task", None, {}, state))
+    assert clear.direction == pytest.approx(np.array([-1.0, 1.0]) / np.sqrt(2))
+    state |= {"wooden_cabinet_1_top_drawer_out": np.array([0.0, 0.08, 0.0])}
+    state |= {f"akita_black_bowl_1_{part}": np.zeros(1) for part in ("bottom", "top_offset")}
+    state |= {"wooden_cabinet_1_top_region_pos": np.array([0.0, 0.0, 0.18])}
+    put = PickAndPlace(
+        "akita_black_bowl_1", "wooden_cabinet_1_top_region", True, drawer="wooden_cabinet_1_top", rim_out=True
+    )
+    put.reset(Observation(np.zeros(8), "task", None, {}, state))
+    assert put.side == pytest.approx(np.pi / 2 + RIM_OUT_TURN) and put.placing_turn == pytest.approx(RIM_OUT_TURN)
+    rim = put._grasp_point(state)[:2] - state["akita_black_bowl_1_pos"][:2]
+    assert np.arctan2(rim[1], rim[0]) == pytest.approx(np.pi / 2 + RIM_OUT_TURN)
 
 
 class Hold(Primitive):

@@ -14,11 +14,15 @@ book across its thickness, turned on the way to stand upright in the caddy's com
 fixture's joint (``fixtures.py``: "open the middle drawer", "turn on the stove", a drawer pushed shut); a push (``push.py``: "push the plate
 to the front of the stove"). A goal of several predicates (LIBERO-10's "put both ... in the basket") runs their
 primitives in sequence (``sequence.py``): "put the black bowl in the bottom drawer and close it" puts the bowl near
-the open drawer's front, then pushes the drawer shut. ``goals.py`` maps a goal to its controller; any other (an object
-into a drawer that starts shut, or into the microwave) raises :class:`NoExpertError` naming it.
+the open drawer's front, then pushes the drawer shut; "open the top drawer and put the bowl inside" (LIBERO-Goal's
+task 3) drags the bowl clear of the drawer's way (``clear.py``: the open drawer would stand over it), opens the drawer
+from above and puts the bowl in, gripped on the rim's side facing out of it. ``goals.py`` maps a goal to its
+controller; any other (an object into a middle or bottom drawer that starts shut, or into the microwave) raises
+:class:`NoExpertError` naming it.
 """
 
-from snapflow.envs.libero_expert.fixtures import CloseDrawer, OpenDrawer, TurnOn
+from snapflow.envs.libero_expert.clear import ClearDrawer
+from snapflow.envs.libero_expert.fixtures import CloseDrawer, OpenDrawer, OpenTopDrawer, TurnOn
 from snapflow.envs.libero_expert.goals import LiberoExpert, NoExpertError, make_libero_expert
 from snapflow.envs.libero_expert.pick_and_place import PickAndPlace
 from snapflow.envs.libero_expert.push import Push
@@ -26,11 +30,13 @@ from snapflow.envs.libero_expert.scene import privileged_extras
 from snapflow.envs.libero_expert.sequence import InSequence
 
 __all__ = [
+    "ClearDrawer",
     "CloseDrawer",
     "InSequence",
     "LiberoExpert",
     "NoExpertError",
     "OpenDrawer",
+    "OpenTopDrawer",
     "PickAndPlace",
     "Push",
     "TurnOn",

@@ -16,6 +16,7 @@ from snapflow.envs.libero_expert.motion import (
     Primitive,
     move_action,
 )
+from snapflow.envs.libero_expert.pick_and_place import half_turn
 from snapflow.envs.rotations import axis_angle_to_quaternion, quaternion_multiply, rotation_between
 
 KNOB_GRIP_HEIGHT = 0.035  # the stove knob's fin: gripped this far above the stove's origin, on the knob's axis
@@ -171,6 +172,59 @@ class OpenDrawer(DrawerPrimitive):
         if self.phase == "release":
             return hand.copy(), OPEN, False
         return front, OPEN, False  # retreat, to the end of the episode
+
+
+# a top drawer is opened from above (nothing stands over its handle): the hand, upright, its fingers parting along the
+# drawer's slide, centres this far out from the handle's bar, so that its inner finger (thick higher up) clears the
+# cabinet's top and comes down between the bar and the drawer's face; it comes over that point this high first
+TOP_GRIP_OUT, TOP_GRIP_ABOVE = 0.04, 0.05
+
+
+class OpenTopDrawer(Primitive):
+    """Open a top drawer from above, the hand upright: come over the handle's bar with the fingers parting along the
+    drawer's slide, descend round the bar, close, pull straight out (steering on the handle's live position), open
+    and rise clear. Unlike :class:`OpenDrawer` it does not turn the hand to point into the cabinet, so it ends as the
+    next primitive of a sequence starts, upright."""
+
+    PHASES = ("above", "descend", "close", "pull", "release", "retreat")
+    # the descent meets the drawer's face 1.7 cm above the bar's centre, the fingers round the bar: grip there
+    PHASE_STEPS: ClassVar[dict[str, int]] = {
+        "above": 60, "descend": 25, "close": 8, "pull": 40, "release": 6
+    }  # fmt: skip
+
+    def __init__(self, cabinet: str, level: str) -> None:
+        self.cabinet, self.handle = f"{cabinet}_pos", f"{cabinet}_{level}_handle_pos"
+
+    def reset(self, observation: Observation, upright: np.ndarray | None = None) -> None:
+        super().reset(observation, upright)
+        state = observation.privileged
+        self.start = np.array(state[self.handle], dtype=float)
+        out = (self.start - state[self.cabinet])[:2]
+        self.out = np.array([*(out / max(float(np.linalg.norm(out)), 1e-6)), 0.0])
+        # upright, the fingers part along the hand's y axis (world y at yaw 0): turn it along the slide
+        turn = half_turn(float(np.arctan2(self.out[1], self.out[0])) - np.pi / 2)
+        self.orientation = quaternion_multiply(axis_angle_to_quaternion(np.array([0.0, 0.0, turn])), self.upright)
+
+    def act(self, observation: Observation) -> np.ndarray:
+        state = observation.privileged
+        hand, handle = state["robot0_eef_pos"], state[self.handle]
+        grip = handle + self.out * TOP_GRIP_OUT
+        self.timer += 1
+        if self.phase == "above":
+            goal, gripper = grip + np.array([0.0, 0.0, TOP_GRIP_ABOVE]), OPEN
+            done = np.linalg.norm(hand - goal) < 0.015
+        elif self.phase in ("descend", "close"):
+            goal, gripper = grip, OPEN if self.phase == "descend" else CLOSED
+            done = self.phase == "descend" and np.linalg.norm(hand - grip) < REACHED
+        elif self.phase == "pull":
+            goal, gripper = grip + self.out * POSITION_SCALE, CLOSED
+            done = float(np.dot(handle - self.start, self.out)) > DRAWER_PULL
+        elif self.phase == "release":
+            goal, gripper, done = hand.copy(), OPEN, False
+        else:  # retreat, up off the bar, to the end of the episode
+            goal, gripper, done = np.array([*hand[:2], grip[2] + TOP_GRIP_ABOVE]), OPEN, False
+        self.advance(done)
+        return move_action(hand, goal, rotation_between(state["robot0_eef_quat"], self.orientation), gripper)
 
 
 class CloseDrawer(DrawerPrimitive):

@@ -5,9 +5,10 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 
-from snapflow.envs.libero_expert.fixtures import CloseDrawer, OpenDrawer, TurnOn
+from snapflow.envs.libero_expert.clear import ClearDrawer
+from snapflow.envs.libero_expert.fixtures import CloseDrawer, OpenDrawer, OpenTopDrawer, TurnOn
 from snapflow.envs.libero_expert.motion import Primitive
-from snapflow.envs.libero_expert.pick_and_place import PickAndPlace
+from snapflow.envs.libero_expert.pick_and_place import BOWLS, PickAndPlace
 from snapflow.envs.libero_expert.push import PUSHED, Push
 from snapflow.envs.libero_expert.sequence import InSequence
 from snapflow.errors import InvalidInputError
@@ -62,10 +63,27 @@ def _share_surfaces(steps: Sequence[Primitive]) -> None:
             step.offset[0] = SHARED_SURFACE_SPACING * ((len(sharing) - 1) / 2 - index)
 
 
+def _into_top_drawer(goal_state: Sequence[Sequence[str]]) -> InSequence | None:
+    """The controller of "open the top drawer and put the bowl inside" (LIBERO-Goal's task 3: a bowl into a top
+    drawer that starts shut, the drawer's opening asked for or not), or None for any other goal. The open drawer would
+    stand over the bowl beside it, 1-2 cm from every grip of its rim: the bowl is dragged clear first, the drawer opened
+    from above (nothing stands over a top drawer's handle), then the bowl put in, gripped on its rim's side facing out
+    of the drawer."""
+    into = [predicate for predicate in goal_state if predicate[0] == "in" and len(predicate) == 3]
+    drawer = re.fullmatch(DRAWER, into[0][2]) if len(into) == 1 else None
+    if not drawer or drawer.group(2) != "top" or not into[0][1].startswith(BOWLS):  # a bowl: dragged from inside
+        return None
+    (_, obj, region), (cabinet, level) = into[0], drawer.groups()
+    if any(tuple(predicate) not in (tuple(into[0]), ("open", region)) for predicate in goal_state):
+        return None
+    put = PickAndPlace(obj, region, onto_site=True, drawer=f"{cabinet}_{level}", rim_out=True)
+    return InSequence([ClearDrawer(obj, cabinet, level), OpenTopDrawer(cabinet, level), put])
+
+
 def _in_order(goal_state: Sequence[Sequence[str]]) -> list[tuple[str, ...]]:
     """The goal's predicates in the order they are achieved: what goes into a drawer before the drawer is shut. An
-    object into a drawer that the goal does not shut (a drawer that starts shut) is left out, so the goal is refused:
-    the open drawer would stand 1-2 cm from every grip of the bowl's rim (LIBERO-Goal's task 3)."""
+    object into a drawer that the goal does not shut (a drawer that starts shut) is left out, so the goal is refused,
+    except where :func:`_into_top_drawer` covers it."""
     predicates = sorted((tuple(predicate) for predicate in goal_state), key=lambda predicate: predicate[0] == "close")
     shut = {predicate[1] for predicate in predicates if predicate[0] == "close"}
     return [p for p in predicates if not (p[0] == "in" and re.fullmatch(DRAWER, p[-1]) and p[-1] not in shut)]
@@ -73,6 +91,9 @@ def _in_order(goal_state: Sequence[Sequence[str]]) -> list[tuple[str, ...]]:
 
 def make_libero_expert(goal_state: Sequence[Sequence[str]]) -> LiberoExpert:
     """The controller of a LIBERO goal (its BDDL ``goal_state``), or :class:`NoExpertError` naming it."""
+    filling = _into_top_drawer(goal_state)
+    if filling is not None:
+        return filling
     predicates = _in_order(goal_state)
     steps = [_primitive(predicate, arguments) for predicate, *arguments in predicates]
     if not steps or None in steps or len(predicates) < len(goal_state):
