@@ -108,6 +108,29 @@ def test_a_bowl_is_dragged_clear_of_a_drawer_and_gripped_on_the_side_facing_out_
     assert np.arctan2(rim[1], rim[0]) == pytest.approx(np.pi / 2 + RIM_OUT_TURN)
 
 
+def test_a_mug_goes_into_the_microwave_gripped_on_the_side_away_from_its_door_and_the_door_is_pushed_shut():
+    """LIBERO-10 task 9: the mug into the microwave, then its door shut. The microwave at (0, 0.35) faces -y (its
+    mouth's way out): the mug is gripped on its rim's +x side (towards the control panel, away from the door), the hand
+    turned a quarter turn, and let go 7.5 cm out of the origin and 7.5 cm towards the door's side; another goal of the
+    microwave is refused."""
+    from snapflow.envs.libero_expert import NoExpertError
+    from snapflow.envs.libero_expert.microwave import MOUTH_ACROSS, MOUTH_OUT, CloseMicrowave, IntoMicrowave
+
+    goal = [["in", "white_yellow_mug_1", "microwave_1_heating_region"], ["close", "microwave_1"]]
+    into, close = make_libero_expert(goal).steps
+    assert isinstance(into, IntoMicrowave) and isinstance(close, CloseMicrowave) and close.microwave == "microwave_1"
+    state = {
+        "robot0_eef_quat": np.array([1.0, 0.0, 0.0, 0.0]),
+        "microwave_1_pos": np.array([0.0, 0.35, 0.9]),
+        "microwave_1_out": np.array([0.0, -1.0, 0.0]),
+    }
+    into.reset(Observation(np.zeros(8), "task", None, {}, state))
+    assert into.side == pytest.approx(0.0) and MOUTH_OUT == MOUTH_ACROSS * -1 == pytest.approx(0.075)
+    assert into.target == pytest.approx(np.array([-0.075, 0.275, 0.9]))
+    with pytest.raises(NoExpertError, match="microwave_1"):
+        make_libero_expert([["open", "microwave_1"]])
+
+
 class Hold(Primitive):
     """A primitive that holds the gripper at a fixed command for ``steps`` steps of work, then its last phase."""
 

@@ -16,14 +16,17 @@ to the front of the stove"). A goal of several predicates (LIBERO-10's "put both
 primitives in sequence (``sequence.py``): "put the black bowl in the bottom drawer and close it" puts the bowl near
 the open drawer's front, then pushes the drawer shut; "open the top drawer and put the bowl inside" (LIBERO-Goal's
 task 3) drags the bowl clear of the drawer's way (``clear.py``: the open drawer would stand over it), opens the drawer
-from above and puts the bowl in, gripped on the rim's side facing out of it. ``goals.py`` maps a goal to its
-controller; any other (an object into a middle or bottom drawer that starts shut, or into the microwave) raises
-:class:`NoExpertError` naming it.
+from above and puts the bowl in, gripped on the rim's side facing out of it; "put the yellow and white mug in the
+microwave and close it" (LIBERO-10's task 9, ``microwave.py``) carries the mug by its rim, the hand pitched into the
+microwave's mouth, lets it go just inside and pushes the door shut, which pushes the mug the rest of the way in.
+``goals.py`` maps a goal to its controller; any other (an object into a middle or bottom drawer that starts shut, or
+anything but a mug into the microwave) raises :class:`NoExpertError` naming it.
 """
 
 from snapflow.envs.libero_expert.clear import ClearDrawer
 from snapflow.envs.libero_expert.fixtures import CloseDrawer, OpenDrawer, OpenTopDrawer, TurnOn
 from snapflow.envs.libero_expert.goals import LiberoExpert, NoExpertError, make_libero_expert
+from snapflow.envs.libero_expert.microwave import CloseMicrowave, IntoMicrowave
 from snapflow.envs.libero_expert.pick_and_place import PickAndPlace
 from snapflow.envs.libero_expert.push import Push
 from snapflow.envs.libero_expert.scene import privileged_extras
@@ -32,7 +35,9 @@ from snapflow.envs.libero_expert.sequence import InSequence
 __all__ = [
     "ClearDrawer",
     "CloseDrawer",
+    "CloseMicrowave",
     "InSequence",
+    "IntoMicrowave",
     "LiberoExpert",
     "NoExpertError",
     "OpenDrawer",

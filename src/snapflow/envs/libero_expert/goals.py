@@ -7,6 +7,7 @@ from collections.abc import Sequence
 
 from snapflow.envs.libero_expert.clear import ClearDrawer
 from snapflow.envs.libero_expert.fixtures import CloseDrawer, OpenDrawer, OpenTopDrawer, TurnOn
+from snapflow.envs.libero_expert.microwave import CloseMicrowave, IntoMicrowave
 from snapflow.envs.libero_expert.motion import Primitive
 from snapflow.envs.libero_expert.pick_and_place import BOWLS, PickAndPlace
 from snapflow.envs.libero_expert.push import PUSHED, Push
@@ -19,6 +20,7 @@ SURFACES = ("_cook_region", "_top_side", "wine_rack_1_top_region")
 CADDY_SLOT = r"desk_caddy_\d+_(back|front)_contain_region"  # the caddy's compartments long along y
 TABLE_REGION = r"[a-z_]+_table_[a-z_]+_region"  # a region of the table (to the right of the plate, ...)
 DRAWER = r"(.+_cabinet_\d+)_(top|middle|bottom)_region"  # a cabinet's drawer: its cabinet and level
+MICROWAVE = r"microwave_\d+"
 # objects put on one fixture's surface side by side stand this far apart along x (the first the farthest)
 SHARED_SURFACE_SPACING = 0.09
 
@@ -38,8 +40,13 @@ def _primitive(predicate: str, arguments: Sequence[str]) -> Primitive | None:
         return CloseDrawer(*drawer.groups())
     if predicate == "turnon" and len(arguments) == 1 and arguments[0].startswith("flat_stove"):
         return TurnOn(arguments[0])
+    if predicate == "close" and len(arguments) == 1 and re.fullmatch(MICROWAVE, arguments[0]):
+        return CloseMicrowave(arguments[0])
     if predicate in ("on", "in") and len(arguments) == 2 and re.fullmatch(OBJECT_NAME, arguments[0]):
         obj, target = arguments
+        microwave = re.fullmatch(f"({MICROWAVE})_heating_region", target)
+        if microwave and "_mug_" in obj:  # a mug, gripped by its rim (read from the scene)
+            return IntoMicrowave(obj, microwave.group(1))
         if re.fullmatch(CADDY_SLOT, target):  # a compartment of the desk caddy: upright, its thin side along x
             return PickAndPlace(obj, target, onto_site=True, slot_yaw=0.0)
         target = target.removesuffix("_contain_region")  # "in the basket": over the basket itself

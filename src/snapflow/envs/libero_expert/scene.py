@@ -17,8 +17,8 @@ def privileged_extras(env: Any) -> dict[str, np.ndarray]:
     """What the controllers read beyond robosuite's observation, from the live LIBERO environment ``env``: each
     object's top and bottom above its origin (how deep to grip it, how high to release it), each fixture's position
     (the stove's knob is at its origin), each region's (a site's), each object's lowest and highest points
-    (:func:`object_extent`), each mug's rim (:func:`cup_rim`), a book's thin side (:func:`thin_axis`), and each drawer's
-    handle and how far it is out."""
+    (:func:`object_extent`), each mug's rim (:func:`cup_rim`), a book's thin side (:func:`thin_axis`), each drawer's
+    handle and how far it is out, and a microwave's mouth and door (:func:`microwave_door`)."""
     sim, inner = env.env.sim, env.env
     extras = {}
     for name, obj in inner.objects_dict.items():
@@ -40,9 +40,27 @@ def privileged_extras(env: Any) -> dict[str, np.ndarray]:
                 )
                 # a drawer's body sits at its cabinet's origin when shut
                 extras[f"{name}_{level}_drawer_out"] = sim.data.body_xpos[body] - extras[f"{name}_pos"]
+        if f"{name}_microdoorroot" in sim.model.body_names:
+            extras |= microwave_door(sim, name, inner.obj_body_id[name])
     for name in inner.object_sites_dict:
         extras[f"{name}_pos"] = np.array(sim.data.get_site_xpos(name))
     return extras
+
+
+def microwave_door(sim: Any, name: str, body: int) -> dict[str, np.ndarray]:
+    """LIBERO's microwave ``name`` (its body ``body``): the way out of its mouth (``<name>_out``, its frame's -y), its
+    door's hinge (``_door_pos``, at the door's mid-height), the door's direction from the hinge to its free end
+    (``_door_along``), its outer face's normal (``_door_face``) and its hinge's angle (``_door_angle``: 0 shut, down
+    to -2.09 open)."""
+    door = sim.model.body_name2id(f"{name}_microdoorroot")
+    frame, door_frame = sim.data.body_xmat[body].reshape(3, 3), sim.data.body_xmat[door].reshape(3, 3)
+    return {
+        f"{name}_out": -frame[:, 1],
+        f"{name}_door_pos": np.array(sim.data.body_xpos[door]),
+        f"{name}_door_along": door_frame[:, 0],
+        f"{name}_door_face": -door_frame[:, 1],
+        f"{name}_door_angle": np.array([sim.data.get_joint_qpos(f"{name}_microjoint")]),
+    }
 
 
 def collision_geoms(model: Any, body: int, boxes_only: bool = False) -> np.ndarray:
