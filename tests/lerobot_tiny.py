@@ -191,6 +191,9 @@ def model_inputs(policy, batch: dict[str, torch.Tensor]) -> tuple:
 
     language = batch["observation.language.tokens"], batch["observation.language.attention_mask"]
     policy_type = base_policy_type(policy.config)
+    if policy_type == "multi_task_dit":  # one observation step: the frame gets its steps axis
+        frames = {key: batch[key][:, None] for key in ("observation.state", *policy.config.image_features)}
+        return (policy._prepare_batch({**batch, **frames}),)
     if policy_type == "xvla":
         inputs = policy._build_model_inputs(batch)
         return tuple(inputs[name] for name in ("input_ids", "image_input", "image_mask", "domain_id", "proprio"))

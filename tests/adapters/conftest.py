@@ -13,3 +13,11 @@ def vlm_directory(tmp_path_factory):
     from tests.lerobot_tiny import write_tiny_smolvlm
 
     return write_tiny_smolvlm(tmp_path_factory.mktemp("tiny_smolvlm"))
+
+
+@pytest.fixture(scope="session")
+def clip_directory(tmp_path_factory, vlm_directory):
+    """A one-layer CLIP for the tiny multi-task DiT, with the tiny SmolVLM's tokenizer beside it."""
+    from tests.lerobot_tiny_multi_task_dit import write_tiny_clip
+
+    return write_tiny_clip(tmp_path_factory.mktemp("clip") / "tiny-clip", tokenizer=vlm_directory)

@@ -425,7 +425,12 @@ class LeRobotAdapterContract(FlowPolicyContract):
         for ours, theirs in zip(
             policy.model_inputs(observation), model_inputs(policy.policy, observation), strict=True
         ):
-            pairs = list(zip(ours, theirs, strict=True)) if isinstance(ours, (list, tuple)) else [(ours, theirs)]
+            if isinstance(ours, dict):
+                pairs = [(ours[key], theirs[key]) for key in sorted(ours.keys() | theirs.keys())]
+            elif isinstance(ours, (list, tuple)):
+                pairs = list(zip(ours, theirs, strict=True))
+            else:
+                pairs = [(ours, theirs)]
             assert all(torch.equal(a, b) for a, b in pairs)
 
     def test_the_adapters_own_state_dict_holds_each_tensor_once(self, policy):
@@ -633,6 +638,86 @@ class TestXVLAAdapter(LeRobotAdapterContract):
             own = policy.policy.model.generate_actions(**inputs, steps=1)
         naive = sample_actions(policy, observation, self.noise_like(actions), NAIVE_1)
         torch.testing.assert_close(own, naive, atol=1e-6, rtol=0)
+
+
+@PI_SKIP
+class TestMultiTaskDiTAdapter(LeRobotAdapterContract):
+    """Multi-task DiT by flow matching runs its flow the other way (t = 0 noise): its "own" Euler is written out
+    here by hand from LeRobot's transformer, on snapflow's grid, its velocity negated at LeRobot's time 1 - t."""
+
+    policy_type = "multi_task_dit"
+    deploy_graphs = None  # torchvision's crop and CLIP's pooling by token id split the prefix's graph
+
+    @pytest.fixture(autouse=True)
+    def _tiny_clip(self, clip_directory: Path) -> None:
+        self.clip_directory = clip_directory
+
+    def build_lerobot(self) -> nn.Module:
+        from tests.lerobot_tiny_multi_task_dit import build_tiny_multi_task_dit
+
+        return build_tiny_multi_task_dit(self.clip_directory)
+
+    @staticmethod
+    def encoded(lerobot: nn.Module, observation: Any) -> Tensor:
+        from snapflow.adapters.lerobot.base import frozen_prefix_pass
+        from tests.lerobot_tiny import model_inputs
+
+        (batch,) = model_inputs(lerobot, observation)
+        with frozen_prefix_pass(lerobot.observation_encoder):  # eval mode: the centre crop
+            return lerobot.observation_encoder.encode(batch)
+
+    @staticmethod
+    def own_velocity(lerobot: nn.Module, conditioning: Tensor, x: Tensor, t: Tensor) -> Tensor:
+        return -lerobot.noise_predictor(x, 1 - t, conditioning_vec=conditioning)
+
+    def lerobot_own_sample(self, lerobot: nn.Module, observation: Any, noise: Tensor, steps: int) -> Tensor:
+        grid = torch.linspace(1.0, 0.0, steps + 1)
+        with torch.no_grad():
+            conditioning, x = self.encoded(lerobot, observation), noise
+            for t, t_next in zip(grid[:-1], grid[1:], strict=True):
+                velocity = self.own_velocity(lerobot, conditioning, x, t.expand(noise.shape[0]))
+                x = x + (t_next - t).expand(noise.shape[0])[:, None, None] * velocity
+        return x
+
+    def lerobot_own_flow_matching_loss(
+        self, lerobot: nn.Module, observation: Any, actions: Tensor, noise: Tensor, time: Tensor
+    ) -> Tensor:
+        x_t = time[:, None, None] * noise + (1 - time[:, None, None]) * actions
+        velocity = self.own_velocity(lerobot, self.encoded(lerobot, observation), x_t, time)
+        return (velocity - (noise - actions)).pow(2).mean()
+
+    def lerobot_chunk(self, lerobot: nn.Module, observation: Any, noise: Tensor) -> Tensor:
+        from lerobot.policies.utils import populate_queues
+
+        # its action API reads the observation queues select_action fills, and draws its own noise after the prefix
+        lerobot.reset()
+        batch = lerobot._prepare_batch({key: value for key, value in observation.items() if key != "action"})
+        lerobot._queues = populate_queues(lerobot._queues, batch)
+        torch.manual_seed(0)
+        return lerobot.predict_action_chunk(batch)
+
+    def test_its_own_ten_euler_steps_are_the_teacher_mode_within_rounding(self, policy, batch):
+        """LeRobot's own integrator (100 steps by default, 10 in the tiny config) runs the same flow as
+        ``teacher-10``, on its own time grid."""
+        observation, actions = batch
+        lerobot = policy.policy
+        with torch.no_grad():
+            conditioning = self.encoded(lerobot, observation)
+            torch.manual_seed(0)
+            own = lerobot.objective.conditional_sample(lerobot.noise_predictor, self.batch_size, conditioning)
+        teacher = sample_actions(policy, observation, self.noise_like(actions), TEACHER_10)
+        torch.testing.assert_close(own, teacher, atol=1e-5, rtol=1e-5)
+
+    def test_a_ddpm_trained_policy_is_refused_by_name(self):
+        from lerobot.policies.multi_task_dit.modeling_multi_task_dit import MultiTaskDiTPolicy
+
+        from snapflow.adapters.lerobot import wrap_policy
+        from snapflow.errors import InvalidInputError
+
+        config = self.build_lerobot().config
+        config.objective = "diffusion"
+        with pytest.raises(InvalidInputError, match="a DDPM denoiser has no velocity field"):
+            wrap_policy(MultiTaskDiTPolicy(config))
 
 
 # ---- the built-in policies ------------------------------------------------------------------------------------

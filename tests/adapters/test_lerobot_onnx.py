@@ -1,4 +1,4 @@
-"""``snapflow export`` of a distilled LeRobot SmolVLA (and X-VLA): one ONNX graph over LeRobot's pre-processed batch (prefix
+"""``snapflow export`` of a distilled LeRobot SmolVLA (and X-VLA, multi-task DiT): one ONNX graph over LeRobot's pre-processed batch (prefix
 and jump), saved beside the policy's config and processors, loaded back by ``snapflow eval`` with those processors,
 giving the PyTorch student's actions."""
 
@@ -21,6 +21,7 @@ from snapflow.flow.modes import SNAPFLOW_1, TEACHER_10  # noqa: E402
 from snapflow.flow.solver import sample_actions  # noqa: E402
 from snapflow.policies.checkpoint import CheckpointError  # noqa: E402
 from tests.lerobot_tiny import PI_SKIP, save_tiny_student  # noqa: E402
+from tests.lerobot_tiny_multi_task_dit import save_tiny_multi_task_dit_student  # noqa: E402
 from tests.lerobot_tiny_xvla import save_tiny_xvla_student  # noqa: E402
 
 STATE_DIM, IMAGE_SIZE = 6, 64
@@ -76,13 +77,20 @@ def test_a_distilled_smolvla_exports_to_one_graph_that_gives_its_actions(vlm_dir
 
 @pytest.mark.slow
 @PI_SKIP
-def test_a_distilled_xvla_exports_to_one_graph_that_gives_its_actions(vlm_directory, tmp_path):
-    """A type beyond the pi0 family: X-VLA's Florence-2 prefix (its views counted without a host synchronisation)
-    and the jump in one graph, giving the PyTorch student's actions through the same processors."""
-    student = save_tiny_xvla_student(vlm_directory, tmp_path / "student")
+@pytest.mark.parametrize("policy_type", ["xvla", "multi_task_dit"])
+def test_a_student_beyond_the_pi0_family_exports_to_one_graph_that_gives_its_actions(
+    policy_type, vlm_directory, request, tmp_path
+):
+    """X-VLA (its Florence-2 prefix counting its views without a host synchronisation) and multi-task DiT (CLIP's
+    encoders, its flow run the other way): prefix and jump in one graph, the PyTorch student's actions through the
+    same processors."""
+    if policy_type == "xvla":
+        student = save_tiny_xvla_student(vlm_directory, tmp_path / "student")
+    else:
+        student = save_tiny_multi_task_dit_student(request.getfixturevalue("clip_directory"), tmp_path / "student")
     output = tmp_path / "onnx"
     assert main(["export", "--policy", str(student), "--output", str(output)]) == 0
-    assert json.loads((output / "snapflow.json").read_text())["policy"] == "xvla"
+    assert json.loads((output / "snapflow.json").read_text())["policy"] == policy_type
     eager, exported = load_lerobot_policy(student), load_lerobot_policy(output)
     for rows in (1, 3):
         raw = _raw_batch(rows, rows)

@@ -212,7 +212,7 @@ def _with(init, **attributes):
 
 
 @PLUGINS
-@pytest.mark.parametrize("base_type", ["smolvla", "pi0", "pi05", "xvla"])
+@pytest.mark.parametrize("base_type", ["smolvla", "pi0", "pi05", "xvla", "multi_task_dit"])
 def test_each_student_type_resolves_as_lerobots_own_policy_tests_expect(base_type):
     """What LeRobot checks of a policy type, by type name alone: its config and policy classes (the policy's
     ``config`` annotation a class the config is an instance of), the defaults, and a processor factory."""

@@ -1,6 +1,8 @@
-"""``snapflow serve``: LeRobot's own async-inference policy server serves a distilled student (SmolVLA, pi0, pi0.5, X-VLA)
-to a client made of LeRobot's own gRPC types, one denoising pass a chunk (ten as its teacher), and refuses the student
-asked for under its teacher's type instead of dropping phi_s."""
+"""``snapflow serve``: LeRobot's own async-inference policy server serves a distilled student (SmolVLA, pi0, pi0.5,
+X-VLA) to a client made of LeRobot's own gRPC types, one denoising pass a chunk (ten as its teacher), and refuses the
+student asked for under its teacher's type instead of dropping phi_s. Not a multi-task DiT: LeRobot's server calls its
+``predict_action_chunk``, which reads observation queues only its ``select_action`` fills (LeRobot 0.6.1), teacher or
+student alike."""
 
 from __future__ import annotations
 

@@ -73,7 +73,6 @@ NOT_DISTILLED: dict[str, str] = {
     "fastwam": "flow-matching (10-20 steps), not adapted yet",
     "lingbot_va": "flow-matching (20-50 steps), not adapted yet",
     "vla_jepa": "flow-matching (4 steps), not adapted yet",
-    "multi_task_dit": "a diffusion transformer with a flow-matching time grid, not adapted yet",
     "eo1": "flow-matching, not adapted yet",
 }
 
@@ -166,6 +165,16 @@ register_lerobot_policy_type(
         "lerobot.policies.xvla.modeling_xvla:XVLAPolicy",
         "snapflow.adapters.lerobot.xvla:XVLAFlowPolicy",
         architecture_options={"florence_config": XVLA_FLORENCE_LARGE, "action_mode": "auto"},
+    )
+)
+register_lerobot_policy_type(
+    LeRobotPolicyType(
+        "multi_task_dit",
+        "MultiTaskDiT",
+        "lerobot.policies.multi_task_dit.configuration_multi_task_dit:MultiTaskDiTConfig",
+        "lerobot.policies.multi_task_dit.modeling_multi_task_dit:MultiTaskDiTPolicy",
+        "snapflow.adapters.lerobot.multi_task_dit:MultiTaskDiTFlowPolicy",
+        architecture_options={"objective": "flow_matching"},
     )
 )
 

@@ -114,9 +114,10 @@ def _cast(observation: Any, device: torch.device, dtype: torch.dtype) -> Any:
 def exported_lerobot_subject(loaded: Any, name: str) -> BenchSubject:
     """An export of a distilled LeRobot policy (``LoadedLeRobotPolicy``), timed at the one jump it runs."""
     from snapflow.adapters.lerobot.evaluation import lerobot_observation
+    from snapflow.adapters.lerobot.registry import lerobot_chunk_shape
 
     config = loaded.config
-    noise = torch.randn(1, config.chunk_size, config.max_action_dim)
+    noise = torch.randn(1, *lerobot_chunk_shape(config))
     observation = lerobot_observation(config, torch.device("cpu"))
     details = {"policy_type": config.type, loaded.export["format"]: loaded.export}
     return BenchSubject(
@@ -152,7 +153,7 @@ def lerobot_subject(
             "parameters": _parameter_count(adapter),
             "expert_parameters": expert,
             "policy_type": adapter.policy_type,
-            "chunk_size": config.chunk_size,
+            "chunk_size": adapter.action_shape[0],
             "tokens": config.tokenizer_max_length,
             "cameras": list(config.image_features),
         },

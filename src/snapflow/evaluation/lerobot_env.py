@@ -75,7 +75,7 @@ def evaluate_in_lerobot_env(
         raise InvalidInputError("episodes and n_envs must be at least 1")
     adapter = _open_lerobot_policy(policy_directory, modes)
     policy = adapter.policy
-    chunk = policy.config.chunk_size
+    chunk = adapter.action_shape[0]
     n_action_steps = n_action_steps or policy.config.n_action_steps
     if not 1 <= n_action_steps <= chunk:
         raise InvalidInputError(

@@ -304,7 +304,7 @@ def _distill_lerobot(
     check_dataset_features(policy.config, metadata.features, repo_id)
     if val_fraction is None:  # the teacher's held-out episodes stay held out
         val_fraction = opened.val_fraction
-    dataset = training_dataset(metadata, dataset_root, policy.config.chunk_size, val_fraction)
+    dataset = training_dataset(metadata, dataset_root, adapter.action_shape[0], val_fraction)
     features = {**policy.config.input_features, **policy.config.output_features}
     check_finite(dataset.dataset, [key for key, feature in features.items() if feature.type.name != "VISUAL"])
     preprocessor, postprocessor = policy_processors(policy, policy_path, metadata.stats, preprocessor_overrides)

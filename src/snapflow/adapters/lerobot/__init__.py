@@ -1,6 +1,6 @@
-"""LeRobot's pi0, pi0.5, SmolVLA and X-VLA under SnapFlow, without editing LeRobot's code.
+"""LeRobot's pi0, pi0.5, SmolVLA, X-VLA and multi-task DiT under SnapFlow, without editing LeRobot's code.
 
-Needs ``pip install "snapflow-vla[lerobot]"``: lerobot 0.4.4 (SmolVLA) on Python 3.11, lerobot >= 0.5 (all four)
+Needs ``pip install "snapflow-vla[lerobot]"``: lerobot 0.4.4 (SmolVLA) on Python 3.11, lerobot >= 0.5 (all five)
 on Python >= 3.12.
 """
 
@@ -15,6 +15,7 @@ except ImportError as error:  # pragma: no cover - depends on the environment
 
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
 from snapflow.adapters.lerobot.checkpoint import load_distilled, load_pretrained_policy, save_distilled
+from snapflow.adapters.lerobot.multi_task_dit import MultiTaskDiTFlowPolicy
 from snapflow.adapters.lerobot.pi0 import PI0FlowPolicy, PI05FlowPolicy
 from snapflow.adapters.lerobot.registry import wrap_policy
 from snapflow.adapters.lerobot.smolvla import SmolVLAFlowPolicy
@@ -22,6 +23,7 @@ from snapflow.adapters.lerobot.xvla import XVLAFlowPolicy
 
 __all__ = [
     "LeRobotFlowPolicy",
+    "MultiTaskDiTFlowPolicy",
     "PI0FlowPolicy",
     "PI05FlowPolicy",
     "SmolVLAFlowPolicy",

@@ -32,8 +32,9 @@ OBS_LANGUAGE_ATTENTION_MASK = "observation.language.attention_mask"
 #: a prompt cut of its padding keeps a multiple of this many tokens: a compiled prefix then meets few shapes
 PROMPT_BUCKET = 16
 
-#: ``sample(inputs, noise, inference_delay, prev_chunk_left_over, execution_horizon) -> chunk``: what
-#: :meth:`LeRobotFlowPolicy.use_sampling_mode` hands a type's :meth:`~LeRobotFlowPolicy.install_sampler`
+#: ``sample(inputs, noise, inference_delay, prev_chunk_left_over, execution_horizon, context=None) -> chunk``: what
+#: :meth:`LeRobotFlowPolicy.use_sampling_mode` hands a type's :meth:`~LeRobotFlowPolicy.install_sampler`; ``context``
+#: instead of ``inputs`` where the policy's own sampling receives its prefix encoded already
 ChunkSampler = Callable[..., Tensor]
 
 
@@ -88,7 +89,7 @@ class LeRobotFlowPolicy(nn.Module, ABC):
         self.policy = policy
         #: the prefix pass keeps its graph (a teacher trained from scratch); distillation keeps the VLM frozen
         self.train_prefix = False
-        model = policy.model
+        model = self.time_owner
         if not hasattr(model, "target_time_embedding"):
             embedding = self.new_target_time_embedding()
             device = next(model.parameters()).device
@@ -96,10 +97,16 @@ class LeRobotFlowPolicy(nn.Module, ABC):
             self.install_target_time(model)
 
     @property
+    def time_owner(self) -> nn.Module:
+        """The module of the policy that holds phi_s (``target_time_embedding``) and whose method reads the time:
+        LeRobot's ``policy.model`` where it has one."""
+        return self.policy.model
+
+    @property
     def target_time_embedding(self) -> TargetTimeEmbedding:
         """phi_s, stored inside the LeRobot model so that LeRobot's own checkpoints carry it (registered once:
         safetensors refuses tensors saved under two names)."""
-        return self.policy.model.target_time_embedding
+        return self.time_owner.target_time_embedding
 
     @abstractmethod
     def new_target_time_embedding(self) -> TargetTimeEmbedding:
@@ -107,7 +114,7 @@ class LeRobotFlowPolicy(nn.Module, ABC):
 
     @abstractmethod
     def install_target_time(self, model: nn.Module) -> None:
-        """Replace, on ``model`` (the instance), the method where the policy's time enters by one that reads a
+        """Replace, on ``model`` (:attr:`time_owner`), the method where the policy's time enters by one that reads a
         (B, 2) timestep as [t, s] and adds ``model.target_time_embedding(s)`` there."""
 
     @abstractmethod
@@ -120,11 +127,16 @@ class LeRobotFlowPolicy(nn.Module, ABC):
         modules = [*self.expert_modules(), self.target_time_embedding]
         return [parameter for module in modules for parameter in module.parameters()]
 
+    @classmethod
+    def chunk_shape(cls, config: Any) -> tuple[int, int]:
+        """(chunk length, action width) of the noise and of the chunk a policy of ``config`` samples, padding
+        included: LeRobot's ``chunk_size`` and ``max_action_dim`` where it has them."""
+        return config.chunk_size, config.max_action_dim
+
     @property
     def action_shape(self) -> tuple[int, int]:
-        """(chunk length, action width) of the noise and of the chunk the model samples, padding included."""
-        config = self.policy.config
-        return config.chunk_size, config.max_action_dim
+        """:meth:`chunk_shape` of this policy's config."""
+        return self.chunk_shape(self.policy.config)
 
     def action_targets(self, batch: dict[str, Tensor]) -> Tensor:
         """The batch's action chunk as the policy's training forward pads it."""
@@ -218,12 +230,14 @@ class LeRobotFlowPolicy(nn.Module, ABC):
             inference_delay: int | None = None,
             prev_chunk_left_over: Tensor | None = None,
             execution_horizon: int | None = None,
+            context: dict[str, Any] | None = None,
         ) -> Tensor:
             chosen = current()
-            processor = rtc_processor_in_force(self.policy.model)
-            context = self.encode_inputs(*inputs)
+            processor = rtc_processor_in_force(self.time_owner)
+            if context is None:  # a policy whose sampling gets its prefix already encoded passes it instead
+                context = self.encode_inputs(*inputs)
             if noise is None:
-                noise = self.draw_noise(context, _batch_size(inputs))
+                noise = self.draw_noise(context, _batch_size(context))
             velocity = lambda x, t, s: self.velocity(x, t, s, context)  # noqa: E731
             return sample_with_rtc(
                 velocity, noise, chosen, processor, prev_chunk_left_over, inference_delay, execution_horizon

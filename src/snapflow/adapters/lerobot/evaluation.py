@@ -30,7 +30,7 @@ from snapflow.adapters.lerobot.checkpoint import (
 )
 from snapflow.adapters.lerobot.dataset import IMAGE_PREFIX, STATE
 from snapflow.adapters.lerobot.local_vlm import saved_processors
-from snapflow.adapters.lerobot.registry import lerobot_time_sampler, wrap_policy
+from snapflow.adapters.lerobot.registry import lerobot_chunk_shape, lerobot_time_sampler, wrap_policy
 from snapflow.errors import InvalidInputError
 from snapflow.flow.time_sampling import BetaTimeSampler
 from snapflow.inference.formats import export_format, export_record
@@ -57,9 +57,10 @@ class LeRobotProcessor:
         if len(sizes) != 1:
             raise InvalidInputError(f"this {config.type} reads cameras of different sizes {sorted(sizes)}")
         (action,) = config.output_features.values()
-        if action.shape[0] != config.max_action_dim:
+        self._chunk_length, width = lerobot_chunk_shape(config)
+        if action.shape[0] != width:
             raise InvalidInputError(
-                f"this {config.type} pads {action.shape[0]}-D actions to {config.max_action_dim}; "
+                f"this {config.type} pads {action.shape[0]}-D actions to {width}; "
                 "snapflow's evaluator needs max_action_dim equal to the action's width"
             )
         self.config, self.preprocessor, self.postprocessor = config, preprocessor, postprocessor
@@ -68,11 +69,11 @@ class LeRobotProcessor:
 
     @property
     def chunk_length(self) -> int:
-        return self.config.chunk_size
+        return self._chunk_length
 
     @property
     def action_dim(self) -> int:
-        return self.config.max_action_dim
+        return self.config.output_features["action"].shape[0]
 
     @property
     def state_dim(self) -> int:
@@ -178,7 +179,7 @@ class LoadedLeRobotPolicy(OpenedPolicy):
             )
         adapter, output = self.policy.eval(), Path(output)
         config = adapter.policy.config
-        noise = torch.randn(1, config.chunk_size, config.max_action_dim, generator=torch.Generator().manual_seed(0))
+        noise = torch.randn(1, *adapter.action_shape, generator=torch.Generator().manual_seed(0))
         observation = lerobot_observation(config, torch.device("cpu"))
         output.mkdir(parents=True, exist_ok=True)
         record = {"source": str(self.path), **entry.export(adapter, observation, noise, output)}

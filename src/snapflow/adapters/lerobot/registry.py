@@ -39,10 +39,15 @@ def lerobot_time_sampler(config: Any) -> BetaTimeSampler:
     return adapter_class(base_policy_type(config)).training_time_sampler(config)
 
 
+def lerobot_chunk_shape(config: Any) -> tuple[int, int]:
+    """(chunk length, action width, padding included) a LeRobot policy (or a student) of ``config`` samples."""
+    return adapter_class(base_policy_type(config)).chunk_shape(config)
+
+
 def wrap_policy(policy: nn.Module) -> LeRobotFlowPolicy:
     """The SnapFlow adapter for a LeRobot policy of a declared type (phi_s added at zero), or for a SnapFlow
     student of one (its phi_s kept)."""
     return adapter_class(base_policy_type(policy.config))(policy)
 
 
-__all__ = ["adapter_class", "base_policy_type", "lerobot_time_sampler", "wrap_policy"]
+__all__ = ["adapter_class", "base_policy_type", "lerobot_chunk_shape", "lerobot_time_sampler", "wrap_policy"]

@@ -114,9 +114,14 @@ class XVLAFlowPolicy(LeRobotFlowPolicy):
     def expert_modules(self) -> list[nn.Module]:
         return [self.policy.model.transformer]
 
-    @property
-    def action_shape(self) -> tuple[int, int]:
-        return self.policy.config.chunk_size, self.policy.model.dim_action
+    @classmethod
+    def chunk_shape(cls, config: Any) -> tuple[int, int]:
+        """X-VLA's action space's width: ``max_action_dim`` for ``auto``, the named space's own otherwise."""
+        from lerobot.policies.xvla.action_hub import build_action_space
+
+        mode = config.action_mode.lower()
+        width = config.max_action_dim if mode == "auto" else build_action_space(mode).dim_action
+        return config.chunk_size, width
 
     def action_targets(self, batch: dict[str, Tensor]) -> Tensor:
         return self.policy._prepare_action_targets(batch)
