@@ -102,6 +102,20 @@ def lerobot_loads_plugins() -> bool:
     return Version(version("lerobot")) >= Version(PLUGIN_LEROBOT)
 
 
+def installed_lerobot_types() -> tuple[str, ...]:
+    """The declared types the installed LeRobot ships (lerobot 0.4.4 has no multi-task DiT, for one): the ones whose
+    student types the plugin makes."""
+    from importlib.util import find_spec
+
+    def ships(declared: LeRobotPolicyType) -> bool:
+        try:
+            return find_spec(declared.config.partition(":")[0]) is not None
+        except ModuleNotFoundError:  # its policy package is missing altogether
+            return False
+
+    return tuple(name for name, declared in LEROBOT_POLICY_TYPES.items() if ships(declared))
+
+
 def lerobot_teachers() -> tuple[str, ...]:
     """The LeRobot types ``snapflow train --dataset`` trains from scratch."""
     return tuple(name for name, declared in LEROBOT_POLICY_TYPES.items() if declared.trains_from_scratch)
@@ -188,4 +202,5 @@ __all__ = [
     "NOT_DISTILLED",
     "PLUGIN_LEROBOT",
     "lerobot_loads_plugins",
+    "installed_lerobot_types",
 ]

@@ -11,7 +11,7 @@ from typing import Any, ClassVar
 from lerobot.configs.policies import PreTrainedConfig
 
 from snapflow._lazy import resolve
-from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES, lerobot_policy_type
+from snapflow.adapters.lerobot_types import installed_lerobot_types, lerobot_policy_type
 from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
 from snapflow.objective.options import PAPER_ALPHA, PAPER_CONSISTENCY_WEIGHT, PAPER_TARGET_STEPS
 from snapflow.objective.registry import make_objective
@@ -70,7 +70,7 @@ def student_config_class(base_type: str) -> type[SnapFlowSampling]:
     return globals()[name]
 
 
-for _declared in LEROBOT_POLICY_TYPES:  # the declared types' classes exist as soon as the plugin is imported
+for _declared in installed_lerobot_types():  # the declared types' classes exist as soon as the plugin is imported
     student_config_class(_declared)
 
 

@@ -14,7 +14,7 @@ from snapflow._lazy import resolve
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
 from snapflow.adapters.lerobot.plugin.configuration_snapflow import student_config_class
 from snapflow.adapters.lerobot.registry import adapter_class, lerobot_time_sampler
-from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES, lerobot_policy_type
+from snapflow.adapters.lerobot_types import installed_lerobot_types, lerobot_policy_type
 from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SamplingMode
 from snapflow.objective.base import TwoBranchObjective
@@ -134,7 +134,7 @@ def student_policy(base_type: str) -> type[SnapFlowStudent]:
     return globals()[name]
 
 
-for _declared in LEROBOT_POLICY_TYPES:
+for _declared in installed_lerobot_types():
     student_policy(_declared)
 
 

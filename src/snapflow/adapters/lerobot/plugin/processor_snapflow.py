@@ -8,7 +8,7 @@ from collections.abc import Callable
 from typing import Any
 
 from snapflow._lazy import resolve
-from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES, lerobot_policy_type
+from snapflow.adapters.lerobot_types import installed_lerobot_types, lerobot_policy_type
 
 
 def student_processors(base_type: str) -> Callable[..., tuple[Any, Any]]:
@@ -26,7 +26,7 @@ def student_processors(base_type: str) -> Callable[..., tuple[Any, Any]]:
     return globals()[name]
 
 
-for _declared in LEROBOT_POLICY_TYPES:
+for _declared in installed_lerobot_types():
     student_processors(_declared)
 
 
