@@ -179,6 +179,35 @@ def _held_out_distances(root: Path, checkpoint: Path) -> dict[str, float]:
     return {name: (actions[name] - actions["teacher"]).pow(2).mean().item() for name in ("naive", "snapflow")}
 
 
+def _lerobot_train(student: Path, data: Path, output: Path, steps: int, batch_size: int, *flags: str) -> Path:
+    """``lerobot-train`` itself, offline on the CPU, on the tiny dataset at ``data``; checks it ran SnapFlow's
+    objective and returns its last checkpoint's policy folder."""
+    finished = subprocess.run(
+        [
+            str(Path(sys.executable).with_name("lerobot-train")),
+            f"--policy.path={student}",
+            "--dataset.repo_id=local/tiny",
+            f"--dataset.root={data}",
+            f"--output_dir={output}",
+            f"--steps={steps}",
+            f"--batch_size={batch_size}",
+            "--num_workers=0",
+            f"--save_freq={steps}",
+            "--wandb.enable=false",
+            "--policy.device=cpu",
+            "--policy.push_to_hub=false",
+            *flags,
+        ],
+        env={**os.environ, "HF_HUB_OFFLINE": "1"},
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    assert finished.returncode == 0, finished.stderr[-3000:]
+    assert "consistency_loss" in finished.stderr, "LeRobot logs the objective's parts"
+    return output / "checkpoints" / "last" / "pretrained_model"
+
+
 @pytest.mark.slow
 @PLUGINS
 def test_lerobot_train_on_a_student_type_distils_a_tiny_smolvla(tmp_path):
@@ -193,32 +222,16 @@ def test_lerobot_train_on_a_student_type_distils_a_tiny_smolvla(tmp_path):
     train_smolvla_teacher(data, "local/tiny", tmp_path / "teacher", training, chunk_size=4, val_fraction=0.0)
     student = write_student(str(tmp_path / "teacher" / "lerobot_policy"), tmp_path / "student")
     steps = 200
-    finished = subprocess.run(
-        [
-            str(Path(sys.executable).with_name("lerobot-train")),
-            f"--policy.path={student}",
-            "--dataset.repo_id=local/tiny",
-            f"--dataset.root={data}",
-            f"--output_dir={tmp_path / 'run'}",
-            f"--steps={steps}",
-            "--batch_size=16",
-            "--num_workers=0",
-            f"--save_freq={steps}",
-            "--wandb.enable=false",
-            "--policy.device=cpu",
-            "--policy.push_to_hub=false",
-            "--policy.optimizer_lr=1e-3",
-            "--policy.scheduler_warmup_steps=20",
-            f"--policy.scheduler_decay_steps={steps}",
-        ],
-        env={**os.environ, "HF_HUB_OFFLINE": "1"},
-        capture_output=True,
-        text=True,
-        timeout=900,
+    checkpoint = _lerobot_train(
+        student,
+        data,
+        tmp_path / "run",
+        steps,
+        16,
+        "--policy.optimizer_lr=1e-3",
+        "--policy.scheduler_warmup_steps=20",
+        f"--policy.scheduler_decay_steps={steps}",
     )
-    assert finished.returncode == 0, finished.stderr[-3000:]
-    assert "consistency_loss" in finished.stderr, "LeRobot logs the objective's parts"
-    checkpoint = tmp_path / "run" / "checkpoints" / "last" / "pretrained_model"
     assert json.loads((checkpoint / "config.json").read_text())["distilled"] is True
     distances = _held_out_distances(tmp_path, checkpoint)
     assert distances["snapflow"] < 0.85 * distances["naive"], distances
@@ -271,27 +284,7 @@ def _two_lerobot_train_steps(teacher, tmp_path: Path, processor_stats: dict | No
     for processor in make_pre_post_processors(teacher.config, dataset_stats=processor_stats):
         processor.save_pretrained(tmp_path / "teacher")
     student = write_student(str(tmp_path / "teacher"), tmp_path / "student")
-    flags = [f"--dataset.root={data}", f"--output_dir={tmp_path / 'run'}", "--steps=2", "--save_freq=2", "--log_freq=1"]
-    finished = subprocess.run(
-        [
-            str(Path(sys.executable).with_name("lerobot-train")),
-            f"--policy.path={student}",
-            "--dataset.repo_id=local/tiny",
-            *flags,
-            "--batch_size=4",
-            "--num_workers=0",
-            "--wandb.enable=false",
-            "--policy.device=cpu",
-            "--policy.push_to_hub=false",
-        ],
-        env={**os.environ, "HF_HUB_OFFLINE": "1"},
-        capture_output=True,
-        text=True,
-        timeout=900,
-    )
-    assert finished.returncode == 0, finished.stderr[-3000:]
-    assert "consistency_loss" in finished.stderr, "LeRobot logs the objective's parts"
-    checkpoint = tmp_path / "run" / "checkpoints" / "last" / "pretrained_model"
+    checkpoint = _lerobot_train(student, data, tmp_path / "run", 2, 4, "--log_freq=1")
     config = json.loads((checkpoint / "config.json").read_text())
     assert config["type"] == f"snapflow_{teacher.config.type}" and config["distilled"] is True
     before, after = load_file(student / "model.safetensors"), load_file(checkpoint / "model.safetensors")
