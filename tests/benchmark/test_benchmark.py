@@ -226,6 +226,16 @@ def test_a_teacher_checkpoint_is_timed_at_its_naive_one_step_not_under_snapflows
     assert list(report.latency.modes) == ["teacher-10", "teacher-5", "teacher-2", "naive-1"]
 
 
+def test_a_policy_whose_own_sampler_takes_other_steps_is_timed_at_them_first():
+    """Multi-task DiT integrates 100 steps by default: its own count is the reference row, the usual teacher modes
+    beside it; a count among them is not timed twice."""
+    subject = builtin_subject(random_builtin_policy("mlp"), "student")
+    report = run_bench(replace(subject, own_steps=20), warmup=0, repeats=1, profile=False)
+    assert list(report.latency.modes) == ["teacher-20", "teacher-10", "teacher-5", "teacher-2", "snapflow-1"]
+    report = run_bench(replace(subject, own_steps=10), warmup=0, repeats=1, profile=False)
+    assert list(report.latency.modes) == ["teacher-10", "teacher-5", "teacher-2", "snapflow-1"]
+
+
 def test_parameter_dtypes_lists_the_groups_that_run_in_each_precision():
     from torch import nn
 

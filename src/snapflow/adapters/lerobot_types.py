@@ -33,10 +33,16 @@ class LeRobotPolicyType:
     trains_from_scratch: bool = False
     #: config options of a full-size build with random weights (``snapflow bench --architecture``)
     architecture_options: dict[str, Any] = field(default_factory=dict)
-    #: the config field naming the VLM whose config and processor a build reads (``bench --vlm``), if any
-    vlm_option: str | None = None
+    #: the config field naming the VLM whose config and processor a build reads (``bench --vlm``), if any; several
+    #: where the policy names its encoders apart (multi-task DiT's CLIP vision and text)
+    vlm_option: str | tuple[str, ...] | None = None
     #: the paper's A800 figures for this architecture, which ``snapflow bench`` prints beside its own
     paper_latency: dict[str, float] | None = None
+
+    @property
+    def vlm_options(self) -> tuple[str, ...]:
+        """:attr:`vlm_option` as a tuple (empty where the build reads no VLM)."""
+        return (self.vlm_option,) if isinstance(self.vlm_option, str) else tuple(self.vlm_option or ())
 
     @property
     def student_type(self) -> str:
@@ -189,6 +195,7 @@ register_lerobot_policy_type(
         "lerobot.policies.multi_task_dit.modeling_multi_task_dit:MultiTaskDiTPolicy",
         "snapflow.adapters.lerobot.multi_task_dit:MultiTaskDiTFlowPolicy",
         architecture_options={"objective": "flow_matching"},
+        vlm_option=("vision_encoder_name", "text_encoder_name"),
     )
 )
 

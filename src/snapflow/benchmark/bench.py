@@ -126,7 +126,8 @@ def run_bench(
     mode; the first is the reference of the speedups), the throughput of the first and last mode at
     ``batch_sizes``, and, optionally, profile its one-step mode, with the policy in fast path ``fast_path`` (a
     registered name, :func:`snapflow.inference.apply_fast_path`) where one is given: then its first chunk too."""
-    modes = modes or subject.only_modes or (*TEACHER_MODES, subject.one_step)
+    own = (SamplingMode(subject.own_steps, jump=False),) if subject.own_steps else ()
+    modes = modes or subject.only_modes or (*dict.fromkeys((*own, *TEACHER_MODES)), subject.one_step)
     first_chunk = time_first_chunk(subject, fast_path) if fast_path else None
     latency = measure_latency(subject.policy, subject.observation, subject.noise, list(modes), warmup, repeats)
     throughput = (

@@ -51,6 +51,8 @@ class BenchSubject:
     #: the dtype it was asked to run in (what runs, as timed, is in the report's ``dtype``: a policy may keep layers
     #: in float32, and a fast path may change them)
     dtype: torch.dtype = torch.float32
+    #: the number of steps its own sampler takes (a LeRobot policy's, as configured), timed beside the teacher modes
+    own_steps: int | None = None
 
 
 def _parameter_count(module: nn.Module) -> int:
@@ -160,6 +162,7 @@ def lerobot_subject(
         one_step=one_step,
         time_sampler=lerobot_time_sampler(config),
         dtype=dtype,
+        own_steps=type(adapter).own_steps(config),
     )
 
 
@@ -184,10 +187,10 @@ def lerobot_architecture(policy_type: str, device: torch.device, vlm: str | None
         },
         "output_features": {"action": PolicyFeature(type=FeatureType.ACTION, shape=(LIBERO_ACTION_DIM,))},
     }
-    extra = {**declared.architecture_options, **({declared.vlm_option: vlm} if vlm and declared.vlm_option else {})}
+    extra = {**declared.architecture_options, **{option: vlm for option in declared.vlm_options if vlm}}
     config = make_policy_config(policy_type, device=str(device), push_to_hub=False, **features, **extra)
-    if declared.vlm_option:  # named in one line before the build reads the VLM's config and processor
-        check_source(getattr(config, declared.vlm_option), CONFIG_NAME, f"a VLM for {declared.class_stem}")
+    for option in declared.vlm_options:  # named in one line before the build reads the VLM's config and processor
+        check_source(getattr(config, option), CONFIG_NAME, f"a VLM for {declared.class_stem}")
     with torch.device(device):  # built where it runs: a full-size pi0.5 takes minutes on the CPU, seconds on a GPU
         return get_policy_class(policy_type)(config)
 

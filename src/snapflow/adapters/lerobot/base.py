@@ -133,6 +133,12 @@ class LeRobotFlowPolicy(nn.Module, ABC):
         included: LeRobot's ``chunk_size`` and ``max_action_dim`` where it has them."""
         return config.chunk_size, config.max_action_dim
 
+    @classmethod
+    def own_steps(cls, config: Any) -> int:
+        """How many denoising steps the policy of ``config`` takes a chunk by its own sampler, as configured (SmolVLA's
+        ``num_steps``, pi0's ``num_inference_steps``)."""
+        return getattr(config, "num_steps", None) or config.num_inference_steps
+
     @property
     def action_shape(self) -> tuple[int, int]:
         """:meth:`chunk_shape` of this policy's config."""

@@ -196,9 +196,13 @@ class LoadedLeRobotPolicy(OpenedPolicy):
 def lerobot_observation(config: Any, device: torch.device) -> dict[str, Tensor]:
     """A batch-1 observation as LeRobot's pre-processor hands it to the model of ``config``: images in [0, 1],
     normalised state, a full-length token sequence (for timing and tracing, which the values do not change)."""
-    observation = {key: torch.rand(1, *feature.shape, device=device) for key, feature in config.image_features.items()}
+    # a policy that reads several observation steps (multi-task DiT) gets them, as its queues hold them
+    steps = (getattr(config, "n_obs_steps", 1),) if getattr(config, "n_obs_steps", 1) > 1 else ()
+    observation = {
+        key: torch.rand(1, *steps, *feature.shape, device=device) for key, feature in config.image_features.items()
+    }
     if config.robot_state_feature is not None:
-        observation[STATE] = torch.randn(1, *config.robot_state_feature.shape, device=device)
+        observation[STATE] = torch.randn(1, *steps, *config.robot_state_feature.shape, device=device)
     length = config.tokenizer_max_length
     # id 0: in every vocabulary
     observation[OBS_LANGUAGE_TOKENS] = torch.zeros(1, length, dtype=torch.long, device=device)

@@ -78,6 +78,10 @@ class MultiTaskDiTFlowPolicy(LeRobotFlowPolicy):
         return [self.policy.noise_predictor]
 
     @classmethod
+    def own_steps(cls, config: Any) -> int:
+        return config.num_integration_steps
+
+    @classmethod
     def chunk_shape(cls, config: Any) -> tuple[int, int]:
         return config.horizon, config.action_feature.shape[0]
 

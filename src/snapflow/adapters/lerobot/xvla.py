@@ -115,6 +115,10 @@ class XVLAFlowPolicy(LeRobotFlowPolicy):
         return [self.policy.model.transformer]
 
     @classmethod
+    def own_steps(cls, config: Any) -> int:
+        return config.num_denoising_steps
+
+    @classmethod
     def chunk_shape(cls, config: Any) -> tuple[int, int]:
         """X-VLA's action space's width: ``max_action_dim`` for ``auto``, the named space's own otherwise."""
         from lerobot.policies.xvla.action_hub import build_action_space
