@@ -26,6 +26,7 @@ from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.time_sampling import BetaTimeSampler
 from snapflow.nn.time_embedding import TargetTimeEmbedding
+from snapflow.protocol import map_tensors
 
 OBS_LANGUAGE_TOKENS = "observation.language.tokens"
 OBS_LANGUAGE_ATTENTION_MASK = "observation.language.attention_mask"
@@ -214,7 +215,7 @@ class LeRobotFlowPolicy(nn.Module, ABC):
     def draw_noise(self, context: dict[str, Any], batch_size: int) -> Tensor:
         """The noise a chunk starts from where LeRobot's caller gives none: a standard normal of
         (``batch_size``, *:attr:`action_shape`) on the context's device, from torch's global generator."""
-        device = next(tensor for tensor in _tensors(context)).device
+        device = _first_tensor(context).device
         return torch.randn((batch_size, *self.action_shape), device=device)
 
     @abstractmethod
@@ -243,7 +244,7 @@ class LeRobotFlowPolicy(nn.Module, ABC):
             if context is None:  # a policy whose sampling gets its prefix already encoded passes it instead
                 context = self.encode_inputs(*inputs)
             if noise is None:
-                noise = self.draw_noise(context, _batch_size(context))
+                noise = self.draw_noise(context, _first_tensor(context).shape[0])
             velocity = lambda x, t, s: self.velocity(x, t, s, context)  # noqa: E731
             return sample_with_rtc(
                 velocity, noise, chosen, processor, prev_chunk_left_over, inference_delay, execution_horizon
@@ -253,21 +254,12 @@ class LeRobotFlowPolicy(nn.Module, ABC):
         self.policy.reset()
 
 
-def _tensors(value: Any) -> Iterator[Tensor]:
-    """Every tensor in a context (nested dicts, lists and tuples)."""
-    if isinstance(value, Tensor):
-        yield value
-    elif isinstance(value, dict):
-        for item in value.values():
-            yield from _tensors(item)
-    elif isinstance(value, (list, tuple)):
-        for item in value:
-            yield from _tensors(item)
-
-
-def _batch_size(inputs: tuple[Any, ...]) -> int:
-    """The batch size of a policy's model inputs: the leading size of their first tensor."""
-    return next(_tensors(inputs)).shape[0]
+def _first_tensor(context: dict[str, Any]) -> Tensor:
+    """A context's first tensor (its batch size leads, it lies on the policy's device), found by the protocol's own
+    walk over nested contexts."""
+    found: list[Tensor] = []
+    map_tensors(context, lambda tensor: found.append(tensor) or tensor)
+    return found[0]
 
 
 __all__ = [

@@ -197,7 +197,8 @@ def lerobot_observation(config: Any, device: torch.device) -> dict[str, Tensor]:
     """A batch-1 observation as LeRobot's pre-processor hands it to the model of ``config``: images in [0, 1],
     normalised state, a full-length token sequence (for timing and tracing, which the values do not change)."""
     # a policy that reads several observation steps (multi-task DiT) gets them, as its queues hold them
-    steps = (getattr(config, "n_obs_steps", 1),) if getattr(config, "n_obs_steps", 1) > 1 else ()
+    count = getattr(config, "n_obs_steps", 1)
+    steps = (count,) if count > 1 else ()
     observation = {
         key: torch.rand(1, *steps, *feature.shape, device=device) for key, feature in config.image_features.items()
     }
