@@ -231,3 +231,35 @@ def test_each_student_type_resolves_as_lerobots_own_policy_tests_expect(base_typ
     assert isinstance(config, SnapFlowSampling) and config.type == student_type and config.base_type == base_type
     assert config.sampling_mode == "snapflow-1" and policy_class.name == student_type
     assert callable(student_processors(base_type))
+
+
+@PLUGINS
+def test_a_multi_task_dit_student_asked_for_chunks_on_their_own_reads_each_calls_observation(clip_directory, tmp_path):
+    """LeRobot's policy server calls ``predict_action_chunk`` without ``select_action``: where multi-task DiT reads its
+    observation from queues only ``select_action`` fills, each call's own observation is read (not an earlier one's),
+    and the chunk is the one ``select_action`` makes from it at an episode's start, with the same noise."""
+    from lerobot.policies.factory import get_policy_class
+
+    from tests.lerobot_tiny_multi_task_dit import save_tiny_multi_task_dit_student
+
+    folder = save_tiny_multi_task_dit_student(clip_directory, tmp_path / "student")
+    policy = get_policy_class("snapflow_multi_task_dit").from_pretrained(str(folder)).eval()
+    tokens = {"observation.language.tokens": torch.ones(1, 16, dtype=torch.long)}
+    tokens["observation.language.attention_mask"] = torch.ones(1, 16, dtype=torch.bool)
+
+    def observation(value: float) -> dict[str, torch.Tensor]:
+        state, image = torch.full((1, 6), value), torch.full((1, 3, 32, 32), value)
+        return {"observation.state": state, "observation.images.top": image, **tokens, "action": None}
+
+    def chunk(value: float, by_select_action: bool = False) -> torch.Tensor:
+        torch.manual_seed(0)
+        if not by_select_action:
+            return policy.predict_action_chunk(observation(value))
+        policy.reset()
+        batch = {key: item for key, item in observation(value).items() if key != "action"}
+        return torch.stack([policy.select_action(batch) for _ in range(policy.config.n_action_steps)], dim=1)
+
+    first, second = chunk(0.0), chunk(0.5)
+    assert not torch.allclose(first, second)  # the second call read its own observation
+    assert torch.equal(second, chunk(0.5, by_select_action=True))
+    assert torch.equal(first, chunk(0.0))

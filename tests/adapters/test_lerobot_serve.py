@@ -1,8 +1,8 @@
 """``snapflow serve``: LeRobot's own async-inference policy server serves a distilled student (SmolVLA, pi0, pi0.5,
-X-VLA) to a client made of LeRobot's own gRPC types, one denoising pass a chunk (ten as its teacher), and refuses the
-student asked for under its teacher's type instead of dropping phi_s. Not a multi-task DiT: LeRobot's server calls its
-``predict_action_chunk``, which reads observation queues only its ``select_action`` fills (LeRobot 0.6.1), teacher or
-student alike."""
+X-VLA, multi-task DiT) to a client made of LeRobot's own gRPC types, one denoising pass a chunk (ten as its teacher),
+and refuses the student asked for under its teacher's type instead of dropping phi_s. LeRobot's server calls
+``predict_action_chunk`` on its own, where a multi-task DiT reads observation queues only its ``select_action`` fills
+(LeRobot 0.6.1, a teacher fails there): its student fills them from the observation it is given."""
 
 from __future__ import annotations
 
@@ -38,6 +38,7 @@ from tests.lerobot_tiny import (  # noqa: E402
     save_tiny_student,
     tiny_pi_configs,
 )
+from tests.lerobot_tiny_multi_task_dit import save_tiny_multi_task_dit_student  # noqa: E402
 from tests.lerobot_tiny_xvla import save_tiny_xvla_student  # noqa: E402
 
 JOINTS = ("shoulder.pos", "elbow.pos", "wrist.pos", "wrist_roll.pos", "forearm.pos", "gripper.pos")
@@ -59,9 +60,14 @@ class Served:
         return hw_to_dataset_features(robot, "observation")
 
 
-@pytest.fixture(scope="module", params=["smolvla", "pi0", "pi05", "xvla"])
+@pytest.fixture(scope="module", params=["smolvla", "pi0", "pi05", "xvla", "multi_task_dit"])
 def student(request, vlm_directory, tmp_path_factory):
     folder = tmp_path_factory.mktemp("serve") / request.param
+    if request.param == "multi_task_dit":  # a 6-D state, one top camera, its encoders a tiny CLIP
+        clip = request.getfixturevalue("clip_directory")
+        save_tiny_multi_task_dit_student(clip, folder)
+        yield Served("multi_task_dit", folder, JOINTS, "top", IMAGE_SIZE)
+        return
     if request.param == "smolvla":  # a 4-D state, one front camera
         save_tiny_student(vlm_directory, folder, image_key="observation.images.front", image_size=IMAGE_SIZE)
         yield Served("smolvla", folder, JOINTS[:4], "front", IMAGE_SIZE)

@@ -218,6 +218,12 @@ class LeRobotFlowPolicy(nn.Module, ABC):
         device = _first_tensor(context).device
         return torch.randn((batch_size, *self.action_shape), device=device)
 
+    def lone_chunk_batch(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        """The batch a ``predict_action_chunk`` called on its own hands the policy (LeRobot's policy server calls it
+        once an observation, with no ``select_action`` before it). The batch itself, unless the policy reads its
+        observations from queues that only its ``select_action`` fills."""
+        return batch
+
     @abstractmethod
     def install_sampler(self, sample: ChunkSampler) -> None:
         """Make the policy's own ``predict_action_chunk`` / ``select_action`` call ``sample`` with the inputs it

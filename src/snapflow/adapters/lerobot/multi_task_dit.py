@@ -128,6 +128,27 @@ class MultiTaskDiTFlowPolicy(LeRobotFlowPolicy):
         parameter = next(self.policy.noise_predictor.parameters())
         return torch.randn((batch_size, *self.action_shape), dtype=parameter.dtype, device=parameter.device)
 
+    def lone_chunk_batch(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        """LeRobot's ``predict_action_chunk`` reads the observation from the queues its ``select_action`` fills: a
+        call on its own (LeRobot's policy server) gets them filled with this one observation, as ``select_action``
+        fills them at an episode's start. A policy of several observation steps has no history to stand on here."""
+        from lerobot.policies.utils import populate_queues
+
+        policy = self.policy
+        queued = policy._queues[OBS_STATE] if policy._queues is not None else ()
+        if queued and queued[-1] is batch.get(OBS_STATE):  # select_action queued this very observation
+            return batch
+        if policy.config.n_obs_steps != 1:
+            raise InvalidInputError(
+                f"this multi_task_dit reads {policy.config.n_obs_steps} observation steps; a chunk asked for one "
+                "observation at a time (LeRobot's policy server) gives it one"
+            )
+        policy.reset()
+        # as select_action, without the action a transition carries (None here): its queue is the chunk's
+        prepared = policy._prepare_batch({key: value for key, value in batch.items() if key != ACTION})
+        populate_queues(policy._queues, prepared)
+        return prepared
+
     def install_sampler(self, sample: ChunkSampler) -> None:
         def conditional_sample(model: nn.Module, batch_size: int, conditioning_vec: Tensor) -> Tensor:
             return sample((), context={"conditioning": conditioning_vec})

@@ -66,6 +66,11 @@ class SnapFlowStudent:
             )
         return mode
 
+    def predict_action_chunk(self, batch: dict[str, Tensor], **kwargs: Any) -> Tensor:
+        """LeRobot's own, on the batch the adapter says a call on its own needs (LeRobot's policy server asks one
+        chunk an observation: a multi-task DiT's observation queues are filled from it first)."""
+        return super().predict_action_chunk(self.snapflow.lone_chunk_batch(batch), **kwargs)
+
     def get_optim_params(self) -> list[nn.Parameter] | dict[str, nn.Parameter]:
         """What distillation trains: the action expert, its projections and phi_s (the VLM stays frozen); by name
         where the policy's own optimizer groups its parameters by name (X-VLA's)."""
