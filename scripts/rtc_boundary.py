@@ -28,7 +28,7 @@ def main(output: Path) -> None:
     from snapflow.adapters.lerobot.plugin import SnapFlowSmolVLAPolicy
     from snapflow.benchmark.rtc import boundary_jumps, write_boundary_report
     from snapflow.training.config import TrainConfig
-    from snapflow.training.lerobot import distill_lerobot, train_smolvla_teacher
+    from snapflow.training.lerobot import distill_lerobot, train_lerobot_teacher
     from snapflow.training.recipes import DistillSettings
     from tests.lerobot_tiny import write_tiny_dataset
 
@@ -37,7 +37,7 @@ def main(output: Path) -> None:
     data = write_tiny_dataset(work / "data", episodes=6, frames=24, bimodal=True)
     write_tiny_dataset(work / "held", repo_id="local/held", episodes=1, frames=40, bimodal=True, seed=1)
     teacher = TrainConfig(steps=400, batch_size=16, learning_rate=1e-3, warmup_steps=20, checkpoint_every=10000)
-    train_smolvla_teacher(data, "local/tiny", work / "teacher", teacher, chunk_size=CHUNK, val_fraction=0.0)
+    train_lerobot_teacher("smolvla", data, "local/tiny", work / "teacher", teacher, chunk_size=CHUNK, val_fraction=0.0)
     student = TrainConfig(steps=300, batch_size=16, learning_rate=1e-3, warmup_steps=20, checkpoint_every=10000)
     settings = DistillSettings(consistency_weight=1.0)
     distill_lerobot(str(work / "teacher" / "lerobot_policy"), data, "local/tiny", work / "student", student, settings)

@@ -16,7 +16,7 @@ import torch
 pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test command; this environment lacks it")
 
 from snapflow.adapters.lerobot.registry import lerobot_time_sampler  # noqa: E402
-from snapflow.adapters.lerobot_types import PLUGIN_LEROBOT, lerobot_loads_plugins  # noqa: E402
+from snapflow.adapters.lerobot_types import PLUGIN_LEROBOT, installed_lerobot_types, lerobot_loads_plugins  # noqa: E402
 from snapflow.flow.modes import SamplingMode  # noqa: E402
 from snapflow.flow.solver import sample_actions  # noqa: E402
 from tests.lerobot_tiny import build_tiny_smolvla, lerobot_sample, tiny_batch  # noqa: E402
@@ -212,14 +212,14 @@ def _lerobot_train(student: Path, data: Path, output: Path, steps: int, batch_si
 @PLUGINS
 def test_lerobot_train_on_a_student_type_distils_a_tiny_smolvla(tmp_path):
     from snapflow.training.config import TrainConfig
-    from snapflow.training.lerobot import train_smolvla_teacher
+    from snapflow.training.lerobot import train_lerobot_teacher
     from snapflow.training.lerobot_student import write_student
     from tests.lerobot_tiny import write_tiny_dataset
 
     data = write_tiny_dataset(tmp_path / "data", episodes=6, frames=16, bimodal=True)
     write_tiny_dataset(tmp_path / "held", repo_id="local/held", episodes=2, frames=16, bimodal=True, seed=1)
     training = TrainConfig(steps=300, batch_size=16, learning_rate=1e-3, warmup_steps=20, checkpoint_every=1000)
-    train_smolvla_teacher(data, "local/tiny", tmp_path / "teacher", training, chunk_size=4, val_fraction=0.0)
+    train_lerobot_teacher("smolvla", data, "local/tiny", tmp_path / "teacher", training, chunk_size=4, val_fraction=0.0)
     student = write_student(str(tmp_path / "teacher" / "lerobot_policy"), tmp_path / "student")
     steps = 200
     checkpoint = _lerobot_train(
@@ -254,12 +254,12 @@ def test_a_teacher_trained_with_a_weight_average_exports_the_average(tmp_path):
     from snapflow.policies.checkpoint import resolve_checkpoint
     from snapflow.training.checkpoint import TRAINING_WEIGHTS
     from snapflow.training.config import TrainConfig
-    from snapflow.training.lerobot import train_smolvla_teacher
+    from snapflow.training.lerobot import train_lerobot_teacher
     from tests.lerobot_tiny import write_tiny_dataset
 
     data = write_tiny_dataset(tmp_path / "data", episodes=2, frames=8)
     training = TrainConfig(steps=4, batch_size=4, learning_rate=1e-3, warmup_steps=1, checkpoint_every=4, ema_decay=0.5)
-    train_smolvla_teacher(data, "local/tiny", tmp_path / "teacher", training, chunk_size=4, val_fraction=0.0)
+    train_lerobot_teacher("smolvla", data, "local/tiny", tmp_path / "teacher", training, chunk_size=4, val_fraction=0.0)
     checkpoint = resolve_checkpoint(tmp_path / "teacher")
     average, raw = load_file(checkpoint / "policy.safetensors"), load_file(checkpoint / TRAINING_WEIGHTS)
     exported = load_file(tmp_path / "teacher" / "lerobot_policy" / "model.safetensors")
@@ -322,3 +322,40 @@ def test_lerobot_train_steps_a_multi_task_dit_student_by_snapflows_objective(cli
     moved = _two_lerobot_train_steps(build_tiny_multi_task_dit(clip_directory), tmp_path, unit_statistics())
     assert any(name.startswith("noise_predictor.transformer_blocks.") for name in moved), "the expert trained"
     assert not any(name.startswith("observation_encoder.") for name in moved), "the encoders stay frozen"
+
+
+@pytest.mark.skipif("xvla" not in installed_lerobot_types(), reason="LeRobot ships X-VLA from lerobot 0.5 on")
+def test_snapflow_train_fits_an_xvla_from_scratch_whose_folder_opens_anywhere(tmp_path):
+    """``snapflow train --policy-type xvla --dataset``, as a user types it: an X-VLA over a Florence-2 at the tiny
+    SmolVLM's widths learns the tiny dataset (its flow-matching loss over steps 51-100 under 0.7 of steps 1-50'), and its exported folder, moved
+    away from the run that wrote it, opens and samples through its own processors (its tokenizer kept inside)."""
+    import shutil
+
+    import numpy as np
+
+    from snapflow.flow.modes import NAIVE_1
+    from snapflow.sources import open_policy
+    from tests.lerobot_tiny import write_tiny_dataset
+
+    data = write_tiny_dataset(tmp_path / "data", episodes=2, frames=8)
+    run = tmp_path / "teacher"
+    flags = ["--steps", "100", "--batch-size", "8", "--learning-rate", "1e-3"]
+    command = ["snapflow", "train", "--policy-type", "xvla", "--dataset", str(data), "--output", str(run), *flags]
+    command += ["--smolvlm", "tiny", "--chunk-length", "4", "--val-fraction", "0", "--no-progress", "--threads", "1"]
+    finished = subprocess.run(command, capture_output=True, text=True, timeout=600, env={**os.environ, "CI": "true"})
+    assert finished.returncode == 0, finished.stderr[-3000:]
+    assert "xvla teacher trained to step 100" in finished.stdout
+    losses = [row["loss"] for row in json.loads((run / "history.json").read_text())["history"]]
+    assert len(losses) == 2 and losses[1] < 0.7 * losses[0], losses  # steps 1-50, then 51-100
+
+    moved = shutil.copytree(run / "lerobot_policy", tmp_path / "elsewhere" / "policy")
+    shutil.rmtree(run)  # the SmolVLM folder the run wrote is gone: the copy carries its own
+    assert json.loads((moved / "config.json").read_text())["tokenizer_name"] == "smolvlm"
+    opened = open_policy(moved)
+    processor = opened.processor
+    size = processor.image_size
+    frame = np.full((1, size, size, 3), 128, dtype=np.uint8)
+    observation = processor.observation(np.zeros((1, processor.state_dim), np.float32), ["reach the block"], frame)
+    with torch.no_grad():
+        chunk = sample_actions(opened.policy.eval(), observation, torch.randn(1, *opened.policy.action_shape), NAIVE_1)
+    assert chunk.shape == (1, *opened.policy.action_shape) and torch.isfinite(chunk).all()

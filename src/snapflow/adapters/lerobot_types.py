@@ -29,7 +29,8 @@ class LeRobotPolicyType:
     policy: str
     #: snapflow's adapter, a :class:`~snapflow.adapters.lerobot.base.LeRobotFlowPolicy` subclass, ``"module:Class"``
     adapter: str
-    #: ``snapflow train --dataset`` trains it from scratch (its small VLM is written locally)
+    #: ``snapflow train --dataset`` trains it from scratch (over a SmolVLM written locally: its adapter's
+    #: ``scratch_config``)
     trains_from_scratch: bool = False
     #: config options of a full-size build with random weights (``snapflow bench --architecture``)
     architecture_options: dict[str, Any] = field(default_factory=dict)
@@ -184,6 +185,7 @@ register_lerobot_policy_type(
         "lerobot.policies.xvla.configuration_xvla:XVLAConfig",
         "lerobot.policies.xvla.modeling_xvla:XVLAPolicy",
         "snapflow.adapters.lerobot.xvla:XVLAFlowPolicy",
+        trains_from_scratch=True,
         architecture_options={"florence_config": XVLA_FLORENCE_LARGE, "action_mode": "auto"},
     )
 )

@@ -55,24 +55,28 @@ def add_parser(subparsers: Any) -> None:
         "--policy-type",
         choices=policy_types,
         default=next(iter(POLICIES)),
-        help="built-in policy (with --data), or smolvla: LeRobot's SmolVLAPolicy from scratch (with --dataset)",
+        help=f"built-in policy (with --data), or a LeRobot type ({', '.join(lerobot_teachers())}): LeRobot's policy from "
+        "scratch (with --dataset)",
     )
     parser.add_argument(
         "--policy", dest="policy_type", choices=policy_types, action=_DeprecatedPolicyFlag, help=argparse.SUPPRESS
     )
-    parser.add_argument("--dataset", help="smolvla: LeRobotDataset root directory on disk, or repo id")
+    parser.add_argument("--dataset", help="a LeRobot type: LeRobotDataset root directory on disk, or repo id")
     parser.add_argument("--repo-id", help="repo id of a dataset given as a directory (default: local/<folder name>)")
     parser.add_argument(
-        "--smolvlm", choices=list(SMOLVLM_SIZES), default="small", help="smolvla: the size of its SmolVLM"
+        "--smolvlm",
+        choices=list(SMOLVLM_SIZES),
+        default="small",
+        help="a LeRobot type: the size of its VLM (SmolVLA's SmolVLM; X-VLA's Florence-2 at the same widths)",
     )
     parser.add_argument(
-        "--n-action-steps", type=COUNT, default=4, help="smolvla: actions LeRobot's select_action runs per chunk"
+        "--n-action-steps", type=COUNT, default=4, help="a LeRobot type: actions LeRobot's select_action runs per chunk"
     )
     parser.add_argument(
-        "--chunk-length", type=COUNT, help="actions per predicted chunk (default: the policy's; smolvla 8)"
+        "--chunk-length", type=COUNT, help="actions per predicted chunk (default: the policy's; a LeRobot type 8)"
     )
     parser.add_argument("--use-image", action="store_true", help="minivla: read the demonstrations' camera images")
-    parser.add_argument("--image-size", type=COUNT, help="minivla with --use-image, smolvla: the images' size")
+    parser.add_argument("--image-size", type=COUNT, help="minivla with --use-image, a LeRobot type: the images' size")
     parser.add_argument(
         "--state-dim", type=COUNT, help="read only the leading entries of the state (4: hand and gripper; default all)"
     )
@@ -132,12 +136,13 @@ def _train_lerobot(args: argparse.Namespace, config: TrainConfig) -> int:
 
     dataset_root, repo_id = dataset_source(args.dataset, args.repo_id)  # a mistyped root is named before LeRobot loads
     from snapflow.sources import LEROBOT_EXPORT_DIRECTORY
-    from snapflow.training.lerobot import train_smolvla_teacher
+    from snapflow.training.lerobot import train_lerobot_teacher
 
     size = SMOLVLM_SIZES[args.smolvlm]
     if args.image_size:
         size = replace(size, image_size=args.image_size)
-    state = train_smolvla_teacher(
+    state = train_lerobot_teacher(
+        args.policy_type,
         dataset_root,
         repo_id,
         args.output,
@@ -151,7 +156,7 @@ def _train_lerobot(args: argparse.Namespace, config: TrainConfig) -> int:
         **given({"chunk_size": args.chunk_length}),
     )
     print(
-        f"SmolVLA teacher trained to step {state['step']} in {state['wall_time_s']:.0f} s; "
+        f"{args.policy_type} teacher trained to step {state['step']} in {state['wall_time_s']:.0f} s; "
         f"LeRobot policy in {Path(args.output) / LEROBOT_EXPORT_DIRECTORY}"
     )
     return 0

@@ -1,6 +1,6 @@
 """LeRobot policies on a LeRobotDataset with the built-in trainer (Accelerate, safetensors checkpoints, resume):
-SnapFlow distillation of a pi0, pi0.5 or SmolVLA, and flow-matching training of a SmolVLA teacher from scratch
-(a SmolVLM of a chosen size written locally). Results are also exported in LeRobot's own layout, with its
+SnapFlow distillation of any declared LeRobot type, and flow-matching training of a SmolVLA or X-VLA teacher from
+scratch (over a SmolVLM of a chosen size written locally). Results are also exported in LeRobot's own layout, with its
 processors."""
 
 from __future__ import annotations
@@ -13,15 +13,17 @@ from typing import Any
 import torch
 from accelerate import PartialState
 
+from snapflow._lazy import resolve
 from snapflow.adapters.hub import check_source, fetch_hub_file
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
 from snapflow.adapters.lerobot.checkpoint import PREPROCESSOR_FILE, save_distilled, save_teacher
 from snapflow.adapters.lerobot.data import ActionChunks, LeRobotChunkData
 from snapflow.adapters.lerobot.dataset import policy_features
 from snapflow.adapters.lerobot.local_vlm import bundle_vlm, saved_processors
-from snapflow.adapters.lerobot.registry import lerobot_time_sampler, wrap_policy
-from snapflow.adapters.lerobot.smolvlm import smolvla_config, token_budget, words_of, write_smolvlm
+from snapflow.adapters.lerobot.registry import adapter_class, lerobot_time_sampler, wrap_policy
+from snapflow.adapters.lerobot.smolvlm import token_budget, words_of, write_smolvlm
 from snapflow.adapters.lerobot_config import SmolVLMSize
+from snapflow.adapters.lerobot_types import lerobot_policy_type, lerobot_teachers
 from snapflow.data.demonstrations import split_episodes
 from snapflow.errors import InvalidInputError
 from snapflow.objective.base import TwoBranchObjective
@@ -163,7 +165,8 @@ def training_dataset(metadata: Any, dataset_root: str | Path | None, chunk_size:
     return ActionChunks(LeRobotDataset(metadata.repo_id, root=dataset_root, episodes=episodes), chunk_size)
 
 
-def train_smolvla_teacher(
+def train_lerobot_teacher(
+    policy_type: str,
     dataset_root: str | Path | None,
     repo_id: str,
     output: str | Path,
@@ -176,33 +179,39 @@ def train_smolvla_teacher(
     progress: bool = True,
     keep_progress: str | Path | None = None,
 ) -> dict[str, Any]:
-    """LeRobot's ``SmolVLAPolicy`` over a SmolVLM of ``size`` (default: the tiny one; config and word tokenizer of the dataset's tasks
-    written to ``output/smolvlm``; random weights), every part trained by flow matching (alpha = 1, LeRobot's
-    Beta(1.5, 1) times) on the dataset's state, images and actions, through the adapter, so the loss is LeRobot's
-    own velocity on LeRobot's own pre-processed batches. Exported as a plain SmolVLA (no phi_s) with its
-    processors in ``output/lerobot_policy``, ready for ``snapflow distill --policy``. ``keep_progress``: as
+    """LeRobot's policy of ``policy_type`` (one declared ``trains_from_scratch``: SmolVLA, X-VLA) over a VLM at
+    ``size``'s widths (default: the tiny one; a SmolVLM config and word tokenizer of the dataset's tasks written to
+    ``output/smolvlm``; random weights), every part trained by flow matching (alpha = 1, the policy's own training
+    times) on the dataset's state, images and actions, through the adapter, so the loss is the policy's own velocity
+    on LeRobot's own pre-processed batches. Exported without phi_s, with its processors and its SmolVLM folder, in
+    ``output/lerobot_policy``, ready for ``snapflow distill --policy``. ``keep_progress``: as
     :func:`~snapflow.training.trainer.train`'s."""
     size = size or SmolVLMSize()
+    if policy_type not in lerobot_teachers():
+        raise InvalidInputError(
+            f"snapflow trains LeRobot's {', '.join(lerobot_teachers())} from scratch, not {policy_type!r}"
+        )
+    adapter_type = adapter_class(policy_type)  # too old a LeRobot is named before the dataset is read
     check_dataset(dataset_root, repo_id)
     with hold_run_lock(output, TEACHER_HOLDER) if PartialState().is_main_process else nullcontext():
         from lerobot.configs.types import FeatureType
         from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
         from lerobot.policies.factory import make_pre_post_processors
-        from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
 
         metadata = LeRobotDatasetMetadata(repo_id, root=dataset_root)
         features = policy_features(metadata.features)
         inputs = {key: feature for key, feature in features.items() if feature.type is not FeatureType.ACTION}
         outputs = {key: feature for key, feature in features.items() if feature.type is FeatureType.ACTION}
         if not any(feature.type is FeatureType.VISUAL for feature in inputs.values()):
-            raise InvalidInputError(f"the dataset {repo_id} has no camera images; SmolVLA needs at least one")
+            raise InvalidInputError(f"the dataset {repo_id} has no camera images; {policy_type} needs at least one")
         tasks = list(metadata.tasks.index)
         vlm = (Path(output) / SMOLVLM_DIRECTORY).resolve()
         if not (vlm / "config.json").is_file():  # a resumed run keeps the tokenizer its checkpoints were trained with
             write_smolvlm(vlm, words_of(tasks), size)
         torch.manual_seed(config.seed)
         sizes = dict(chunk_size=chunk_size, n_action_steps=n_action_steps, tokenizer_max_length=token_budget(tasks))
-        policy = SmolVLAPolicy(smolvla_config(vlm, inputs, outputs, size, **sizes))
+        policy_class = resolve(lerobot_policy_type(policy_type).policy)
+        policy = policy_class(adapter_type.scratch_config(vlm, inputs, outputs, size, **sizes))
         dataset = training_dataset(metadata, dataset_root, chunk_size, val_fraction)
         check_finite(
             dataset.dataset, [key for key, feature in features.items() if feature.type is not FeatureType.VISUAL]
@@ -339,7 +348,7 @@ __all__ = [
     "SMOLVLM_DIRECTORY",
     "check_dataset",
     "training_dataset",
-    "train_smolvla_teacher",
+    "train_lerobot_teacher",
     "check_dataset_features",
     "check_finite",
     "policy_processors",

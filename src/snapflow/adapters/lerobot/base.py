@@ -16,12 +16,14 @@ import sys
 import types
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any, ClassVar
 
 import torch
 from torch import Tensor, nn
 
 from snapflow.adapters.lerobot.rtc import rtc_processor_in_force, sample_with_rtc
+from snapflow.adapters.lerobot_config import SmolVLMSize
 from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.time_sampling import BetaTimeSampler
@@ -127,6 +129,17 @@ class LeRobotFlowPolicy(nn.Module, ABC):
         stays frozen."""
         modules = [*self.expert_modules(), self.target_time_embedding]
         return [parameter for module in modules for parameter in module.parameters()]
+
+    @classmethod
+    def scratch_config(
+        cls, vlm: Path, input_features: dict[str, Any], output_features: dict[str, Any], size: SmolVLMSize, **sizes: Any
+    ) -> Any:
+        """The LeRobot config of a policy of this type trained from scratch (``snapflow train --policy-type``, a
+        sweep's ``lerobot`` run): random weights over the SmolVLM folder ``vlm`` written locally (its config, its
+        word-level tokenizer of the dataset's instructions), its VLM's towers at ``size``'s widths and depths;
+        ``sizes`` are the chunk's (``chunk_size``, ``n_action_steps``, ``tokenizer_max_length``). Only the types
+        declared ``trains_from_scratch`` build one."""
+        raise InvalidInputError(f"snapflow does not train LeRobot's {cls.policy_type} from scratch")
 
     @classmethod
     def chunk_shape(cls, config: Any) -> tuple[int, int]:

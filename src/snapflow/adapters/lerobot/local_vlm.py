@@ -1,8 +1,10 @@
 """A LeRobot policy folder that opens on any machine, where its VLM is a local folder (a SmolVLA over a SmolVLM
-written by :func:`~snapflow.adapters.lerobot.smolvlm.write_smolvlm`: config, tokenizer and processor, a few kB).
+written by :func:`~snapflow.adapters.lerobot.smolvlm.write_smolvlm`: config, tokenizer and processor, a few kB; an
+X-VLA trained from scratch reads that folder's tokenizer).
 
-LeRobot names such a VLM by the path it was given, in the policy's ``config.json`` (``vlm_model_name``), LeRobot's
-``train_config.json`` and the pre-processor's tokenizer step (``tokenizer_name``): an absolute path of the machine
+LeRobot names such a VLM by the path it was given, in the policy's ``config.json`` (SmolVLA's ``vlm_model_name``,
+X-VLA's ``tokenizer_name``), LeRobot's ``train_config.json`` and the pre-processor's tokenizer step
+(``tokenizer_name``): an absolute path of the machine
 that trained it makes the folder useless anywhere else. :func:`bundle_vlm` copies the VLM folder into the policy
 folder (:data:`BUNDLED_VLM`) and names it there relative to the policy folder. LeRobot reads these names relative to
 the working directory, so snapflow hands them to LeRobot as absolute paths when it loads such a folder
@@ -25,11 +27,22 @@ _CONFIG = "config.json"  # LeRobot's names for a policy's config, its training c
 _TRAIN_CONFIG = "train_config.json"
 _PREPROCESSOR = "policy_preprocessor.json"
 _TOKENIZER_STEP = "tokenizer_processor"  # the pre-processor step that loads the VLM's tokenizer
+#: the config fields a LeRobot policy names its VLM's folder by, the first its config holds: SmolVLA's VLM, X-VLA's
+#: tokenizer
+_VLM_FIELDS = ("vlm_model_name", "tokenizer_name")
+
+
+def _vlm_field(config: dict[str, Any]) -> str | None:
+    return next((field for field in _VLM_FIELDS if field in config), None)
 
 
 def _vlm_name(folder: Path) -> str | None:
-    config = folder / _CONFIG
-    return json.loads(config.read_text()).get("vlm_model_name") if config.is_file() else None
+    path = folder / _CONFIG
+    if not path.is_file():
+        return None
+    config = json.loads(path.read_text())
+    field = _vlm_field(config)
+    return config[field] if field else None
 
 
 def bundled_vlm(folder: str | Path) -> Path | None:
@@ -72,12 +85,13 @@ def bundle_vlm(folder: str | Path) -> bool:
 def _rename_vlm(folder: Path, old: str, new: str) -> None:
     """Replace the VLM's name ``old`` by ``new`` in the config, the training config and the pre-processor."""
     config = json.loads((folder / _CONFIG).read_text())
-    write_json(folder / _CONFIG, {**config, "vlm_model_name": new})
+    field = _vlm_field(config)
+    write_json(folder / _CONFIG, {**config, field: new})
     train_config = folder / _TRAIN_CONFIG
     if train_config.is_file():
         content = json.loads(train_config.read_text())
-        if content.get("policy", {}).get("vlm_model_name") == old:
-            content["policy"]["vlm_model_name"] = new
+        if content.get("policy", {}).get(field) == old:
+            content["policy"][field] = new
             write_json(train_config, content)
     preprocessor = folder / _PREPROCESSOR
     if preprocessor.is_file():
@@ -93,7 +107,7 @@ def resolve_config(config: Any, folder: str | Path) -> Any:
     LeRobot builds the model from it; unchanged for any other policy."""
     vlm = bundled_vlm(folder)
     if vlm is not None:
-        config.vlm_model_name = str(vlm)
+        setattr(config, next(field for field in _VLM_FIELDS if hasattr(config, field)), str(vlm))
     return config
 
 

@@ -8,6 +8,7 @@ goes through the frozen VLM with the images and the instruction.
 from __future__ import annotations
 
 import inspect
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -21,6 +22,8 @@ from snapflow.adapters.lerobot.base import (
     split_timestep,
 )
 from snapflow.adapters.lerobot.prefix_cache import PrefixCacheFlowPolicy, cache_for_one_pass, cache_tensors
+from snapflow.adapters.lerobot.smolvlm import smolvla_config
+from snapflow.adapters.lerobot_config import SmolVLMSize
 
 
 def _embed_suffix_with_target_time(
@@ -81,6 +84,12 @@ class SmolVLAFlowPolicy(PrefixCacheFlowPolicy):
     policy_type = "smolvla"
     time_fusion_layer = "action_time_mlp_in"
     embed_suffix_with_target_time = staticmethod(_embed_suffix_with_target_time)
+
+    @classmethod
+    def scratch_config(
+        cls, vlm: Path, input_features: dict[str, Any], output_features: dict[str, Any], size: SmolVLMSize, **sizes: Any
+    ) -> Any:
+        return smolvla_config(vlm, input_features, output_features, size, **sizes)
 
     def expert_modules(self) -> list[nn.Module]:
         # the state projection feeds the VLM prefix, so it stays frozen with the VLM

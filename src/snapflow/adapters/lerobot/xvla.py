@@ -14,12 +14,14 @@ the naive one here (a_hat at t = 1), and its N steps are another discretisation 
 from __future__ import annotations
 
 import functools
+from pathlib import Path
 from typing import Any
 
 import torch
 from torch import Tensor, nn
 
 from snapflow.adapters.lerobot.base import ChunkSampler, LeRobotFlowPolicy, modeling_module, split_timestep
+from snapflow.adapters.lerobot_config import SmolVLMSize
 from snapflow.flow.path import broadcast_time
 from snapflow.flow.time_sampling import BetaTimeSampler
 from snapflow.nn.time_embedding import TargetTimeEmbedding
@@ -101,6 +103,58 @@ class XVLAFlowPolicy(LeRobotFlowPolicy):
     minimum_lerobot = "0.5"
     # X-VLA's encoder attends to every prompt token, padding included: cutting it would change the chunk
     masks_prompt_padding = False
+
+    @classmethod
+    def scratch_config(
+        cls, vlm: Path, input_features: dict[str, Any], output_features: dict[str, Any], size: SmolVLMSize, **sizes: Any
+    ) -> Any:
+        """X-VLA over a Florence-2 at the SmolVLM size's widths: a four-stage DaViT whose third stage has the vision
+        tower's width and depth, BART's encoder at the text tower's (its decoder, which X-VLA never runs, one layer),
+        the soft-prompted transformer as wide and deep as the text tower; the SmolVLM folder's tokenizer; state and
+        action padded to no more than their own widths (``auto`` action space)."""
+        from lerobot.policies.xvla.configuration_xvla import XVLAConfig
+        from transformers import AutoTokenizer
+
+        width, heads, text = size.vision_hidden, size.vision_heads, size.text_hidden
+        vision = dict(
+            depths=[1, 1, size.vision_layers, 1],
+            embed_dim=[width // 4, width // 2, width, width],
+            num_heads=[1, 2, heads, heads],
+            num_groups=[1, 2, heads, heads],
+            window_size=4,
+            projection_dim=text,
+            drop_path_rate=0.0,
+        )
+        heads_and_widths = dict(encoder_attention_heads=size.text_heads, decoder_attention_heads=size.text_heads)
+        ffn = size.text_intermediate or 2 * text
+        language = dict(
+            d_model=text,
+            encoder_layers=size.text_layers,
+            decoder_layers=1,
+            encoder_ffn_dim=ffn,
+            decoder_ffn_dim=ffn,
+            vocab_size=len(AutoTokenizer.from_pretrained(vlm)),
+            max_position_embeddings=size.max_positions,
+            **heads_and_widths,
+        )
+        state = next(feature for feature in input_features.values() if feature.type.name == "STATE")
+        return XVLAConfig(
+            florence_config={"vision_config": vision, "text_config": language},
+            max_state_dim=state.shape[0],
+            max_action_dim=next(iter(output_features.values())).shape[0],
+            tokenizer_name=str(vlm),
+            hidden_size=text,
+            depth=size.text_layers,
+            num_heads=size.text_heads,
+            num_domains=1,
+            len_soft_prompts=8,
+            action_mode="auto",
+            device="cpu",
+            push_to_hub=False,
+            input_features=input_features,
+            output_features=output_features,
+            **sizes,
+        )
 
     def new_target_time_embedding(self) -> TargetTimeEmbedding:
         return TargetTimeEmbedding(self.policy.model.transformer.hidden_size)

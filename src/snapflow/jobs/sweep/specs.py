@@ -35,8 +35,8 @@ class DataSpec:
 @dataclass(frozen=True)
 class LeRobotSpec:
     """A LeRobot policy trained from scratch on the sweep's demonstrations, written as a LeRobotDataset: ``snapflow
-    train --policy-type <policy_type>``'s settings (SmolVLA over a SmolVLM of size ``smolvlm`` reading the frames at
-    ``image_size``, None: that size's own)."""
+    train --policy-type <policy_type>``'s settings (SmolVLA over a SmolVLM of size ``smolvlm``, X-VLA over a Florence-2
+    at that size's widths, reading the frames at ``image_size``, None: that size's own)."""
 
     policy_type: str = "smolvla"
     smolvlm: str = "small"

@@ -116,7 +116,7 @@ class TrainJob(FolderJob):
     def _run_lerobot(self) -> dict[str, Any]:
         """A LeRobot teacher from scratch, or its student by snapflow's trainer or by ``lerobot-train``. The kept
         checkpoint (``commit_checkpoint``) is the trainer's own ``keep_progress``: a fresh machine resumes from it."""
-        from snapflow.training.lerobot import distill_lerobot, train_smolvla_teacher
+        from snapflow.training.lerobot import distill_lerobot, train_lerobot_teacher
 
         assert self.dataset is not None
         dataset = self.dataset.directory
@@ -127,7 +127,8 @@ class TrainJob(FolderJob):
             size = SMOLVLM_SIZES[spec.smolvlm]
             if spec.image_size is not None:
                 size = replace(size, image_size=spec.image_size)
-            state = train_smolvla_teacher(
+            state = train_lerobot_teacher(
+                spec.policy_type,
                 dataset,
                 LEROBOT_REPO_ID,
                 self.directory,
