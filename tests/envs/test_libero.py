@@ -186,9 +186,29 @@ def test_demonstrations_start_from_seeded_resets_never_the_evaluation_states():
             observation = env.reset(seed)
             assert observation.privileged["akita_black_bowl_1_pos"][2] > 0.92  # the table's top is at 0.90
             assert observation.image.shape == (32, 32, 3) and observation.image.std() > 10  # rendered after a reload
-            assert not env._env.env.sim._render_context_offscreen.scn.flags[mujoco.mjtRndFlag.mjRND_REFLECTION]
+            context = env._env.env.sim._render_context_offscreen
+            assert not context.scn.flags[mujoco.mjtRndFlag.mjRND_REFLECTION]
+            assert (context.con.offSamples, context.con.offWidth, context.con.offHeight) == (0, 32, 32)
     finally:
         env.close()
+
+
+def test_a_models_xml_carries_the_cheap_off_screen_settings_into_its_visual_element():
+    """What a training reset's reloaded model is compiled from: its ``visual`` element (kept, or made) holds no
+    multisampling and an off-screen buffer of the image's size, and nothing else of the model changes."""
+    from xml.etree import ElementTree
+
+    from snapflow.envs.libero import cheap_offscreen_xml
+
+    kept = ElementTree.fromstring(
+        cheap_offscreen_xml('<mujoco><visual><map znear="0.001"/></visual><worldbody/></mujoco>', 64)
+    )
+    assert kept.find("visual/map").get("znear") == "0.001" and kept.find("worldbody") is not None
+    assert kept.find("visual/quality").attrib == {"offsamples": "0"}
+    assert kept.find("visual/global").attrib == {"offwidth": "64", "offheight": "64"}
+    made = ElementTree.fromstring(cheap_offscreen_xml('<mujoco model="m"><option timestep="0.002"/></mujoco>', 32))
+    assert made.get("model") == "m" and made.find("option").get("timestep") == "0.002"
+    assert made.find("visual/global").attrib == {"offwidth": "32", "offheight": "32"}
 
 
 @pytest.mark.slow

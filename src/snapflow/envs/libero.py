@@ -21,6 +21,7 @@ import functools
 import os
 from collections.abc import Mapping, Sequence
 from typing import Any
+from xml.etree import ElementTree
 
 import numpy as np
 
@@ -92,6 +93,21 @@ def proprioception(raw: Mapping[str, np.ndarray]) -> np.ndarray:
     ).astype(np.float32)
 
 
+def cheap_offscreen_xml(xml: str, size: int) -> str:
+    """A LIBERO model's MJCF with :meth:`LiberoEnv._cheap_rendering`'s off-screen settings (no multisampling, a
+    ``size``-pixel buffer), so that the render context made for it is the cheap one from the start."""
+    root = ElementTree.fromstring(xml)
+    visual = _child(root, "visual")
+    _child(visual, "quality").set("offsamples", "0")
+    _child(visual, "global").attrib.update(offwidth=str(size), offheight=str(size))
+    return ElementTree.tostring(root, encoding="unicode")
+
+
+def _child(element: ElementTree.Element, tag: str) -> ElementTree.Element:
+    found = element.find(tag)
+    return found if found is not None else ElementTree.SubElement(element, tag)
+
+
 class LiberoEnv(Environment):
     """One LIBERO task on ``split``'s variations: LIBERO's fixed initial states (``eval``) or seeded resets
     (``train``)."""
@@ -123,6 +139,9 @@ class LiberoEnv(Environment):
             camera_widths=image_size or 128,
         )
         if image_size:
+            # a training reset reloads the model and makes a render context for it: made from the cheap settings
+            # at once (robosuite's own hook on the model's XML), not made and then made again (2 s of a 5-s reset)
+            self._env.env.set_xml_processor(functools.partial(cheap_offscreen_xml, size=image_size))
             self._cheap_rendering(image_size)
         self.steps = 0
 
@@ -133,13 +152,15 @@ class LiberoEnv(Environment):
         import mujoco  # LIBERO's own dependency: snapflow's core does not need it
 
         sim = self._env.env.sim
-        sim.model.vis.quality.offsamples = 0
-        sim.model.vis.global_.offwidth = size
-        sim.model.vis.global_.offheight = size
         context = sim._render_context_offscreen
-        context.gl_ctx.make_current()
-        context.con.free()
-        context._set_mujoco_context_and_buffers()  # the buffer is made from the settings above
+        made = context.con
+        if (made.offSamples, made.offWidth, made.offHeight) != (0, size, size):  # a model loaded without the hook
+            sim.model.vis.quality.offsamples = 0
+            sim.model.vis.global_.offwidth = size
+            sim.model.vis.global_.offheight = size
+            context.gl_ctx.make_current()
+            context.con.free()
+            context._set_mujoco_context_and_buffers()  # the buffer is made from the settings above
         context.scn.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0
 
     def _observe(self, raw: Mapping[str, np.ndarray], render: bool) -> Observation:
