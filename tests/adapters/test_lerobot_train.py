@@ -301,6 +301,36 @@ def _two_lerobot_train_steps(teacher, tmp_path: Path, processor_stats: dict | No
 
 @pytest.mark.slow
 @PLUGINS
+@pytest.mark.parametrize("policy_type", ["pi0", "pi05"])
+def test_lerobot_train_steps_a_pi_student_by_snapflows_objective(policy_type, vlm_directory, tmp_path, monkeypatch):
+    """LeRobot's own ``lerobot-train`` entry point, in this process: a tiny pi policy builds only while its PaliGemma
+    config builders are swapped for tiny ones, which a subprocess would not have (it would build the 2B model). Two
+    steps of the ``snapflow_pi0`` / ``snapflow_pi05`` student train the action expert and phi_s, PaliGemma frozen."""
+    from lerobot.scripts import lerobot_train
+    from safetensors.torch import load_file
+
+    from tests.lerobot_tiny import IMAGE_SIZE, save_tiny_pi_student, tiny_pi_configs, write_tiny_dataset
+
+    data = write_tiny_dataset(tmp_path / "data", episodes=2, frames=8)
+    student = save_tiny_pi_student(policy_type, vlm_directory, tmp_path / "student", image_size=IMAGE_SIZE)
+    arguments = [f"--policy.path={student}", "--dataset.repo_id=local/tiny", f"--dataset.root={data}"]
+    arguments += ["--steps=2", "--batch_size=4", "--num_workers=0", "--save_freq=2", "--log_freq=1"]
+    arguments += ["--wandb.enable=false", "--policy.device=cpu", "--policy.push_to_hub=false"]
+    monkeypatch.setattr(sys, "argv", ["lerobot-train", *arguments, f"--output_dir={tmp_path / 'run'}"])
+    with tiny_pi_configs(policy_type):
+        lerobot_train.main()
+    checkpoint = tmp_path / "run" / "checkpoints" / "last" / "pretrained_model"
+    config = json.loads((checkpoint / "config.json").read_text())
+    assert config["type"] == f"snapflow_{policy_type}" and config["distilled"] is True
+    before, after = load_file(student / "model.safetensors"), load_file(checkpoint / "model.safetensors")
+    moved = {name for name in before if not torch.equal(before[name], after[name])}
+    assert any(".target_time_embedding." in name for name in moved), "phi_s trained"
+    assert any(".gemma_expert." in name for name in moved), "the action expert trained"
+    assert not any(".paligemma." in name for name in moved), "PaliGemma stays frozen"
+
+
+@pytest.mark.slow
+@PLUGINS
 def test_lerobot_train_steps_an_xvla_student_by_snapflows_objective(vlm_directory, tmp_path):
     """A type beyond the pi0 family: X-VLA, stepped by ``lerobot-train`` with its own optimizer (learning rates by
     parameter name), only the action expert and phi_s training; snapflow's run checkpoints save Florence-2's shared
