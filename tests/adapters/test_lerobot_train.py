@@ -8,15 +8,18 @@ import json
 import os
 import subprocess
 import sys
+from importlib.metadata import version
 from pathlib import Path
 
 import pytest
 import torch
+from packaging.version import Version
 
 pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test command; this environment lacks it")
 
 from snapflow.adapters.lerobot.registry import lerobot_time_sampler  # noqa: E402
-from snapflow.adapters.lerobot_types import PLUGIN_LEROBOT, installed_lerobot_types, lerobot_loads_plugins  # noqa: E402
+from snapflow.adapters.lerobot.xvla import XVLAFlowPolicy  # noqa: E402
+from snapflow.adapters.lerobot_types import PLUGIN_LEROBOT, lerobot_loads_plugins  # noqa: E402
 from snapflow.flow.modes import SamplingMode  # noqa: E402
 from snapflow.flow.solver import sample_actions  # noqa: E402
 from tests.lerobot_tiny import build_tiny_smolvla, lerobot_sample, tiny_batch  # noqa: E402
@@ -354,7 +357,10 @@ def test_lerobot_train_steps_a_multi_task_dit_student_by_snapflows_objective(cli
     assert not any(name.startswith("observation_encoder.") for name in moved), "the encoders stay frozen"
 
 
-@pytest.mark.skipif("xvla" not in installed_lerobot_types(), reason="LeRobot ships X-VLA from lerobot 0.5 on")
+@pytest.mark.skipif(
+    Version(version("lerobot")) < Version(XVLAFlowPolicy.minimum_lerobot),
+    reason=f"snapflow's X-VLA adapter needs lerobot >= {XVLAFlowPolicy.minimum_lerobot}",
+)
 def test_snapflow_train_fits_an_xvla_from_scratch_whose_folder_opens_anywhere(tmp_path):
     """``snapflow train --policy-type xvla --dataset``, as a user types it: an X-VLA over a Florence-2 at the tiny
     SmolVLM's widths learns the tiny dataset (its flow-matching loss over steps 51-100 under 0.7 of steps 1-50'), and its exported folder, moved
