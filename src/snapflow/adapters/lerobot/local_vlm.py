@@ -4,12 +4,11 @@ X-VLA trained from scratch reads that folder's tokenizer).
 
 LeRobot names such a VLM by the path it was given, in the policy's ``config.json`` (SmolVLA's ``vlm_model_name``,
 X-VLA's ``tokenizer_name``), LeRobot's ``train_config.json`` and the pre-processor's tokenizer step
-(``tokenizer_name``): an absolute path of the machine
-that trained it makes the folder useless anywhere else. :func:`bundle_vlm` copies the VLM folder into the policy
-folder (:data:`BUNDLED_VLM`) and names it there relative to the policy folder. LeRobot reads these names relative to
-the working directory, so snapflow hands them to LeRobot as absolute paths when it loads such a folder
-(:func:`resolve_config`, :func:`saved_processors`), and runs LeRobot's own commands on one from inside it (LeRobot's
-``lerobot-eval --policy.path=.`` in the policy folder works the same way).
+(``tokenizer_name``): an absolute path of the machine that trained it makes the folder useless anywhere else.
+:func:`bundle_vlm` copies the VLM folder into the policy folder (:data:`BUNDLED_VLM`) and names it there relative to
+the policy folder. LeRobot reads these names relative to the working directory, so snapflow hands them to LeRobot as
+absolute paths when it loads such a folder (:func:`resolve_config`, :func:`saved_processors`), and runs LeRobot's own
+commands on one from inside it (LeRobot's ``lerobot-eval --policy.path=.`` in the policy folder works the same way).
 """
 
 from __future__ import annotations
