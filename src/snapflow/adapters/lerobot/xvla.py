@@ -110,8 +110,9 @@ class XVLAFlowPolicy(LeRobotFlowPolicy):
     ) -> Any:
         """X-VLA over a Florence-2 at the SmolVLM size's widths: a four-stage DaViT whose third stage has the vision
         tower's width and depth, BART's encoder at the text tower's (its decoder, which X-VLA never runs, one layer),
-        the soft-prompted transformer as wide and deep as the text tower; the SmolVLM folder's tokenizer; state and
-        action padded to no more than their own widths (``auto`` action space)."""
+        the soft-prompted transformer as wide and deep as the text tower; the SmolVLM folder's tokenizer; frames read
+        at the size's image size, as SmolVLA reads them; state and action padded to no more than their own widths
+        (``auto`` action space)."""
         from lerobot.policies.xvla.configuration_xvla import XVLAConfig
         from transformers import AutoTokenizer
 
@@ -125,7 +126,7 @@ class XVLAFlowPolicy(LeRobotFlowPolicy):
             projection_dim=text,
             drop_path_rate=0.0,
         )
-        heads_and_widths = dict(encoder_attention_heads=size.text_heads, decoder_attention_heads=size.text_heads)
+        attention_heads = dict(encoder_attention_heads=size.text_heads, decoder_attention_heads=size.text_heads)
         ffn = size.text_intermediate or 2 * text
         language = dict(
             d_model=text,
@@ -135,7 +136,7 @@ class XVLAFlowPolicy(LeRobotFlowPolicy):
             decoder_ffn_dim=ffn,
             vocab_size=len(AutoTokenizer.from_pretrained(vlm)),
             max_position_embeddings=size.max_positions,
-            **heads_and_widths,
+            **attention_heads,
         )
         state = next(feature for feature in input_features.values() if feature.type.name == "STATE")
         return XVLAConfig(
@@ -143,6 +144,7 @@ class XVLAFlowPolicy(LeRobotFlowPolicy):
             max_state_dim=state.shape[0],
             max_action_dim=next(iter(output_features.values())).shape[0],
             tokenizer_name=str(vlm),
+            resize_imgs_with_padding=(size.image_size, size.image_size),
             hidden_size=text,
             depth=size.text_layers,
             num_heads=size.text_heads,
