@@ -32,6 +32,7 @@ _VLM_FIELDS = ("vlm_model_name", "tokenizer_name")
 
 
 def _vlm_field(config: dict[str, Any]) -> str | None:
+    """The field of ``config`` (a policy config's fields by name) that names its VLM's folder, if any."""
     return next((field for field in _VLM_FIELDS if field in config), None)
 
 
@@ -106,7 +107,7 @@ def resolve_config(config: Any, folder: str | Path) -> Any:
     LeRobot builds the model from it; unchanged for any other policy."""
     vlm = bundled_vlm(folder)
     if vlm is not None:
-        setattr(config, next(field for field in _VLM_FIELDS if hasattr(config, field)), str(vlm))
+        setattr(config, _vlm_field(vars(config)), str(vlm))
     return config
 
 

@@ -104,6 +104,13 @@ def write_smolvlm(directory: str | Path, words: Iterable[str], size: SmolVLMSize
     return Path(directory)
 
 
+def feature_widths(input_features: dict[str, Any], output_features: dict[str, Any]) -> tuple[int, int]:
+    """(state width, action width) of LeRobot policy features: what a policy trained from scratch pads its state and
+    action to, and no more."""
+    state = next(feature for feature in input_features.values() if feature.type.name == "STATE")
+    return state.shape[0], next(iter(output_features.values())).shape[0]
+
+
 def smolvla_config(
     vlm_directory: str | Path,
     input_features: dict[str, Any],
@@ -115,16 +122,15 @@ def smolvla_config(
     padded to no more than the features' own widths, every part trainable, on the CPU; ``overrides`` win."""
     from lerobot.policies.smolvla.configuration_smolvla import SmolVLAConfig
 
-    state = next(feature for key, feature in input_features.items() if feature.type.name == "STATE")
-    action = next(iter(output_features.values()))
+    state_width, action_width = feature_widths(input_features, output_features)
     settings: dict[str, Any] = dict(
         vlm_model_name=str(vlm_directory),
         load_vlm_weights=False,
         num_vlm_layers=size.text_layers,
         expert_width_multiplier=0.5,
         resize_imgs_with_padding=(size.image_size, size.image_size),
-        max_state_dim=state.shape[0],
-        max_action_dim=action.shape[0],
+        max_state_dim=state_width,
+        max_action_dim=action_width,
         freeze_vision_encoder=False,
         train_expert_only=False,
         device="cpu",
@@ -135,4 +141,4 @@ def smolvla_config(
     return SmolVLAConfig(**{**settings, **overrides})
 
 
-__all__ = ["token_budget", "words_of", "write_smolvlm", "smolvla_config"]
+__all__ = ["token_budget", "words_of", "write_smolvlm", "feature_widths", "smolvla_config"]

@@ -21,6 +21,7 @@ import torch
 from torch import Tensor, nn
 
 from snapflow.adapters.lerobot.base import ChunkSampler, LeRobotFlowPolicy, modeling_module, split_timestep
+from snapflow.adapters.lerobot.smolvlm import feature_widths
 from snapflow.adapters.lerobot_config import SmolVLMSize
 from snapflow.flow.path import broadcast_time
 from snapflow.flow.time_sampling import BetaTimeSampler
@@ -138,11 +139,11 @@ class XVLAFlowPolicy(LeRobotFlowPolicy):
             max_position_embeddings=size.max_positions,
             **attention_heads,
         )
-        state = next(feature for feature in input_features.values() if feature.type.name == "STATE")
+        state_width, action_width = feature_widths(input_features, output_features)
         return XVLAConfig(
             florence_config={"vision_config": vision, "text_config": language},
-            max_state_dim=state.shape[0],
-            max_action_dim=next(iter(output_features.values())).shape[0],
+            max_state_dim=state_width,
+            max_action_dim=action_width,
             tokenizer_name=str(vlm),
             resize_imgs_with_padding=(size.image_size, size.image_size),
             hidden_size=text,
