@@ -12,7 +12,8 @@
 #   BENCH=libero bash scripts/lerobot-smolvla.sh [OUTPUT]
 #   DATA=DIR ...                                          # demonstrations already collected with the same settings
 #                                                         # (a sweep's data folder): written as the dataset, not collected
-#   SHORT=1 bash scripts/lerobot-smolvla.sh OUTPUT        # one or two tasks, a tiny SmolVLA, a few steps: the chain only
+#   SHORT=1 bash scripts/lerobot-smolvla.sh OUTPUT        # one or two tasks, a tiny SmolVLA, a few steps, episodes
+#                                                         # cut at 10 steps: the chain only
 #   THREADS=1 ...                                         # torch threads, where other jobs share the cores
 #   KEEP=DIR ...                                          # keep the teacher's and the student's latest checkpoints
 #                                                         # in DIR/teacher and DIR/student (to commit): another
@@ -35,9 +36,9 @@ case "$bench" in
     libero) env=libero tasks=libero_spatial short_tasks=libero_spatial_0 ;;
     *) echo "BENCH must be mt10 or libero, got $bench" >&2; exit 2 ;;
 esac
-collect=()
+collect=() max_steps=
 if [ "${SHORT:-0}" = 1 ]; then
-    tasks=$short_tasks demos=2 image=32 seen=32 size=tiny
+    tasks=$short_tasks demos=2 image=32 seen=32 size=tiny max_steps=10
     teacher=(--steps 4 --batch-size 4 --checkpoint-every 2) student=(--steps 2 --batch-size 4) episodes=1
 elif [ "$bench" = libero ] && [ "${DART:-0}" = 1 ]; then
     # DART demonstrations (as libero-spatial-dart.toml's, with the wrist camera too), four times the budget
@@ -55,6 +56,7 @@ else
     student=(--steps 2000 --batch-size 32 --learning-rate 3e-5 --warmup-steps 50 --checkpoint-every 500)
 fi
 
+cut=(${max_steps:+--max-episode-steps "$max_steps"})  # episodes end there, short of the benchmark's limit
 seed="${SEED:-0}"
 suffix=$([ "$seed" = 0 ] || echo "-seed$seed")  # seed 0 keeps the folders it always had
 teacher+=(--seed "$seed") student+=(--seed "$seed")
@@ -76,29 +78,31 @@ data="${DATA:-$out/data}"
 [ -f "$out/eval$suffix/report.json" ] ||
     snapflow eval --policy "$out/teacher$suffix/lerobot_policy=teacher-10,naive" \
         "$out/student$suffix/lerobot_policy=snapflow-1" --env "$env" --tasks "$tasks" --episodes "$episodes" \
-        --data "$data" --output "$out/eval$suffix" --resume "${options[@]}"
+        --data "$data" --output "$out/eval$suffix" --resume "${cut[@]}" "${options[@]}"
 if [ "$bench" = libero ]; then
     # the student again, in LeRobot's own LIBERO environment, on the same initial states: one environment per
     # episode (LeRobot's environment k starts from initial state k, and moves on by itself after a success), one
     # task at a time (a LIBERO environment with cameras holds ~850 MB)
     plugins=$(python -c 'from snapflow.adapters.lerobot_types import lerobot_loads_plugins as f; print(int(f()))')
     if [ "$plugins" = 1 ]; then  # LeRobot's lerobot-eval itself, task by task, with the package's initial states
-        python - "$out/student$suffix/lerobot_policy" "$tasks" "$episodes" "$image" "$out/lerobot-eval$suffix" <<'EOF'
+        python - "$out/student$suffix/lerobot_policy" "$tasks" "$episodes" "$image" "$out/lerobot-eval$suffix" \
+            "${max_steps:-0}" <<'EOF'
 import sys
 
 from snapflow.envs.factory import make_benchmark
 from snapflow.evaluation.lerobot_eval import run_lerobot_eval
 from snapflow.flow.modes import SNAPFLOW_1
 
-policy, tasks, episodes, image, output = sys.argv[1:]
-run_lerobot_eval(policy, make_benchmark("libero").resolve_tasks(tasks), int(episodes), int(image), 4, SNAPFLOW_1, output)
+policy, tasks, episodes, image, output, cut = sys.argv[1:]
+tasks = make_benchmark("libero").resolve_tasks(tasks)
+run_lerobot_eval(policy, tasks, int(episodes), int(image), 4, SNAPFLOW_1, output, max_episode_steps=int(cut) or None)
 EOF
     else
         for task in $(python -c "from snapflow.envs.factory import make_benchmark; print(*make_benchmark('libero').resolve_tasks('$tasks'))"); do
             [ -f "$out/lerobot-eval$suffix/$task/report.json" ] ||
                 snapflow eval --lerobot-env libero --env-task "$task" --policy "$out/student$suffix/lerobot_policy" \
                     --modes snapflow-1 --episodes "$episodes" --n-envs "$episodes" --n-action-steps 4 \
-                    --output "$out/lerobot-eval$suffix/$task" "${options[@]}"
+                    --output "$out/lerobot-eval$suffix/$task" "${cut[@]}" "${options[@]}"
         done
     fi
 fi

@@ -7,6 +7,11 @@ on them and its student are evaluated by snapflow's evaluator and by LeRobot's L
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
+from importlib.metadata import PackageNotFoundError, distribution
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,11 +24,12 @@ pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test
 pytest.importorskip("libero")
 
 IMAGE_SIZE = 32  # the short chain's
+MAX_STEPS = 10  # and the steps its episodes are cut at
 
 
-# ~220 s on CI's two cores, paid once for the module's tests: the LIBERO guide's whole LeRobot chain on LIBERO, whose
+# ~150 s on two busy cores, paid once for the module's tests: the LIBERO guide's whole LeRobot chain on LIBERO, whose
 # environments alone take 4-9 s to make and ~20 ms a step; its parts (collection, dataset, training, both evaluators)
-# are each at their smallest (two demonstrations, four training steps, one episode a row).
+# are each at their smallest (two demonstrations, four training steps, one episode a row cut at MAX_STEPS).
 @pytest.fixture(scope="module")
 def collected(tmp_path_factory):
     """The short chain on one LIBERO-Spatial task: two demonstrations with 32-pixel images from both cameras as npz
@@ -91,6 +97,7 @@ def test_the_student_runs_in_snapflows_evaluator_and_in_lerobots_libero_environm
     report = json.loads((collected / "eval" / "report.json").read_text())
     rows = report["rows"]
     assert [row["mode"] for row in rows.values()] == ["teacher-10", "naive-1", "snapflow-1"]
+    assert report["max_episode_steps"] == MAX_STEPS
     for row in rows.values():
         assert set(row["success"]) == {"libero_spatial_0", "mean"} and row["success"]["mean"]["episodes"] == 1
     folder = collected / "lerobot-eval" / "libero_spatial_0"
@@ -106,34 +113,74 @@ def test_the_student_runs_in_snapflows_evaluator_and_in_lerobots_libero_environm
     assert lerobot["modes"]["snapflow-1"]["overall"]["n_episodes"] == 1
 
 
-# ~185 s on CI's two cores: two lerobot-eval subprocesses (the teacher's ten steps, the student's one) of one episode
-# each, the least there is; LeRobot's LiberoEnv renders both cameras every step at robosuite's full settings.
+# ~35 s on two busy cores: one lerobot-eval subprocess (the teacher's ten steps) of one episode cut at MAX_STEPS, the
+# least there is (LeRobot's LiberoEnv takes ~20 s to make); the student's is the chain's own, read back.
 @pytest.mark.slow
 @pytest.mark.skipif(
     not lerobot_loads_plugins(), reason="lerobot-eval loads snapflow's student types from lerobot 0.5 on"
 )
 def test_lerobot_eval_task_by_task_reads_back_as_an_evaluation_row_with_lerobots_own_files_kept(collected, tmp_path):
     """What a sweep's ``evaluator = "lerobot-eval"`` table runs: LeRobot's ``lerobot-eval`` on the teacher (its
-    Euler steps) and on the student (its sampling mode), one task at a time, read back as snapflow's evaluation row;
-    LeRobot's ``eval_info.json`` kept as it wrote it; a finished task is not run again; a teacher has no jump."""
+    Euler steps) and on the student (its sampling mode: the chain ran it as the LIBERO guide does), one task at a
+    time, read back as snapflow's evaluation row; LeRobot's ``eval_info.json`` kept as it wrote it; a finished task is
+    not run again; a teacher has no jump."""
     from snapflow.errors import InvalidInputError
     from snapflow.evaluation.lerobot_eval import EVAL_INFO, run_lerobot_eval
     from snapflow.flow.modes import SNAPFLOW_1, TEACHER_10
 
     task = "libero_spatial_0"
-    for policy, mode in (("teacher", TEACHER_10), ("student", SNAPFLOW_1)):
-        output, kept = tmp_path / mode.name, tmp_path / "kept" / mode.name
-        arguments = (collected / policy / "lerobot_policy", [task], 1, IMAGE_SIZE, 2, mode, output)
-        row = run_lerobot_eval(*arguments, threads=1, kept=kept)
+    runs = (("teacher", TEACHER_10, tmp_path / "teacher-10", 2), ("student", SNAPFLOW_1, collected / "lerobot-eval", 4))
+    for policy, mode, output, n_action_steps in runs:
+        kept = tmp_path / "kept" / mode.name
+        arguments = (collected / policy / "lerobot_policy", [task], 1, IMAGE_SIZE, n_action_steps, mode, output)
+        row = run_lerobot_eval(*arguments, threads=1, kept=kept, max_episode_steps=MAX_STEPS)
         info = json.loads((output / task / EVAL_INFO).read_text())
         assert json.loads((kept / task / EVAL_INFO).read_text()) == info
         assert (row.mode, row.nfe, row.success[task].episodes) == (mode.name, mode.num_steps, 1)
         assert row.success["mean"].successes == sum(info["per_task"][0]["metrics"]["successes"])
         log = (output / f"{task}.log").read_text()
         asked = "'sampling_mode': 'snapflow-1'" if mode.jump else "'num_steps': 10"
-        assert asked in log and "'n_action_steps': 2" in log
+        assert asked in log and f"'n_action_steps': {n_action_steps}" in log
+        assert f"'episode_length': {MAX_STEPS}" in log
         written = (output / f"{task}.log").stat().st_mtime_ns
         assert run_lerobot_eval(*arguments, threads=1) == row
         assert (output / f"{task}.log").stat().st_mtime_ns == written, "a finished task is read back, not run again"
     with pytest.raises(InvalidInputError, match="has no jump to sample snapflow-1"):
         run_lerobot_eval(collected / "teacher" / "lerobot_policy", [task], 1, IMAGE_SIZE, 2, SNAPFLOW_1, tmp_path / "x")
+
+
+# ~35 s on two busy cores: LeRobot's LiberoEnv takes ~20 s to make, and the episode is cut at MAX_STEPS.
+@pytest.mark.slow
+@pytest.mark.skipif(
+    not lerobot_loads_plugins(), reason="lerobot-eval loads snapflow's student types from lerobot 0.5 on"
+)
+def test_lerobots_own_lerobot_eval_command_runs_the_student_as_the_readme_types_it(collected, tmp_path):
+    """``cd <student folder> && lerobot-eval --policy.path=. --env.type=libero ...``, LeRobot's console script as a
+    user runs it (the README's line): LeRobot imports snapflow's plugin distribution by itself and runs the
+    ``snapflow_smolvla`` student, whose SmolVLM it finds inside the folder. LeRobot's own initial-state files are not
+    those this LIBERO package ships, so the episode starts from a seeded placement instead."""
+    try:
+        distribution("lerobot_policy_snapflow")
+    except PackageNotFoundError:
+        pytest.fail(
+            "the plugin distribution is not installed: the README's test command installs plugins/lerobot_policy_snapflow"
+        )
+    student = collected / "student" / "lerobot_policy"
+    assert json.loads((student / "config.json").read_text())["type"] == "snapflow_smolvla"
+    arguments = ["--policy.path=.", "--policy.device=cpu", "--env.type=libero", "--env.task=libero_spatial"]
+    arguments += ["--env.task_ids=[0]", "--env.init_states=false", f"--env.episode_length={MAX_STEPS}"]
+    arguments += [f"--env.observation_height={IMAGE_SIZE}", f"--env.observation_width={IMAGE_SIZE}"]
+    arguments += ["--eval.n_episodes=1", "--eval.batch_size=1", f"--output_dir={tmp_path / 'eval'}"]
+    finished = subprocess.run(
+        [str(Path(sys.executable).with_name("lerobot-eval")), *arguments],
+        cwd=student,
+        env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")},
+        capture_output=True,
+        text=True,
+        stdin=subprocess.DEVNULL,
+        timeout=900,
+    )
+    assert finished.returncode == 0, finished.stderr[-3000:]
+    assert "Imported third-party plugin: lerobot_policy_snapflow" in finished.stderr
+    info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
+    assert info["overall"]["n_episodes"] == 1 and 0 <= info["overall"]["pc_success"] <= 100

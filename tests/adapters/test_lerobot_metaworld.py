@@ -22,7 +22,7 @@ IMAGE_SIZE = 32  # the short chain's
 
 
 # ~75 s on CI's two cores, paid once for the module's tests: the LeRobot guide's whole chain, each stage at its
-# smallest (two tasks, two demonstrations each, a few training steps, one episode a row).
+# smallest (two tasks, two demonstrations each, a few training steps, one episode a row cut at 10 steps).
 @pytest.fixture(scope="module")
 def collected(tmp_path_factory):
     """The LeRobot SmolVLA chain of the LeRobot guide (docs/guides/lerobot.md) in its short form (scripts/lerobot-smolvla.sh, SHORT=1): two

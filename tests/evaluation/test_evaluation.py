@@ -273,6 +273,17 @@ def test_episodes_start_from_the_first_variation_asked_for_and_past_the_last_are
         ClosedLoopEvaluator(scripted, ["reach-v3"], 2, first_variation=available - 1)
 
 
+def test_episodes_cut_at_max_episode_steps_end_there_and_score_what_they_reached(scripted, runs):
+    _, teacher, _ = runs
+    evaluator = ClosedLoopEvaluator(scripted, list(SYNTHETIC_TASKS), 2, max_episode_steps=3)
+    run = evaluator.run(teacher.policy, teacher.processor, TEACHER_10, n_act=4, seed=3, progress=False)
+    evaluator.close()
+    assert [r.steps for r in run] == [3] * len(run) and all(len(env.actions) == 3 for env in scripted.envs)
+    assert not any(r.success for r in run), "the scripted episodes succeed only at their own last step"
+    with pytest.raises(InvalidInputError, match="max_episode_steps must be at least 1, got 0"):
+        ClosedLoopEvaluator(scripted, ["reach-v3"], 1, max_episode_steps=0)
+
+
 def test_offline_metrics_summarise_the_per_chunk_errors_of_fixed_draws(runs):
     data, teacher, _ = runs
     demonstrations = Demonstrations.load(data)

@@ -85,7 +85,10 @@ def add_parser(subparsers: Any) -> None:
     parser.add_argument("--env-task", help="with --lerobot-env: the task or suite (default: the environment's own)")
     parser.add_argument("--n-envs", type=COUNT, default=1, help="with --lerobot-env: environments stepped in parallel")
     parser.add_argument(
-        "--max-episode-steps", type=COUNT, help="with --lerobot-env: cut episodes short of the environment's limit"
+        "--max-episode-steps",
+        type=COUNT,
+        help="cut every episode here, short of the benchmark's own limit: a quick check of a chain, not a success "
+        "rate to report",
     )
     parser.add_argument(
         "--resume",
@@ -128,6 +131,7 @@ def run(args: argparse.Namespace) -> int:
         episode_logs=Path(args.output) / EPISODES,
         resume=args.resume,
         first_variation=args.first_variation,
+        max_episode_steps=args.max_episode_steps,
         **given({"n_act": args.n_act, "seed": args.seed}),
     )
     write_report(report, args.output)

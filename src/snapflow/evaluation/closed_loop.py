@@ -32,7 +32,8 @@ class ClosedLoopEvaluator:
     next ones: episodes run in waves of that many variations per task, every task side by side, the noise drawn
     from one generator across waves. Results depend on ``max_envs`` only when a task has more episodes than that.
     The environments render ``image_size`` frames from the benchmark's main camera and ``extra_cameras`` alone: the
-    cameras the evaluated policies read, no more.
+    cameras the evaluated policies read, no more. ``max_episode_steps`` ends each episode there, short of the
+    environment's own limit (a quick check of a chain, not a success rate to report).
     """
 
     def __init__(
@@ -44,6 +45,7 @@ class ClosedLoopEvaluator:
         max_envs: int | None = None,
         extra_cameras: Sequence[str] = (),
         first_variation: int = 0,
+        max_episode_steps: int | None = None,
     ) -> None:
         benchmark.check_tasks(tasks)
         self.extra_cameras = benchmark.check_cameras(extra_cameras)
@@ -51,7 +53,10 @@ class ClosedLoopEvaluator:
         max_envs = benchmark.max_envs if max_envs is None else max_envs
         if max_envs < 1:
             raise InvalidInputError(f"max_envs must be at least 1, got {max_envs}")
+        if max_episode_steps is not None and max_episode_steps < 1:
+            raise InvalidInputError(f"max_episode_steps must be at least 1, got {max_episode_steps}")
         self.benchmark, self.tasks, self.image_size = benchmark, tasks, image_size
+        self.max_episode_steps = max_episode_steps
         # the variations from first_variation on (LIBERO: its fixed initial states), the first ones unless told
         variations = range(first_variation, first_variation + episodes_per_task)
         self.slots = [(task, variation) for task in tasks for variation in variations]
@@ -168,7 +173,7 @@ class ClosedLoopEvaluator:
                     record(slots[i], observations[i], action)
                 # render only where the next step re-plans: the image is needed nowhere else
                 observations[i], success, done = env.step(action, render=not queues[i])
-                if done:
+                if done or env.steps == self.max_episode_steps:
                     results[i] = EpisodeResult(*self.slots[slots[i]], success, env.steps)
                     finished()
         return [results[i] for i in range(len(envs))]

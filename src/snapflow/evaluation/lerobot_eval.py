@@ -46,11 +46,18 @@ def mode_arguments(policy: Path, mode: SamplingMode) -> list[str]:
 
 
 def lerobot_eval_arguments(
-    policy: Path, task: str, episodes: int, image_size: int, n_action_steps: int, mode: SamplingMode, output: Path
+    policy: Path,
+    task: str,
+    episodes: int,
+    image_size: int,
+    n_action_steps: int,
+    mode: SamplingMode,
+    output: Path,
+    max_episode_steps: int | None = None,
 ) -> list[str]:
     """``lerobot-eval``'s flags for ``episodes`` of snapflow's LIBERO task ``task`` (e.g. ``libero_spatial_3``) in
     one batch, cameras rendered at ``image_size`` as the demonstrations were, ``n_action_steps`` of each chunk
-    executed, on the CPU."""
+    executed, on the CPU; each episode cut at ``max_episode_steps`` where given (LeRobot's ``env.episode_length``)."""
     if not 1 <= episodes <= MAX_EPISODES:
         raise InvalidInputError(
             f"lerobot-eval runs a task's episodes as one batch of environments from LIBERO's first initial states: "
@@ -67,6 +74,7 @@ def lerobot_eval_arguments(
         f"--env.task_ids=[{index}]",
         f"--env.observation_height={image_size}",
         f"--env.observation_width={image_size}",
+        *([f"--env.episode_length={max_episode_steps}"] if max_episode_steps else []),
         f"--eval.n_episodes={episodes}",
         f"--eval.batch_size={episodes}",
         "--eval.use_async_envs=false",
@@ -109,12 +117,14 @@ def run_lerobot_eval(
     output: str | Path,
     threads: int | None = None,
     kept: str | Path | None = None,
+    max_episode_steps: int | None = None,
 ) -> EvaluationRow:
     """``episodes`` of each LIBERO task in ``tasks`` by LeRobot's ``lerobot-eval`` on the LeRobot policy folder
     ``policy`` sampling ``mode``, each task's run in ``output/<task>``, the tasks already there kept. ``kept``: a
     folder that gets a copy of each task's ``eval_info.json`` (to commit: the files are LeRobot's own). Episodes
     record no step counts (lerobot-eval writes none); ``closed_loop_s`` is the tasks' wall time. A task kept with its
-    wall time is what :func:`restore_kept_tasks` puts back on another machine."""
+    wall time is what :func:`restore_kept_tasks` puts back on another machine. ``max_episode_steps`` cuts each episode
+    short of the suite's limit (a quick check)."""
     policy, output = Path(policy), Path(output)
     wall_time = 0.0
     results: list[EpisodeResult] = []
@@ -123,7 +133,7 @@ def run_lerobot_eval(
         if not (folder / TIMING).is_file():
             # absolute: lerobot-eval runs from inside the policy folder
             arguments = lerobot_eval_arguments(
-                policy.resolve(), task, episodes, image_size, n_action_steps, mode, folder.resolve()
+                policy.resolve(), task, episodes, image_size, n_action_steps, mode, folder.resolve(), max_episode_steps
             )
             _run_task(arguments, policy, folder, threads)
         eval_info = json.loads((folder / EVAL_INFO).read_text())

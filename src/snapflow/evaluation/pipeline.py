@@ -48,10 +48,16 @@ def labelled_runs(policies: Mapping[str, tuple[OpenedPolicy, Sequence[SamplingMo
 
 
 def runs_evaluator(
-    runs: list[Run], benchmark: Benchmark, tasks: list[str], episodes_per_task: int, first_variation: int = 0
+    runs: list[Run],
+    benchmark: Benchmark,
+    tasks: list[str],
+    episodes_per_task: int,
+    first_variation: int = 0,
+    max_episode_steps: int | None = None,
 ) -> ClosedLoopEvaluator:
     """The closed-loop evaluator of ``runs``: frames of the first policy's size, from the cameras any of them reads,
-    on each task's evaluation variations from ``first_variation`` on."""
+    on each task's evaluation variations from ``first_variation`` on, each episode cut at ``max_episode_steps`` where
+    given."""
     cameras = dict.fromkeys(name for _, loaded, _ in runs for name in loaded.processor.extra_cameras)
     return ClosedLoopEvaluator(
         benchmark,
@@ -60,6 +66,7 @@ def runs_evaluator(
         runs[0][1].processor.image_size,
         extra_cameras=tuple(cameras),
         first_variation=first_variation,
+        max_episode_steps=max_episode_steps,
     )
 
 
@@ -89,6 +96,7 @@ def evaluate(
     resume: bool = False,
     first_variation: int = 0,
     val_fraction: float | None = None,
+    max_episode_steps: int | None = None,
 ) -> EvaluationReport:
     """Closed-loop success, offline metrics (when ``data`` is given) and, with ``timing``, batch-1 latency for each
     (label, policy, mode); latency speedups are relative to the first entry. A jump mode (``snapflow-N``) on a
@@ -96,15 +104,22 @@ def evaluate(
     episodes are appended to a file there as they end (:class:`EpisodeLog`); with ``resume`` too, the waves already
     logged by the same evaluation are read back, not run again. Each task's episodes start from its evaluation
     variations ``first_variation`` on (LIBERO's fixed initial states). The offline metrics read the share of each
-    task's episodes a policy's training held out, or ``val_fraction`` where given (a trainer that records none)."""
+    task's episodes a policy's training held out, or ``val_fraction`` where given (a trainer that records none).
+    ``max_episode_steps`` ends every episode there, short of the benchmark's own limit (a quick check)."""
     for _, loaded, mode in runs:
         loaded.check_mode(mode)
-    evaluator = runs_evaluator(runs, benchmark, tasks, episodes_per_task, first_variation)
+    evaluator = runs_evaluator(runs, benchmark, tasks, episodes_per_task, first_variation, max_episode_steps)
     demonstrations = Demonstrations.load(data) if data is not None else None
     held_out: dict[Path, ChunkData | None] = {}  # per checkpoint: its modes share one set of held-out chunks
     digests: dict[Path, str] = {}  # per checkpoint: its modes' logs share one digest of its weights
     report = EvaluationReport(
-        benchmark.name, list(tasks), episodes_per_task, n_act, {}, first_variation=first_variation
+        benchmark.name,
+        list(tasks),
+        episodes_per_task,
+        n_act,
+        {},
+        first_variation=first_variation,
+        max_episode_steps=max_episode_steps,
     )
     try:
         for index, (label, loaded, mode) in enumerate(runs):
@@ -124,6 +139,7 @@ def evaluate(
                     "seed": seed,
                     # only where set: a log written before the option existed is one of the first variations
                     **({"first_variation": first_variation} if first_variation else {}),
+                    **({"max_episode_steps": max_episode_steps} if max_episode_steps else {}),
                 }
                 log = EpisodeLog(Path(episode_logs) / _log_name(index, label), identity, resume)
             earlier = sum(wave.seconds for wave in log.finished) if log is not None else 0.0

@@ -48,7 +48,8 @@ def markdown_report(report: EvaluationReport) -> str:
         f"# SnapFlow on {make_benchmark(report.env).describe(report.tasks)}",
         f"{len(report.tasks)} task(s), {report.episodes_per_task} episodes per task on evaluation variations no demonstration saw "
         f"({report.first_variation} to {report.first_variation + report.episodes_per_task - 1} of each task), "
-        f"{report.n_act} actions executed per predicted chunk.",
+        f"{report.n_act} actions executed per predicted chunk."
+        + (f" Episodes cut at {report.max_episode_steps} steps." if report.max_episode_steps else ""),
         "\n".join(
             f"- **{label}**: {SamplingMode.parse(row.mode).description} (`{row.policy}`)."
             for label, row in report.rows.items()
