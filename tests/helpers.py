@@ -102,6 +102,35 @@ def run_short_lerobot_chain(folder: Path, bench: str) -> Path:
     return folder
 
 
+def run_tiny_lerobot_train(student: Path, data: Path, output: Path, steps: int, batch_size: int, *flags: str) -> Path:
+    """``lerobot-train`` itself, offline on the CPU, on the tiny dataset at ``data``; checks it ran SnapFlow's
+    objective and returns its last checkpoint's policy folder."""
+    finished = subprocess.run(
+        [
+            str(Path(sys.executable).with_name("lerobot-train")),
+            f"--policy.path={student}",
+            "--dataset.repo_id=local/tiny",
+            f"--dataset.root={data}",
+            f"--output_dir={output}",
+            f"--steps={steps}",
+            f"--batch_size={batch_size}",
+            "--num_workers=0",
+            f"--save_freq={steps}",
+            "--wandb.enable=false",
+            "--policy.device=cpu",
+            "--policy.push_to_hub=false",
+            *flags,
+        ],
+        env={**os.environ, "HF_HUB_OFFLINE": "1"},
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    assert finished.returncode == 0, finished.stderr[-3000:]
+    assert "consistency_loss" in finished.stderr, "LeRobot logs the objective's parts"
+    return output / "checkpoints" / "last" / "pretrained_model"
+
+
 def free_loopback_port() -> int:
     """A port on the loopback that nothing listens on now, for a server a test starts."""
     with socket.socket() as probe:

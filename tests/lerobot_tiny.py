@@ -189,8 +189,11 @@ def model_inputs(policy, batch: dict[str, torch.Tensor]) -> tuple:
     ``model_inputs``, which the tests check against it)."""
     from snapflow.adapters.lerobot.registry import base_policy_type
 
-    language = batch["observation.language.tokens"], batch["observation.language.attention_mask"]
     policy_type = base_policy_type(policy.config)
+    if policy_type == "groot":  # GR00T's get_action: the backbone's inputs and the action head's
+        inputs = policy._filter_groot_inputs(batch, include_action=False)
+        return tuple(dict(part) for part in policy._groot_model.prepare_input(inputs))
+    language = batch["observation.language.tokens"], batch["observation.language.attention_mask"]
     if policy_type == "multi_task_dit":  # one observation step: the frame gets its steps axis
         frames = {key: batch[key][:, None] for key in ("observation.state", *policy.config.image_features)}
         return (policy._prepare_batch({**batch, **frames}),)

@@ -1,4 +1,4 @@
-"""Fixtures of the LeRobot adapter tests: the tiny SmolVLM folder every tiny SmolVLA reads (written once a session)."""
+"""Fixtures of the LeRobot adapter tests: the tiny model folders the tiny policies read (written once a session)."""
 
 from __future__ import annotations
 
@@ -21,3 +21,20 @@ def clip_directory(tmp_path_factory, vlm_directory):
     from tests.lerobot_tiny_multi_task_dit import write_tiny_clip
 
     return write_tiny_clip(tmp_path_factory.mktemp("clip") / "tiny-clip", tokenizer=vlm_directory)
+
+
+@pytest.fixture(scope="session")
+def groot_checkpoint(tmp_path_factory):
+    """A random GR00T N1.7 checkpoint folder and the tiny Qwen3-VL folder it names, written once a session."""
+    from importlib.metadata import version
+
+    from packaging.version import Version
+
+    from snapflow.adapters.lerobot.groot import GrootFlowPolicy
+
+    minimum, installed = GrootFlowPolicy.minimum_lerobot, version("lerobot")
+    if Version(installed) < Version(minimum):  # lerobot 0.4 / 0.5 ship GR00T N1.5, another model
+        pytest.skip(f"LeRobot's GR00T N1.7 arrived in lerobot {minimum}; lerobot {installed} is installed")
+    from tests.lerobot_tiny_groot import write_tiny_groot
+
+    return write_tiny_groot(tmp_path_factory.mktemp("groot"))

@@ -1,5 +1,5 @@
 """LeRobot's SmolVLAPolicy (lerobot 0.4.4 and newer), PI0Policy and PI05Policy (lerobot >= 0.5), each built offline at
-tiny size: what is not the per-adapter contract (tests/adapters/test_contract.py) — the registry's refusals, gradient
+tiny size: what is not the per-adapter contract (tests/adapters/lerobot_contract.py) — the registry's refusals, gradient
 checkpointing, and the CLI end to end (distill on a local LeRobotDataset, eval in LeRobot's own Meta-World)."""
 
 from __future__ import annotations

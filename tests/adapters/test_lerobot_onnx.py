@@ -1,6 +1,6 @@
-"""``snapflow export`` of a distilled LeRobot SmolVLA (and X-VLA, multi-task DiT): one ONNX graph over LeRobot's pre-processed batch (prefix
-and jump), saved beside the policy's config and processors, loaded back by ``snapflow eval`` with those processors,
-giving the PyTorch student's actions."""
+"""``snapflow export`` of a distilled LeRobot SmolVLA (and X-VLA, multi-task DiT; GR00T is refused by name): one ONNX
+graph over LeRobot's pre-processed batch (prefix and jump), saved beside the policy's config and processors, loaded
+back by ``snapflow eval`` with those processors, giving the PyTorch student's actions."""
 
 from __future__ import annotations
 
@@ -98,3 +98,13 @@ def test_a_student_beyond_the_pi0_family_exports_to_one_graph_that_gives_its_act
         expected = sample_actions(eager.policy, eager.processor.observation(*raw), noise, SNAPFLOW_1)
         actions = sample_actions(exported.policy, exported.processor.observation(*raw), noise, SNAPFLOW_1)
         torch.testing.assert_close(actions, expected, atol=1e-4, rtol=1e-4)
+
+
+def test_a_groot_student_is_refused_export_by_name(groot_checkpoint, tmp_path, capsys):
+    """GR00T N1.7's Qwen3-VL prefix computes its rotary positions on the host: no one graph, so no export, said so."""
+    from tests.lerobot_tiny_groot import save_tiny_groot_student
+
+    student = save_tiny_groot_student(groot_checkpoint, tmp_path / "student")
+    assert main(["export", "--policy", str(student), "--output", str(tmp_path / "onnx")]) == 2
+    assert "snapflow does not export a groot student: Qwen3-VL's multimodal rotary positions" in capsys.readouterr().err
+    assert not (tmp_path / "onnx").exists()

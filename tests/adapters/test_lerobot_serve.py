@@ -1,5 +1,5 @@
 """``snapflow serve``: LeRobot's own async-inference policy server serves a distilled student (SmolVLA, pi0, pi0.5,
-X-VLA, multi-task DiT) to a client made of LeRobot's own gRPC types, one denoising pass a chunk (ten as its teacher),
+X-VLA, multi-task DiT, GR00T N1.7) to a client made of LeRobot's own gRPC types, one denoising pass a chunk (ten as its teacher),
 and refuses the student asked for under its teacher's type instead of dropping phi_s. LeRobot's server calls
 ``predict_action_chunk`` on its own, where a multi-task DiT reads observation queues only its ``select_action`` fills
 (LeRobot 0.6.1, a teacher fails there): its student fills them from the observation it is given."""
@@ -38,6 +38,7 @@ from tests.lerobot_tiny import (  # noqa: E402
     save_tiny_student,
     tiny_pi_configs,
 )
+from tests.lerobot_tiny_groot import GROOT_IMAGE_SIZE, save_tiny_groot_student  # noqa: E402
 from tests.lerobot_tiny_multi_task_dit import save_tiny_multi_task_dit_student  # noqa: E402
 from tests.lerobot_tiny_xvla import save_tiny_xvla_student  # noqa: E402
 
@@ -60,9 +61,13 @@ class Served:
         return hw_to_dataset_features(robot, "observation")
 
 
-@pytest.fixture(scope="module", params=["smolvla", "pi0", "pi05", "xvla", "multi_task_dit"])
+@pytest.fixture(scope="module", params=["smolvla", "pi0", "pi05", "xvla", "multi_task_dit", "groot"])
 def student(request, vlm_directory, tmp_path_factory):
     folder = tmp_path_factory.mktemp("serve") / request.param
+    if request.param == "groot":  # a 6-D state, one top camera, its backbone a tiny Qwen3-VL
+        save_tiny_groot_student(request.getfixturevalue("groot_checkpoint"), folder)
+        yield Served("groot", folder, JOINTS, "top", GROOT_IMAGE_SIZE)
+        return
     if request.param == "multi_task_dit":  # a 6-D state, one top camera, its encoders a tiny CLIP
         clip = request.getfixturevalue("clip_directory")
         save_tiny_multi_task_dit_student(clip, folder)

@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import os
 import subprocess
-import sys
 from importlib.metadata import version
 from pathlib import Path
 
@@ -22,6 +21,7 @@ from snapflow.adapters.lerobot.xvla import XVLAFlowPolicy  # noqa: E402
 from snapflow.adapters.lerobot_types import PLUGIN_LEROBOT, lerobot_loads_plugins  # noqa: E402
 from snapflow.flow.modes import SamplingMode  # noqa: E402
 from snapflow.flow.solver import sample_actions  # noqa: E402
+from tests.helpers import run_tiny_lerobot_train  # noqa: E402
 from tests.lerobot_tiny import build_tiny_smolvla, lerobot_sample, tiny_batch  # noqa: E402
 
 PLUGINS = pytest.mark.skipif(
@@ -182,35 +182,6 @@ def _held_out_distances(root: Path, checkpoint: Path) -> dict[str, float]:
     return {name: (actions[name] - actions["teacher"]).pow(2).mean().item() for name in ("naive", "snapflow")}
 
 
-def _lerobot_train(student: Path, data: Path, output: Path, steps: int, batch_size: int, *flags: str) -> Path:
-    """``lerobot-train`` itself, offline on the CPU, on the tiny dataset at ``data``; checks it ran SnapFlow's
-    objective and returns its last checkpoint's policy folder."""
-    finished = subprocess.run(
-        [
-            str(Path(sys.executable).with_name("lerobot-train")),
-            f"--policy.path={student}",
-            "--dataset.repo_id=local/tiny",
-            f"--dataset.root={data}",
-            f"--output_dir={output}",
-            f"--steps={steps}",
-            f"--batch_size={batch_size}",
-            "--num_workers=0",
-            f"--save_freq={steps}",
-            "--wandb.enable=false",
-            "--policy.device=cpu",
-            "--policy.push_to_hub=false",
-            *flags,
-        ],
-        env={**os.environ, "HF_HUB_OFFLINE": "1"},
-        capture_output=True,
-        text=True,
-        timeout=900,
-    )
-    assert finished.returncode == 0, finished.stderr[-3000:]
-    assert "consistency_loss" in finished.stderr, "LeRobot logs the objective's parts"
-    return output / "checkpoints" / "last" / "pretrained_model"
-
-
 @pytest.mark.slow
 @PLUGINS
 def test_lerobot_train_on_a_student_type_distils_a_tiny_smolvla(tmp_path):
@@ -225,7 +196,7 @@ def test_lerobot_train_on_a_student_type_distils_a_tiny_smolvla(tmp_path):
     train_lerobot_teacher("smolvla", data, "local/tiny", tmp_path / "teacher", training, chunk_size=4, val_fraction=0.0)
     student = write_student(str(tmp_path / "teacher" / "lerobot_policy"), tmp_path / "student")
     steps = 200
-    checkpoint = _lerobot_train(
+    checkpoint = run_tiny_lerobot_train(
         student,
         data,
         tmp_path / "run",
@@ -269,92 +240,6 @@ def test_a_teacher_trained_with_a_weight_average_exports_the_average(tmp_path):
     name = "model.action_out_proj.weight"
     assert not torch.equal(average[f"policy.{name}"], raw[f"policy.{name}"])
     assert all(torch.equal(tensor, average[f"policy.{key}"]) for key, tensor in exported.items())
-
-
-def _two_lerobot_train_steps(teacher, tmp_path: Path, processor_stats: dict | None = None) -> Path:
-    """``teacher`` (a LeRobot policy) saved with its processors, written as its student, stepped twice by
-    ``lerobot-train`` on a tiny dataset and by snapflow's own ``distill``; checks what moved. Returns the folder."""
-    from lerobot.policies.factory import make_pre_post_processors
-    from safetensors.torch import load_file
-
-    from snapflow.cli import main
-    from snapflow.sources import open_policy
-    from snapflow.training.lerobot_student import write_student
-    from tests.lerobot_tiny import write_tiny_dataset
-
-    data = write_tiny_dataset(tmp_path / "data", episodes=2, frames=8)
-    teacher.save_pretrained(tmp_path / "teacher")
-    for processor in make_pre_post_processors(teacher.config, dataset_stats=processor_stats):
-        processor.save_pretrained(tmp_path / "teacher")
-    student = write_student(str(tmp_path / "teacher"), tmp_path / "student")
-    checkpoint = _lerobot_train(student, data, tmp_path / "run", 2, 4, "--log_freq=1")
-    config = json.loads((checkpoint / "config.json").read_text())
-    assert config["type"] == f"snapflow_{teacher.config.type}" and config["distilled"] is True
-    before, after = load_file(student / "model.safetensors"), load_file(checkpoint / "model.safetensors")
-    moved = {name for name in before if not torch.equal(before[name], after[name])}
-    assert any(".target_time_embedding." in name for name in moved), "phi_s trained"
-
-    # snapflow's own trainer distils it too
-    arguments = ["--policy", str(tmp_path / "teacher"), "--dataset", str(data), "--output", str(tmp_path / "own")]
-    assert main(["distill", *arguments, "--steps", "2", "--batch-size", "4", "--no-progress"]) == 0
-    opened = open_policy(tmp_path / "own" / "lerobot_policy")
-    assert opened.distilled and opened.policy_type == f"snapflow_{teacher.config.type}"
-    return moved
-
-
-@pytest.mark.slow
-@PLUGINS
-@pytest.mark.parametrize("policy_type", ["pi0", "pi05"])
-def test_lerobot_train_steps_a_pi_student_by_snapflows_objective(policy_type, vlm_directory, tmp_path, monkeypatch):
-    """LeRobot's own ``lerobot-train`` entry point, in this process: a tiny pi policy builds only while its PaliGemma
-    config builders are swapped for tiny ones, which a subprocess would not have (it would build the 2B model). Two
-    steps of the ``snapflow_pi0`` / ``snapflow_pi05`` student train the action expert and phi_s, PaliGemma frozen."""
-    from lerobot.scripts import lerobot_train
-    from safetensors.torch import load_file
-
-    from tests.lerobot_tiny import IMAGE_SIZE, save_tiny_pi_student, tiny_pi_configs, write_tiny_dataset
-
-    data = write_tiny_dataset(tmp_path / "data", episodes=2, frames=8)
-    student = save_tiny_pi_student(policy_type, vlm_directory, tmp_path / "student", image_size=IMAGE_SIZE)
-    arguments = [f"--policy.path={student}", "--dataset.repo_id=local/tiny", f"--dataset.root={data}"]
-    arguments += ["--steps=2", "--batch_size=4", "--num_workers=0", "--save_freq=2", "--log_freq=1"]
-    arguments += ["--wandb.enable=false", "--policy.device=cpu", "--policy.push_to_hub=false"]
-    monkeypatch.setattr(sys, "argv", ["lerobot-train", *arguments, f"--output_dir={tmp_path / 'run'}"])
-    with tiny_pi_configs(policy_type):
-        lerobot_train.main()
-    checkpoint = tmp_path / "run" / "checkpoints" / "last" / "pretrained_model"
-    config = json.loads((checkpoint / "config.json").read_text())
-    assert config["type"] == f"snapflow_{policy_type}" and config["distilled"] is True
-    before, after = load_file(student / "model.safetensors"), load_file(checkpoint / "model.safetensors")
-    moved = {name for name in before if not torch.equal(before[name], after[name])}
-    assert any(".target_time_embedding." in name for name in moved), "phi_s trained"
-    assert any(".gemma_expert." in name for name in moved), "the action expert trained"
-    assert not any(".paligemma." in name for name in moved), "PaliGemma stays frozen"
-
-
-@pytest.mark.slow
-@PLUGINS
-def test_lerobot_train_steps_an_xvla_student_by_snapflows_objective(vlm_directory, tmp_path):
-    """A type beyond the pi0 family: X-VLA, stepped by ``lerobot-train`` with its own optimizer (learning rates by
-    parameter name), only the action expert and phi_s training; snapflow's run checkpoints save Florence-2's shared
-    embedding once."""
-    from tests.lerobot_tiny_xvla import build_tiny_xvla
-
-    moved = _two_lerobot_train_steps(build_tiny_xvla(tokenizer=str(vlm_directory)), tmp_path)
-    assert any(name.startswith("model.transformer.") for name in moved), "the action expert trained"
-    assert not any(name.startswith("model.vlm.") for name in moved), "Florence-2 stays frozen"
-
-
-@pytest.mark.slow
-@PLUGINS
-def test_lerobot_train_steps_a_multi_task_dit_student_by_snapflows_objective(clip_directory, tmp_path):
-    """Multi-task DiT, whose flow runs the other way and whose batches carry an observation-steps axis from the
-    dataset: its diffusion transformer and phi_s train, CLIP's encoders stay frozen."""
-    from tests.lerobot_tiny_multi_task_dit import build_tiny_multi_task_dit, unit_statistics
-
-    moved = _two_lerobot_train_steps(build_tiny_multi_task_dit(clip_directory), tmp_path, unit_statistics())
-    assert any(name.startswith("noise_predictor.transformer_blocks.") for name in moved), "the expert trained"
-    assert not any(name.startswith("observation_encoder.") for name in moved), "the encoders stay frozen"
 
 
 @pytest.mark.skipif(

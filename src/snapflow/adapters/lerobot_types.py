@@ -73,14 +73,16 @@ NOT_DISTILLED: dict[str, str] = {
     "sac": "a soft actor-critic's actor, one Gaussian over the actions: no ODE",
     "reward_classifier": "a reward model, not a policy",
     "sarm": "a reward model (stage-aware), not a policy",
-    "groot": "flow-matching (4 Euler steps of a DiT action head), not adapted yet",
-    "wall_x": "flow-matching (10 steps), not adapted yet",
-    "evo1": "flow-matching (32 steps by default), not adapted yet",
-    "molmoact2": "flow-matching (10 steps), not adapted yet",
-    "fastwam": "flow-matching (10-20 steps), not adapted yet",
-    "lingbot_va": "flow-matching (20-50 steps), not adapted yet",
-    "vla_jepa": "flow-matching (4 steps), not adapted yet",
-    "eo1": "flow-matching, not adapted yet",
+    "wall_x": "flow-matching (10 steps), but it needs peft, torchdiffeq and qwen-vl-utils and a custom MoE checkpoint "
+    "folder, and runs its whole LLM every step: there is no prefix to encode once",
+    "fastwam": "flow-matching (10-20 steps), but it loads its Wan2.2 VAE by a hard-coded hub id, so it cannot be built "
+    "offline",
+    "lingbot_va": "a video world model: its action chunk waits on its own video denoising steps (20 video + 50 "
+    "action), which a jump of the action flow does not remove",
+    "evo1": "flow-matching (32 Euler steps by default, uniform noise in [-1, 1]), not adapted yet",
+    "molmoact2": "flow-matching (10 Euler steps over a per-layer key/value cache), not adapted yet",
+    "vla_jepa": "flow-matching (4 Euler steps of a DiT action head), not adapted yet",
+    "eo1": "flow-matching (10 Euler steps over a key/value cache, openpi's time convention), not adapted yet",
 }
 
 
@@ -198,6 +200,17 @@ register_lerobot_policy_type(
         "snapflow.adapters.lerobot.multi_task_dit:MultiTaskDiTFlowPolicy",
         architecture_options={"objective": "flow_matching"},
         vlm_option=("vision_encoder_name", "text_encoder_name"),
+    )
+)
+register_lerobot_policy_type(
+    LeRobotPolicyType(
+        "groot",
+        "Groot",
+        "lerobot.policies.groot.configuration_groot:GrootConfig",
+        "lerobot.policies.groot.modeling_groot:GrootPolicy",
+        "snapflow.adapters.lerobot.groot:GrootFlowPolicy",
+        # GR00T builds only from a checkpoint folder, whose config names its Qwen3-VL backbone: bench --vlm gives it
+        vlm_option="base_model_path",
     )
 )
 

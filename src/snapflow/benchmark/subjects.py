@@ -133,7 +133,6 @@ def lerobot_subject(
     """Any LeRobot policy of a declared type under its SnapFlow adapter (phi_s included, as the student runs), its 1-NFE
     mode ``one_step``."""
     from snapflow.adapters.lerobot import LeRobotFlowPolicy, wrap_policy
-    from snapflow.adapters.lerobot.evaluation import lerobot_observation
     from snapflow.adapters.lerobot.registry import lerobot_time_sampler
 
     adapter = policy if isinstance(policy, LeRobotFlowPolicy) else wrap_policy(policy)
@@ -149,14 +148,14 @@ def lerobot_subject(
     return BenchSubject(
         name,
         adapter,
-        lerobot_observation(inner.config, device),
+        adapter.example_observation(device),
         noise,
         {
             "parameters": _parameter_count(adapter),
             "expert_parameters": expert,
             "policy_type": adapter.policy_type,
             "chunk_size": adapter.action_shape[0],
-            "tokens": config.tokenizer_max_length,
+            "tokens": getattr(config, "tokenizer_max_length", None),  # GR00T's prompt has no fixed length
             "cameras": list(config.image_features),
         },
         one_step=one_step,

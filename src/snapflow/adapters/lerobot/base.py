@@ -30,6 +30,7 @@ from snapflow.flow.time_sampling import BetaTimeSampler
 from snapflow.nn.time_embedding import TargetTimeEmbedding
 from snapflow.protocol import map_tensors
 
+OBS_STATE = "observation.state"
 OBS_LANGUAGE_TOKENS = "observation.language.tokens"
 OBS_LANGUAGE_ATTENTION_MASK = "observation.language.attention_mask"
 #: a prompt cut of its padding keeps a multiple of this many tokens: a compiled prefix then meets few shapes
@@ -86,6 +87,8 @@ class LeRobotFlowPolicy(nn.Module, ABC):
     compiled_methods: ClassVar[tuple[str, str]] = ("encode_inputs", "velocity")
     #: whether the prompt's padding is masked out of every attention, so that cutting it changes no chunk
     masks_prompt_padding: ClassVar[bool] = True
+    #: why the one-step graph (prefix and jump) cannot be exported (``snapflow export``), where it cannot
+    export_refusal: ClassVar[str | None] = None
 
     def __init__(self, policy: nn.Module) -> None:
         super().__init__()
@@ -126,9 +129,9 @@ class LeRobotFlowPolicy(nn.Module, ABC):
 
     def expert_parameters(self) -> list[nn.Parameter]:
         """What distillation trains, as in the paper: the action expert, its projections and phi_s; the VLM
-        stays frozen."""
+        stays frozen. Each once, where phi_s lives inside the expert (an optimizer would step a repeated one twice)."""
         modules = [*self.expert_modules(), self.target_time_embedding]
-        return [parameter for module in modules for parameter in module.parameters()]
+        return list({id(parameter): parameter for module in modules for parameter in module.parameters()}.values())
 
     @classmethod
     def scratch_config(
@@ -211,10 +214,12 @@ class LeRobotFlowPolicy(nn.Module, ABC):
         the same for fewer tokens through the VLM (LeRobot's pi0.5 pads every prompt to 200 tokens). A batch whose
         padding is not on the right, or a policy that attends to its padding (:attr:`masks_prompt_padding`), is
         returned as it is."""
+        if not self.masks_prompt_padding:
+            return batch
         mask = batch[OBS_LANGUAGE_ATTENTION_MASK]
         width = mask.shape[1]
         keep = min(width, -(-max(int(mask.sum(dim=1).max()), 1) // multiple) * multiple)
-        if not self.masks_prompt_padding or keep == width or bool(mask[:, keep:].any()):
+        if keep == width or bool(mask[:, keep:].any()):
             return batch
         return {
             **batch,
@@ -230,6 +235,12 @@ class LeRobotFlowPolicy(nn.Module, ABC):
         (``batch_size``, *:attr:`action_shape`) on the context's device, from torch's global generator."""
         device = _first_tensor(context).device
         return torch.randn((batch_size, *self.action_shape), device=device)
+
+    def example_observation(self, device: torch.device) -> dict[str, Tensor]:
+        """A batch-1 observation as the policy's pre-processor hands it to the model, for timing and tracing (which
+        its values do not change): :func:`lerobot_observation` of its config, unless the policy's batch looks
+        otherwise."""
+        return lerobot_observation(self.policy.config, device)
 
     def lone_chunk_batch(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         """The batch a ``predict_action_chunk`` called on its own hands the policy (LeRobot's policy server calls it
@@ -273,6 +284,24 @@ class LeRobotFlowPolicy(nn.Module, ABC):
         self.policy.reset()
 
 
+def lerobot_observation(config: Any, device: torch.device) -> dict[str, Tensor]:
+    """A batch-1 observation as LeRobot's pre-processor hands it to the model of ``config``: images in [0, 1],
+    normalised state, a full-length token sequence (for timing and tracing, which the values do not change)."""
+    # a policy that reads several observation steps (multi-task DiT) gets them, as its queues hold them
+    count = getattr(config, "n_obs_steps", 1)
+    steps = (count,) if count > 1 else ()
+    observation = {
+        key: torch.rand(1, *steps, *feature.shape, device=device) for key, feature in config.image_features.items()
+    }
+    if config.robot_state_feature is not None:
+        observation[OBS_STATE] = torch.randn(1, *steps, *config.robot_state_feature.shape, device=device)
+    length = config.tokenizer_max_length
+    # id 0: in every vocabulary
+    observation[OBS_LANGUAGE_TOKENS] = torch.zeros(1, length, dtype=torch.long, device=device)
+    observation[OBS_LANGUAGE_ATTENTION_MASK] = torch.ones(1, length, dtype=torch.bool, device=device)
+    return observation
+
+
 def _first_tensor(context: dict[str, Any]) -> Tensor:
     """A context's first tensor (its batch size leads, it lies on the policy's device), found by the protocol's own
     walk over nested contexts."""
@@ -288,6 +317,7 @@ __all__ = [
     "ChunkSampler",
     "LeRobotFlowPolicy",
     "frozen_prefix_pass",
+    "lerobot_observation",
     "modeling_module",
     "split_timestep",
 ]

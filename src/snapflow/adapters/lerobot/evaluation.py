@@ -16,7 +16,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from snapflow.adapters.lerobot.base import OBS_LANGUAGE_ATTENTION_MASK, OBS_LANGUAGE_TOKENS, LeRobotFlowPolicy
+from snapflow.adapters.lerobot.base import LeRobotFlowPolicy, lerobot_observation
 from snapflow.adapters.lerobot.checkpoint import (
     PREPROCESSOR_FILE,
     SAFETENSORS_FILE,
@@ -178,9 +178,12 @@ class LoadedLeRobotPolicy(OpenedPolicy):
                 "(snapflow distill --policy ...) and export the student"
             )
         adapter, output = self.policy.eval(), Path(output)
-        config = adapter.policy.config
+        if adapter.export_refusal:
+            raise InvalidInputError(
+                f"snapflow does not export a {adapter.policy_type} student: {adapter.export_refusal}"
+            )
         noise = torch.randn(1, *adapter.action_shape, generator=torch.Generator().manual_seed(0))
-        observation = lerobot_observation(config, torch.device("cpu"))
+        observation = adapter.example_observation(torch.device("cpu"))
         output.mkdir(parents=True, exist_ok=True)
         record = {"source": str(self.path), **entry.export(adapter, observation, noise, output)}
         for source in sorted(self.path.iterdir()):
@@ -191,24 +194,6 @@ class LoadedLeRobotPolicy(OpenedPolicy):
         source = {**marker_of(adapter.policy_type, True, self.val_fraction), **self.marker}
         write_marker(output, {**source, format: record})  # last: it makes the export whole
         return record
-
-
-def lerobot_observation(config: Any, device: torch.device) -> dict[str, Tensor]:
-    """A batch-1 observation as LeRobot's pre-processor hands it to the model of ``config``: images in [0, 1],
-    normalised state, a full-length token sequence (for timing and tracing, which the values do not change)."""
-    # a policy that reads several observation steps (multi-task DiT) gets them, as its queues hold them
-    count = getattr(config, "n_obs_steps", 1)
-    steps = (count,) if count > 1 else ()
-    observation = {
-        key: torch.rand(1, *steps, *feature.shape, device=device) for key, feature in config.image_features.items()
-    }
-    if config.robot_state_feature is not None:
-        observation[STATE] = torch.randn(1, *steps, *config.robot_state_feature.shape, device=device)
-    length = config.tokenizer_max_length
-    # id 0: in every vocabulary
-    observation[OBS_LANGUAGE_TOKENS] = torch.zeros(1, length, dtype=torch.long, device=device)
-    observation[OBS_LANGUAGE_ATTENTION_MASK] = torch.ones(1, length, dtype=torch.bool, device=device)
-    return observation
 
 
 def load_lerobot_policy(source: str | Path) -> LoadedLeRobotPolicy:

@@ -41,24 +41,31 @@ def token_budget(texts: Iterable[str]) -> int:
     return 8 * math.ceil((max(len(_tokens(text)) for text in texts) + 1) / 8)
 
 
-def write_smolvlm(directory: str | Path, words: Iterable[str], size: SmolVLMSize) -> Path:
-    """A SmolVLM config, processor and word-level tokenizer of ``words`` in ``directory`` (what LeRobot's
-    SmolVLA and its tokenizer step read from ``vlm_model_name``)."""
+def word_level_tokenizer(tokens: Iterable[str], **options: Any) -> Any:
+    """A tokenizer whose vocabulary is ``[PAD]``, ``[UNK]`` and ``tokens``, splitting lower-cased text at whitespace
+    into whole words (a local VLM's for tiny and from-scratch policies: no subword model to download); ``options``
+    are :class:`transformers.PreTrainedTokenizerFast`'s (special tokens, padding side)."""
     from tokenizers import Tokenizer, normalizers, pre_tokenizers
     from tokenizers.models import WordLevel
-    from transformers import PreTrainedTokenizerFast, SmolVLMConfig, SmolVLMImageProcessor, SmolVLMProcessor
-    from transformers.models.smolvlm.video_processing_smolvlm import SmolVLMVideoProcessor
+    from transformers import PreTrainedTokenizerFast
 
     vocabulary: dict[str, int] = {}
-    for token in ["[PAD]", "[UNK]", *OTHER_SPECIAL_TOKENS, *IMAGE_TOKENS.values(), *ROW_COL_TOKENS, *words]:
+    for token in ["[PAD]", "[UNK]", *tokens]:
         vocabulary.setdefault(token, len(vocabulary))
     core = Tokenizer(WordLevel(vocab=vocabulary, unk_token="[UNK]"))
     core.normalizer = normalizers.Lowercase()
     core.pre_tokenizer = pre_tokenizers.Whitespace()
-    tokenizer = PreTrainedTokenizerFast(
-        tokenizer_object=core,
-        pad_token="[PAD]",
-        unk_token="[UNK]",
+    return PreTrainedTokenizerFast(tokenizer_object=core, pad_token="[PAD]", unk_token="[UNK]", **options)
+
+
+def write_smolvlm(directory: str | Path, words: Iterable[str], size: SmolVLMSize) -> Path:
+    """A SmolVLM config, processor and word-level tokenizer of ``words`` in ``directory`` (what LeRobot's
+    SmolVLA and its tokenizer step read from ``vlm_model_name``)."""
+    from transformers import SmolVLMConfig, SmolVLMImageProcessor, SmolVLMProcessor
+    from transformers.models.smolvlm.video_processing_smolvlm import SmolVLMVideoProcessor
+
+    tokenizer = word_level_tokenizer(
+        [*OTHER_SPECIAL_TOKENS, *IMAGE_TOKENS.values(), *ROW_COL_TOKENS, *words],
         bos_token="<|im_start|>",
         eos_token="<end_of_utterance>",
         additional_special_tokens=[*OTHER_SPECIAL_TOKENS[2:], *IMAGE_TOKENS.values(), *ROW_COL_TOKENS],
@@ -141,4 +148,4 @@ def smolvla_config(
     return SmolVLAConfig(**{**settings, **overrides})
 
 
-__all__ = ["token_budget", "words_of", "write_smolvlm", "feature_widths", "smolvla_config"]
+__all__ = ["token_budget", "words_of", "word_level_tokenizer", "write_smolvlm", "feature_widths", "smolvla_config"]

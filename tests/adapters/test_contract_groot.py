@@ -1,0 +1,129 @@
+"""The adapter contract on LeRobot's GR00T N1.7 (lerobot >= 0.6), built offline at tiny size
+(tests/lerobot_tiny_groot.py)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+import torch
+from torch import Tensor, nn
+
+from snapflow import SamplingMode, sample_actions
+from tests.adapters.lerobot_contract import LeRobotAdapterContract
+
+
+class TestGrootAdapter(LeRobotAdapterContract):
+    """GR00T N1.7 runs its flow the other way (t = 0 noise) on whole time buckets: its "own" Euler and training
+    forward are written out here by hand from LeRobot's action head, as its ``get_action_with_features`` and
+    ``forward`` run them (its own grid and update), on its own prefix (``_encode_features``)."""
+
+    policy_type = "groot"
+    deploy_graphs = None  # Qwen3-VL reads its image grid and rotary positions on the host (.item(), nonzero)
+
+    @pytest.fixture(autouse=True)
+    def _tiny_groot(self, groot_checkpoint: Path) -> None:
+        self.groot_checkpoint = groot_checkpoint
+
+    def build_lerobot(self) -> nn.Module:
+        from tests.lerobot_tiny_groot import build_tiny_groot
+
+        return build_tiny_groot(self.groot_checkpoint)
+
+    def observations(self, batch_size: int) -> dict[str, Any]:
+        from tests.lerobot_tiny_groot import raw_groot_batch, tiny_groot_processors
+
+        preprocessor, _ = tiny_groot_processors(self.build_lerobot())
+        return preprocessor(raw_groot_batch(batch_size))
+
+    @staticmethod
+    def rows(observation: dict[str, Any], rows: slice) -> dict[str, Any]:
+        from tests.lerobot_tiny_groot import groot_rows
+
+        return groot_rows(observation, rows)
+
+    @staticmethod
+    def own_prefix(lerobot: nn.Module, observation: Any) -> dict[str, Tensor]:
+        from transformers.feature_extraction_utils import BatchFeature
+
+        from snapflow.adapters.lerobot.base import frozen_prefix_pass
+        from tests.lerobot_tiny import model_inputs
+
+        backbone_inputs, action_inputs = (BatchFeature(part) for part in model_inputs(lerobot, observation))
+        with frozen_prefix_pass(lerobot._groot_model):
+            backbone = lerobot._groot_model.backbone(backbone_inputs)
+            features = lerobot._groot_model.action_head._encode_features(backbone, action_inputs)
+        return {**backbone, **features, "embodiment_id": action_inputs["embodiment_id"]}
+
+    @staticmethod
+    def own_prediction(lerobot: nn.Module, prefix: dict[str, Tensor], x: Tensor, bucket: Tensor) -> Tensor:
+        """GR00T's loop body: its velocity (data - noise) at its time bucket."""
+        head, embodiment = lerobot._groot_model.action_head, prefix["embodiment_id"]
+        features = head.action_encoder(x, bucket, embodiment) + head.position_embedding(torch.arange(x.shape[1]))
+        output = head.model(
+            hidden_states=torch.cat((prefix["state_features"], features), dim=1),
+            encoder_hidden_states=prefix["backbone_features"],
+            timestep=bucket,
+            image_mask=prefix["image_mask"],
+            backbone_attention_mask=prefix["backbone_attention_mask"],
+        )
+        return head.action_decoder(output, embodiment)[:, -x.shape[1] :]
+
+    def lerobot_own_sample(self, lerobot: nn.Module, observation: Any, noise: Tensor, steps: int) -> Tensor:
+        with torch.no_grad():
+            prefix, x = self.own_prefix(lerobot, observation), noise
+            for step in range(steps):  # GR00T's grid (t = step / steps, bucketed) and update
+                bucket = torch.full((noise.shape[0],), int(step / steps * 1000))
+                x = x + 1.0 / steps * self.own_prediction(lerobot, prefix, x, bucket)
+        return x
+
+    def lerobot_own_flow_matching_loss(
+        self, lerobot: nn.Module, observation: Any, actions: Tensor, noise: Tensor, time: Tensor
+    ) -> Tensor:
+        own_time = (1 - time)[:, None, None]  # GR00T's path and bucket; its squared error over every entry
+        x_t = (1 - own_time) * noise + own_time * actions
+        bucket = (own_time[:, 0, 0] * 1000).long()
+        prediction = self.own_prediction(lerobot, self.own_prefix(lerobot, observation), x_t, bucket)
+        return (prediction - (actions - noise)).pow(2).mean()
+
+    def lerobot_chunk(self, lerobot: nn.Module, observation: Any, noise: Tensor) -> Tensor:
+        """The padded chunk GR00T's action API samples (it draws its own noise after the prefix), checked against the
+        one it returns, cut to the real horizon and action width."""
+        head, sampled = lerobot._groot_model.action_head, []
+        get_action = head.get_action
+        head.get_action = lambda *inputs, **options: sampled.append(get_action(*inputs, **options)) or sampled[-1]
+        torch.manual_seed(0)
+        try:
+            chunk = lerobot.predict_action_chunk(observation)
+        finally:
+            head.get_action = get_action
+        (padded,) = (output["action_pred"] for output in sampled)
+        assert torch.equal(chunk, padded[:, : chunk.shape[1], : chunk.shape[2]]) and chunk.shape[2] < padded.shape[2]
+        return padded
+
+    def test_its_own_four_step_sampler_is_the_teacher_mode_bit_for_bit(self, policy, batch):
+        """GR00T's own ``get_action_with_features`` (4 steps, int buckets, its noise drawn after the prefix) is
+        ``teacher-4`` on snapflow's grid, at the policy's own steps."""
+        from transformers.feature_extraction_utils import BatchFeature
+
+        observation, actions = batch
+        lerobot = policy.policy
+        assert type(policy).own_steps(lerobot.config) == 4
+        head = lerobot._groot_model.action_head
+        prefix = self.own_prefix(lerobot, observation)
+        torch.manual_seed(0)
+        own = type(head).get_action_with_features(
+            head,
+            prefix["backbone_features"],
+            prefix["state_features"],
+            prefix["embodiment_id"],
+            BatchFeature(prefix),
+            BatchFeature({}),
+        )["action_pred"]
+        assert torch.equal(own, sample_actions(policy, observation, self.noise_like(actions), SamplingMode(4, False)))
+
+    def test_its_training_times_are_pi0s_beta_in_snapflows_direction(self, policy):
+        from snapflow.flow.time_sampling import BetaTimeSampler
+
+        assert type(policy).training_time_sampler(policy.policy.config) == BetaTimeSampler(1.5, 0.001)
