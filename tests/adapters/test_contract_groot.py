@@ -127,3 +127,16 @@ class TestGrootAdapter(LeRobotAdapterContract):
         from snapflow.flow.time_sampling import BetaTimeSampler
 
         assert type(policy).training_time_sampler(policy.policy.config) == BetaTimeSampler(1.5, 0.001)
+
+    def test_a_config_padding_to_other_widths_than_its_checkpoint_is_refused_by_name(self):
+        """GR00T builds its encoders from the checkpoint, its pre-processor pads to the config's widths: where the two
+        differ, GR00T itself fails deep in its state encoder; the adapter names both."""
+        from lerobot.policies.groot.modeling_groot import GrootPolicy
+
+        from snapflow.adapters.lerobot import wrap_policy
+        from snapflow.errors import InvalidInputError
+
+        config = self.build_lerobot().config
+        config.max_state_dim = 132
+        with pytest.raises(InvalidInputError, match="pads to max_state_dim=132, but its checkpoint .* built for 8"):
+            wrap_policy(GrootPolicy(config))

@@ -39,6 +39,8 @@ CHECKPOINT_DEFAULTS = {
     "noise_beta_alpha": 1.5,
     "noise_beta_beta": 1.0,
     "noise_s": 0.999,
+    "max_state_dim": 132,
+    "max_action_dim": 132,
 }
 
 
@@ -78,8 +80,16 @@ class GrootFlowPolicy(LeRobotFlowPolicy):
     )
 
     def __init__(self, policy: nn.Module) -> None:
+        config = policy.config
+        checkpoint = _checkpoint_fields(config.base_model_path)
+        for width in ("max_state_dim", "max_action_dim"):  # GR00T itself fails deep in its encoders otherwise
+            if getattr(config, width) != checkpoint[width]:
+                raise InvalidInputError(
+                    f"this groot's config pads to {width}={getattr(config, width)}, but its checkpoint "
+                    f"{config.base_model_path} was built for {checkpoint[width]}: give the config the checkpoint's"
+                )
         super().__init__(policy)
-        self.training_time_sampler(policy.config)  # refuses, by name, times snapflow cannot sample
+        self.training_time_sampler(config)  # refuses, by name, times snapflow cannot sample
 
     @property
     def head(self) -> nn.Module:
