@@ -177,18 +177,14 @@ def build_tiny_groot(checkpoint: Path, state_dim: int = STATE_DIM, image_key: st
 
 def tiny_groot_processors(policy, state_dim: int = STATE_DIM) -> tuple:
     """GR00T's pre- and post-processors for ``policy`` with [-1, 1] min-max statistics, their Qwen3-VL step reading
-    the checkpoint's local Qwen3-VL folder (LeRobot names the hub's Cosmos-Reason2 there)."""
-    from lerobot.policies.groot.processor_groot import GrootN17VLMEncodeStep, make_groot_pre_post_processors
+    the checkpoint's local Qwen3-VL folder."""
+    from snapflow.adapters.lerobot.groot import groot_processors
 
     stats = {
         key: {"min": torch.full((dim,), -1.0), "max": torch.ones(dim)}
         for key, dim in (("observation.state", state_dim), ("action", ACTION_DIM))
     }
-    pre, post = make_groot_pre_post_processors(policy.config, dataset_stats=stats)
-    for step in pre.steps:
-        if isinstance(step, GrootN17VLMEncodeStep):
-            step.model_name = policy._groot_model.config.model_name
-    return pre, post
+    return groot_processors(policy, stats)
 
 
 def raw_groot_batch(batch_size: int = 4, seed: int = 0, state_dim: int = STATE_DIM) -> dict:

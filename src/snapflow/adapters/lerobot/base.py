@@ -30,7 +30,8 @@ from snapflow.flow.time_sampling import BetaTimeSampler
 from snapflow.nn.time_embedding import TargetTimeEmbedding
 from snapflow.protocol import map_tensors
 
-OBS_STATE = "observation.state"
+#: LeRobot's batch keys
+OBS_STATE, ACTION = "observation.state", "action"
 OBS_LANGUAGE_TOKENS = "observation.language.tokens"
 OBS_LANGUAGE_ATTENTION_MASK = "observation.language.attention_mask"
 #: a prompt cut of its padding keeps a multiple of this many tokens: a compiled prefix then meets few shapes

@@ -22,12 +22,11 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from snapflow.adapters.lerobot.base import ChunkSampler, LeRobotFlowPolicy, split_timestep
+from snapflow.adapters.lerobot.base import ACTION, OBS_STATE, ChunkSampler, LeRobotFlowPolicy, split_timestep
 from snapflow.errors import InvalidInputError
 from snapflow.flow.time_sampling import BetaTimeSampler
 from snapflow.nn.time_embedding import TargetTimeEmbedding
 
-STATE, ACTION = "observation.state", "action"
 #: what makes snapflow's float32 grid land on GR00T's own buckets: 1 - 0.7 rounds to 0.29999998 in float32, a
 #: bucket below GR00T's int(1000 * 3 / 10) without it, while no bucket moves by more than a 1000th of itself
 BUCKET_ROUNDING = 1e-3
@@ -217,19 +216,13 @@ class GrootFlowPolicy(LeRobotFlowPolicy):
     def example_observation(self, device: torch.device) -> dict[str, Tensor]:
         """GR00T's own pre-processor's batch of one random frame (its Qwen3-VL processor sets the image tokens), its
         patches (flattened over the batch by the pre-processor) under a leading row axis, which :meth:`model_inputs`
-        reads too. Its Qwen3-VL step reads the processor files of the backbone the checkpoint names (LeRobot's step names
-        the hub's Cosmos-Reason2 whatever the checkpoint's backbone)."""
-        from lerobot.policies.groot.processor_groot import GrootN17VLMEncodeStep, make_groot_pre_post_processors
-
+        reads too (:func:`groot_processors`)."""
         config = self.policy.config
-        widths = {STATE: config.robot_state_feature.shape, ACTION: config.action_feature.shape}
+        widths = {OBS_STATE: config.robot_state_feature.shape, ACTION: config.action_feature.shape}
         stats = {key: {"min": -torch.ones(shape), "max": torch.ones(shape)} for key, shape in widths.items()}
-        preprocessor, _ = make_groot_pre_post_processors(config, dataset_stats=stats)
-        for step in preprocessor.steps:
-            if isinstance(step, GrootN17VLMEncodeStep):
-                step.model_name = self.policy._groot_model.config.model_name
+        preprocessor, _ = groot_processors(self.policy, stats)
         frame = {key: torch.rand(1, *feature.shape) for key, feature in config.image_features.items()}
-        batch = preprocessor({**frame, STATE: torch.randn(1, *widths[STATE]), "task": ["perform the task"]})
+        batch = preprocessor({**frame, OBS_STATE: torch.randn(1, *widths[OBS_STATE]), "task": ["perform the task"]})
         # the image patches get a leading row, so that a batch of this frame repeated is its rows repeated
         images = {key: batch[key][None] for key in ("pixel_values", "image_grid_thw")}
         return {key: value.to(device) for key, value in {**batch, **images}.items() if torch.is_tensor(value)}
@@ -250,4 +243,17 @@ class GrootFlowPolicy(LeRobotFlowPolicy):
         self.head.get_action = get_action
 
 
-__all__ = ["GrootFlowPolicy"]
+def groot_processors(policy: nn.Module, dataset_stats: dict[str, dict[str, Tensor]]) -> tuple[Any, Any]:
+    """LeRobot's pre- and post-processors of the GrootPolicy ``policy`` with ``dataset_stats``, their Qwen3-VL step
+    reading the processor files of the backbone its checkpoint names (LeRobot's step names the hub's Cosmos-Reason2
+    whatever the checkpoint's backbone)."""
+    from lerobot.policies.groot.processor_groot import GrootN17VLMEncodeStep, make_groot_pre_post_processors
+
+    preprocessor, postprocessor = make_groot_pre_post_processors(policy.config, dataset_stats=dataset_stats)
+    for step in preprocessor.steps:
+        if isinstance(step, GrootN17VLMEncodeStep):
+            step.model_name = policy._groot_model.config.model_name
+    return preprocessor, postprocessor
+
+
+__all__ = ["GrootFlowPolicy", "groot_processors"]

@@ -16,12 +16,10 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from snapflow.adapters.lerobot.base import ChunkSampler, LeRobotFlowPolicy, split_timestep
+from snapflow.adapters.lerobot.base import ACTION, OBS_STATE, ChunkSampler, LeRobotFlowPolicy, split_timestep
 from snapflow.errors import InvalidInputError
 from snapflow.flow.time_sampling import BetaTimeSampler
 from snapflow.nn.time_embedding import TargetTimeEmbedding
-
-OBS_STATE, ACTION = "observation.state", "action"
 
 
 def _noise_predictor_with_target_time(
