@@ -1,8 +1,8 @@
 """``snapflow serve``: LeRobot's own async-inference policy server serves a distilled student (SmolVLA, pi0, pi0.5,
-X-VLA, multi-task DiT, GR00T N1.7) to a client made of LeRobot's own gRPC types, one denoising pass a chunk (ten as its teacher),
-and refuses the student asked for under its teacher's type instead of dropping phi_s. LeRobot's server calls
-``predict_action_chunk`` on its own, where a multi-task DiT reads observation queues only its ``select_action`` fills
-(LeRobot 0.6.1, a teacher fails there): its student fills them from the observation it is given."""
+X-VLA, multi-task DiT, GR00T N1.7) to a client made of LeRobot's own gRPC types, one denoising pass a chunk (ten as
+its teacher), and refuses the student asked for under its teacher's type instead of dropping phi_s. LeRobot's server
+calls ``predict_action_chunk`` on its own, where a multi-task DiT reads observation queues only its ``select_action``
+fills (LeRobot 0.6.1, a teacher fails there): its student fills them from the observation it is given."""
 
 from __future__ import annotations
 

@@ -129,8 +129,8 @@ class GrootFlowPolicy(LeRobotFlowPolicy):
 
     def action_targets(self, batch: dict[str, Tensor]) -> Tensor:
         """The pre-processor's padded chunk, zero where its ``action_mask`` is zero (the padded width, steps past an
-        episode's end). GR00T's loss weighs those entries out; snapflow's objective weighs every entry, so there it trains the
-        padding's velocity towards the straight path to zero, which GR00T leaves free."""
+        episode's end). GR00T's loss weighs those entries out; snapflow's objective weighs every entry, so there it
+        trains the padding's velocity towards the straight path to zero, which GR00T leaves free."""
         return batch[ACTION] * batch["action_mask"].to(batch[ACTION].dtype)
 
     @classmethod
