@@ -49,3 +49,17 @@ def batch() -> tuple[Tensor, Tensor]:
     """Six observations (6, OBSERVATION_DIM) and their action chunks (6, CHUNK, ACTION_DIM)."""
     generator = torch.Generator().manual_seed(7)
     return torch.randn(6, OBSERVATION_DIM, generator=generator), torch.randn(6, CHUNK, ACTION_DIM, generator=generator)
+
+
+@pytest.fixture(scope="session")
+def teacher_checkpoint(tmp_path_factory) -> Path:
+    """A tiny MiniVLA teacher's checkpoint folder after one training step on synthetic Meta-World-shaped episodes
+    (its weights are not meant to act well): tests copy it before they change it."""
+    from snapflow.training.config import TrainConfig
+    from snapflow.training.stages import train_teacher
+    from tests.training.fixtures import TINY, synthetic_demonstrations
+
+    data = synthetic_demonstrations().save(tmp_path_factory.mktemp("data"))
+    run = tmp_path_factory.mktemp("run")
+    train_teacher(data, run, TINY, TrainConfig(steps=1, batch_size=4, checkpoint_every=1), progress=False)
+    return run / "checkpoints" / "step_0000001"
