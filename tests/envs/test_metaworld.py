@@ -21,6 +21,7 @@ from snapflow.envs.metaworld import (
     MetaWorld,
     MetaWorldEnv,
     ScriptedExpert,
+    _suite,
 )
 from snapflow.envs.via_points import ViaPointExpert
 
@@ -135,13 +136,15 @@ def test_variations_per_split_and_evaluation_variations_differ_from_training_one
 @pytest.mark.slow
 def test_mt10_tasks_keep_mt10s_variations_and_the_other_tasks_take_mt1s():
     """Simulator test: an MT10 task's variations are MT10(seed)'s, as every MT10 result was measured on; another
-    task's are MT1(task, seed)'s; both splits have 50 and differ."""
+    task's are MT1(task, seed)'s; both splits have 50 and differ; the MT10 tasks of a split share one MT10."""
     import metaworld
 
     for split, seed in (("train", 0), ("eval", 1)):
         mt10 = metaworld.MT10(seed=seed)
         env = MetaWorldEnv("push-v3", split)
         assert [t.data for t in env._variations] == [t.data for t in mt10.train_tasks if t.env_name == "push-v3"]
+        # every MT10 task of a split reads one MT10, built once a process (each build resets its envs 500 times)
+        assert _suite("push-v3", seed) is _suite("reach-v3", seed) is _suite(MT10_TASKS[0], seed)
         env = MetaWorldEnv("shelf-place-v3", split)
         assert [t.data for t in env._variations] == [
             t.data for t in metaworld.MT1("shelf-place-v3", seed=seed).train_tasks

@@ -156,6 +156,22 @@ def test_a_table_may_evaluate_other_initial_states_without_touching_the_first_on
         load_sweep(path)
 
 
+def test_a_table_may_cut_its_episodes_short_into_records_of_its_own(tmp_path):
+    """A cut table (a quick check of a sweep) keeps the uncut evaluations' settings and paths, so every committed
+    record stays valid; its own cells are other jobs, whose record says the cut."""
+    config = load_sweep(write_config(tmp_path))
+    cut = load_sweep(write_config(tmp_path, max_episode_steps=20))
+    assert [table.max_episode_steps for table in config.tables + cut.tables] == [None, None, 20, 20]
+    row = cut.tables[0].rows[0]
+    full, short = eval_job(config, config.tables[0], row, 0), eval_job(cut, cut.tables[0], row, 0)
+    assert "max_episode_steps" not in full.settings() and full.path.name == "teacher-10_nact4_eps2.json"
+    assert short.settings() == {**full.settings(), "max_episode_steps": 20} and short.max_episode_steps == 20
+    assert short.path.name == "teacher-10_nact4_eps2_cut20.json" and short.key != full.key
+    assert short.policy == full.policy, "the same trained policy"
+    with pytest.raises(ValueError, match="max_episode_steps must be an integer of at least 1, got 0"):
+        load_sweep(write_config(tmp_path, max_episode_steps=0))
+
+
 def test_a_table_may_evaluate_a_subset_of_the_tasks_without_touching_the_other_tables_records(tmp_path):
     path = write_config(tmp_path)
     config = load_sweep(path)

@@ -24,7 +24,9 @@ def test_a_fresh_machine_evaluates_a_kept_policy_and_continues_a_kept_unfinished
     from snapflow.training import trainer
     from snapflow.training.stages import train_teacher
 
-    config = load_sweep(write_config(tmp_path, seeds="[0]", commit_checkpoint=True)).only(["headline"])
+    config = load_sweep(write_config(tmp_path, seeds="[0]", commit_checkpoint=True, max_episode_steps=20)).only(
+        ["headline"]
+    )
     run_sweeps([config], progress=False)
     kept = tmp_path / "results" / "records" / "teacher" / "seed-0" / "checkpoint"
     state = json.loads((kept / "kept.json").read_text())
@@ -35,9 +37,9 @@ def test_a_fresh_machine_evaluates_a_kept_policy_and_continues_a_kept_unfinished
 
     shutil.rmtree(tmp_path / "runs")  # a fresh machine: the ledger and the kept checkpoints committed, nothing else
     extra = '\n  { label = "teacher 2-NFE", run = "teacher", mode = "teacher-2" },'
-    config = load_sweep(write_config(tmp_path, seeds="[0]", extra_rows=extra, commit_checkpoint=True)).only(
-        ["headline"]
-    )
+    config = load_sweep(
+        write_config(tmp_path, seeds="[0]", extra_rows=extra, commit_checkpoint=True, max_episode_steps=20)
+    ).only(["headline"])
     assert names(plan(config)) == DATA | {("eval", "teacher", 0, "teacher-2")}, "the teacher is not trained again"
     teacher = train_job(config, "teacher", 0)
     assert (teacher.directory / "checkpoints" / "step_0000012" / "policy.safetensors").read_bytes() == (
@@ -53,7 +55,11 @@ def test_a_fresh_machine_evaluates_a_kept_policy_and_continues_a_kept_unfinished
     # the same teacher with other settings, interrupted after its first checkpoint (step 6 of 12) on one machine
     more_steps = TINY_TRAIN.replace("steps = 12", "steps = 13")
     teacher = train_job(
-        load_sweep(write_config(tmp_path, seeds="[0]", teacher_train=more_steps, commit_checkpoint=True)), "teacher", 0
+        load_sweep(
+            write_config(tmp_path, seeds="[0]", teacher_train=more_steps, commit_checkpoint=True, max_episode_steps=20)
+        ),
+        "teacher",
+        0,
     )
     steps = {"taken": 0}
     step = trainer.train_step

@@ -15,12 +15,14 @@ from snapflow.jobs.sweep.planning import train_job
 from snapflow.jobs.sweep.results import write_results
 from tests.jobs.tiny_sweep import write_config
 
+CUT = 20  # steps an episode: the tiny policies succeeded in none of 28 episodes run to Meta-World's 500 either
+
 
 # ~150 s on CI's two cores: the sweep's one end-to-end run on a simulator (collection, teachers, students, every
 # table) then its cache and rerun rules on the same folders; each part is at its smallest.
 @pytest.mark.slow
 def test_a_sweep_runs_caches_reruns_a_changed_student_and_writes_its_tables_into_the_document(tmp_path, capsys):
-    config_path = write_config(tmp_path)
+    config_path = write_config(tmp_path, max_episode_steps=CUT)
     document = tmp_path / "RESULTS.md"
     document.write_text(
         "# Results\n\nProse before.\n\n<!-- sweep:tiny/headline -->\nold table\n<!-- /sweep:tiny/headline -->\n\nProse after.\n"
@@ -51,12 +53,15 @@ def test_a_sweep_runs_caches_reruns_a_changed_student_and_writes_its_tables_into
             for seed in (0, 1)
             for task in load_sweep(config_path).data.tasks
         ]
-        for run, name in (("teacher", "teacher-10_nact4_eps2.json"), ("snapflow", "snapflow-1_nact4_eps2.json"))
+        for run, name in (
+            ("teacher", "teacher-10_nact4_eps2_cut20.json"),
+            ("snapflow", "snapflow-1_nact4_eps2_cut20.json"),
+        )
     }
     assert student_row["difference"]["mean"] == pytest.approx(sum(cells["snapflow"]) / 4 - sum(cells["teacher"]) / 4)
     for seed in (0, 1):  # the table's numbers are the cached evaluation records'
         cached = json.loads(
-            (tmp_path / "runs" / "evals" / "teacher" / f"seed-{seed}" / "teacher-10_nact4_eps2.json").read_text()
+            (tmp_path / "runs" / "evals" / "teacher" / f"seed-{seed}" / "teacher-10_nact4_eps2_cut20.json").read_text()
         )
         assert headline[0]["success_per_seed"][seed] == pytest.approx(100 * cached["success"]["mean"]["success_rate"])
         # its episodes, logged as they finished (what an interrupted evaluation goes on from)
@@ -66,25 +71,26 @@ def test_a_sweep_runs_caches_reruns_a_changed_student_and_writes_its_tables_into
             / "evals"
             / "teacher"
             / f"seed-{seed}"
-            / "teacher-10_nact4_eps2.episodes"
+            / "teacher-10_nact4_eps2_cut20.episodes"
             / "00-teacher-10.jsonl"
         )
         waves = [json.loads(line)["episodes"] for line in log.read_text().splitlines()[1:]]
         assert sum(episode["success"] for wave in waves for episode in wave) == cached["success"]["mean"]["successes"]
+        assert max(episode["steps"] for wave in waves for episode in wave) == CUT, "cut at the table's limit"
     for name in ("headline.png", "nfe.png", "tables.md"):
         assert (tmp_path / "results" / name).stat().st_size > 0
 
     text = document.read_text()
     assert "Prose before." in text and "Prose after." in text and "old table" not in text
     assert "| SnapFlow 1-NFE | 1 | 4 |" in text and "<!-- sweep:tiny/nfe -->" in text
-    assert "](results/headline.png)" in text and "seeds 0, 1" in text
+    assert "](results/headline.png)" in text and "seeds 0, 1" in text and f"every episode cut at {CUT} steps" in text
     assert plan(load_sweep(config_path)) == []  # everything is cached: a second run does nothing
 
     runs = tmp_path / "runs"
     for run in ("teacher", "meanflow"):
         (runs / run / "seed-0" / "left-over.txt").write_text("made with the old settings")
     records = {path: path.stat().st_mtime_ns for path in runs.rglob("*.json")}
-    write_config(tmp_path, meanflow_distill='{ method = "meanflow", alpha = 0.7 }')
+    write_config(tmp_path, meanflow_distill='{ method = "meanflow", alpha = 0.7 }', max_episode_steps=CUT)
     times = run_sweeps([load_sweep(config_path)], workers=2, progress=False)
     assert set(times) == {"tiny: train meanflow seed 0", "tiny: evaluate meanflow seed 0 (snapflow-1; n_act 4)"}
     rewritten = {
@@ -93,7 +99,7 @@ def test_a_sweep_runs_caches_reruns_a_changed_student_and_writes_its_tables_into
         if not path.is_file() or path.stat().st_mtime_ns != stamp
     }
     assert {path for path in rewritten if not path.startswith("meanflow/seed-0/")} == {
-        "evals/meanflow/seed-0/snapflow-1_nact4_eps2.json"
+        "evals/meanflow/seed-0/snapflow-1_nact4_eps2_cut20.json"
     }
     assert "meanflow/seed-0/job.json" in rewritten
     assert not (runs / "meanflow" / "seed-0" / "left-over.txt").exists(), "a stale run starts from an empty folder"

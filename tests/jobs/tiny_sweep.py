@@ -25,8 +25,12 @@ def write_config(
     snapflow_train: str = TINY_TRAIN,
     meanflow_distill: str = '{ method = "meanflow" }',
     commit_checkpoint: bool = False,
+    max_episode_steps: int | None = None,
 ) -> Path:
+    """The tiny sweep's config in ``directory``, its runs' and tables' settings as given; ``max_episode_steps`` cuts
+    every table's episodes there (the runs that evaluate for real: their tiny policies succeed in no episode)."""
     path = directory / "tiny.toml"
+    cut = "" if max_episode_steps is None else f"\nmax_episode_steps = {max_episode_steps}"
     path.write_text(f"""
 name = "tiny"
 title = "two tasks, tiny policies"
@@ -55,7 +59,7 @@ seeds = [0]
 [[tables]]
 name = "headline"
 title = "tiny headline"
-episodes_per_task = 2
+episodes_per_task = 2{cut}
 per_task = true
 rows = [
   {{ label = "teacher 10-NFE", run = "teacher", mode = "teacher-10" }},
@@ -66,7 +70,7 @@ rows = [
 name = "nfe"
 x_label = "NFE"
 seeds = [0]
-episodes_per_task = 2
+episodes_per_task = 2{cut}
 rows = [
   {{ label = "teacher 1", run = "teacher", mode = "teacher-1", series = "teacher", x = 1 }},
   {{ label = "teacher 2", run = "teacher", mode = "teacher-2", series = "teacher", x = 2 }},

@@ -102,16 +102,23 @@ CAMERA = "corner"
 SPLIT_SEEDS = {"train": 0, "eval": 1}
 
 
-@functools.cache
 def _suite(task: str, seed: int) -> Any:
     """The Meta-World benchmark object that samples ``task``'s variations: MT10 for an MT10 task, else MT1."""
+    return _benchmark("MT10" if task in MT10_TASKS else task, seed)
+
+
+@functools.cache
+def _benchmark(name: str, seed: int) -> Any:
+    """Meta-World's MT10 (``name`` "MT10") or the MT1 of the task ``name``, built once a process: MT10 resets each
+    of its environments 50 times as it samples their variations (~8 s on one core), and every MT10 task reads the
+    same object (its tasks and classes, never changed)."""
     # MuJoCo picks its off-screen GL backend when first imported; EGL (Mesa) renders on a CPU-only machine
     os.environ.setdefault("MUJOCO_GL", "egl")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         import metaworld
 
-        return metaworld.MT10(seed=seed) if task in MT10_TASKS else metaworld.MT1(task, seed=seed)
+        return metaworld.MT10(seed=seed) if name == "MT10" else metaworld.MT1(name, seed=seed)
 
 
 class MetaWorldEnv(Environment):

@@ -26,6 +26,7 @@ Config layout (see ``configs/sweeps/*.toml``)::
                                         # tasks (a subset of the data's, e.g. "libero_10_0,libero_10_1"),
                                         # per_set (each row on each named set of tasks: LIBERO's suites),
                                         # contrasts ([row, against] pairs: paired differences beside the reference's)
+                                        # max_episode_steps (every episode cut there: a quick check of a sweep)
     rows = [{label = "...", run = "snapflow", mode = "snapflow-1", n_act = 4, series = "...", x = 1}]
                                         # sweep = "other.toml": the row reads that sweep's run and evaluations
                                         # (same env and tasks, so its cells pair), never runs them

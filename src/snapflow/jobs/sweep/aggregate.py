@@ -151,13 +151,15 @@ class TableResult:
     rows: list[SweepRow]
     first_variation: int = 0  # each task's episodes from this evaluation variation on
     contrasts: list[Contrast] | None = None  # the pairs of rows the table compares beside its reference
+    max_episode_steps: int | None = None  # every episode cut there (None: the benchmark's own limit)
 
     def to_dict(self) -> dict[str, Any]:
         table = {**asdict(self), "rows": [row.to_dict() for row in self.rows]}
         if not self.first_variation:  # the tables written before it could be chosen: the first variations
             del table["first_variation"]
-        if self.contrasts is None:
-            del table["contrasts"]
+        for optional in ("contrasts", "max_episode_steps"):  # written only where set, as before they existed
+            if table[optional] is None:
+                del table[optional]
         return table
 
     @classmethod
@@ -306,6 +308,7 @@ def table_results(config: SweepConfig, table: TableSpec) -> TableResult:
         rows,
         table.first_variation,
         contrasts or None,
+        table.max_episode_steps,
     )
 
 

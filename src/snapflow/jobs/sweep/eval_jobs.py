@@ -38,6 +38,7 @@ class EvalJob(Job):
     first_variation: int = 0  # each task's episodes from this evaluation variation on
     evaluator: str = EVALUATORS[0]  # snapflow's evaluator, or LeRobot's lerobot-eval (no offline metrics)
     tasks: tuple[str, ...] = ()  # a subset of the data's tasks (empty: every one)
+    max_episode_steps: int | None = None  # every episode cut there (None: the benchmark's own limit)
 
     @property
     def by_lerobot_eval(self) -> bool:
@@ -55,6 +56,7 @@ class EvalJob(Job):
             **({"first_variation": self.first_variation} if self.first_variation else {}),
             **({"evaluator": self.evaluator} if self.by_lerobot_eval else {}),
             **({"tasks": list(self.tasks)} if self.tasks else {}),
+            **({"max_episode_steps": self.max_episode_steps} if self.max_episode_steps is not None else {}),
         }
 
     @property
@@ -103,6 +105,7 @@ class EvalJob(Job):
             episode_logs=self.episodes_dir,
             resume=True,
             first_variation=self.first_variation,
+            max_episode_steps=self.max_episode_steps,
             # lerobot-train records no held-out share: it trained on its teacher's split, every run's here
             val_fraction=VAL_FRACTION if self.policy.trainer == "lerobot-train" else None,
         )
@@ -152,6 +155,7 @@ class EvalJob(Job):
             self.episodes_dir,
             threads=torch.get_num_threads(),
             kept=kept,
+            max_episode_steps=self.max_episode_steps,
         )
         return row.to_dict()
 

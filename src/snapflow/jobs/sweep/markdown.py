@@ -23,9 +23,11 @@ def _interval_cells(row: SweepRow) -> list[str]:
 
 
 def _variations(result: TableResult) -> str:
-    """Which evaluation variations, where not the first ones (the tables' captions before they could be chosen)."""
-    first = result.first_variation
-    return f"; evaluation variations {first}-{first + result.episodes_per_task - 1} of each task" if first else ""
+    """Which evaluation variations, where not the first ones, and where episodes were cut short (the tables' captions
+    before either could be chosen say neither)."""
+    first, cut = result.first_variation, result.max_episode_steps
+    variations = f"; evaluation variations {first}-{first + result.episodes_per_task - 1} of each task" if first else ""
+    return variations + (f"; every episode cut at {cut} steps" if cut is not None else "")
 
 
 def markdown_rows(config: SweepConfig, result: TableResult, command: str) -> str:

@@ -59,11 +59,11 @@ def eval_job(config: SweepConfig, table: TableSpec, row: RowSpec, seed: int) -> 
     """The evaluation behind one cell (row, seed) of a table of ``config``: the row's own sweep's, where it reads
     another's."""
     owner = row.owner(config)
-    first, evaluator, tasks = table.first_variation, table.evaluator, table.tasks
-    path = owner.eval_path(row.run, seed, row.mode, row.n_act, table.episodes_per_task, first, evaluator, tasks)
+    first, evaluator, tasks, cut = table.first_variation, table.evaluator, table.tasks, table.max_episode_steps
+    path = owner.eval_path(row.run, seed, row.mode, row.n_act, table.episodes_per_task, first, evaluator, tasks, cut)
     policy = train_job(owner, row.run, seed)
     ledger = owner.ledger_path(path)
-    return EvalJob(policy, row.mode, row.n_act, table.episodes_per_task, path, ledger, first, evaluator, tasks)
+    return EvalJob(policy, row.mode, row.n_act, table.episodes_per_task, path, ledger, first, evaluator, tasks, cut)
 
 
 def jobs(config: SweepConfig) -> list[Job]:

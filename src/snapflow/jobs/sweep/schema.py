@@ -246,7 +246,7 @@ def _tables(
         raise InvalidInputError(f"{path}: tables must be a list of [[tables]] entries")
     tables = []
     allowed = {"name", "title", "rows", "seeds", "episodes_per_task", "first_variation", "n_act", "per_task"}
-    allowed |= {"x_label", "reference", "evaluator", "tasks", "per_set", "contrasts"}
+    allowed |= {"x_label", "reference", "evaluator", "tasks", "per_set", "contrasts", "max_episode_steps"}
     for index, entry in enumerate(raw):
         section = f"[[tables]] #{index + 1}"
         _checked(section, entry, allowed, frozenset({"name", "rows"}))
@@ -304,6 +304,7 @@ def _tables(
             _table_tasks(section, entry.get("tasks"), data),
             bool(entry.get("per_set", False)),
             tuple(tuple(pair) for pair in contrasts),
+            _count(section, "max_episode_steps", entry["max_episode_steps"]) if "max_episode_steps" in entry else None,
         )
         if table.evaluator != EVALUATORS[0]:
             _check_lerobot_eval(section, table, runs, data)

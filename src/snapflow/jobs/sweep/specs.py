@@ -104,6 +104,7 @@ class TableSpec:
     per_set: bool = False  # each row also on each named set of the benchmark's tasks (LIBERO's suites)
     # (row, against) label pairs: the first row's success minus the second's, paired, overall and per set
     contrasts: tuple[tuple[str, str], ...] = ()
+    max_episode_steps: int | None = None  # every episode cut there (a quick check of a sweep); None: the benchmark's
 
     @property
     def reference_row(self) -> RowSpec:
@@ -166,13 +167,15 @@ class SweepConfig:
         first_variation: int = 0,
         evaluator: str = EVALUATORS[0],
         tasks: tuple[str, ...] = (),
+        max_episode_steps: int | None = None,
     ) -> Path:
         # from the first variation by snapflow's evaluator on every task, the name evaluations had before any of
-        # these could be chosen; a subset of the tasks is named by its size and a digest of its names
+        # these could be chosen; a cut one by its step limit; a subset of the tasks is named by its size and a digest of its names
         start = f"_from{first_variation}" if first_variation else ""
         by = "" if evaluator == EVALUATORS[0] else f"_{evaluator}"
         subset = f"_{len(tasks)}tasks-{hashlib.sha1(','.join(tasks).encode()).hexdigest()[:8]}" if tasks else ""
-        name = f"{mode.name}_nact{n_act}_eps{episodes_per_task}{start}{by}{subset}.json"
+        cut = f"_cut{max_episode_steps}" if max_episode_steps is not None else ""
+        name = f"{mode.name}_nact{n_act}_eps{episodes_per_task}{start}{by}{subset}{cut}.json"
         return self.output_dir / "evals" / run / f"seed-{seed}" / name
 
     def ledger_path(self, record: Path) -> Path:
