@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import signal
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
@@ -92,6 +93,28 @@ def test_the_runner_continues_an_interrupted_job_and_restarts_a_stale_one(tmp_pa
     run_jobs([LogJob(directory, 2)], progress=False)
     assert read_record(LogJob(directory, 2))["lines"] == 1, "other settings: its old outputs were cleared first"
     assert not is_done(LogJob(directory, 1))
+
+
+@dataclass(frozen=True)
+class SlowJob(LogJob):
+    """A log job that takes a few seconds, long enough for another worker's job to fail first."""
+
+    def run(self) -> dict[str, Any]:
+        time.sleep(3)
+        return super().run()
+
+
+@pytest.mark.slow
+def test_a_failed_job_stops_the_run_once_the_jobs_running_beside_it_have_finished_and_been_recorded(tmp_path):
+    failing, running, later = (
+        LogJob(tmp_path / "fails", 1, fail=True),
+        SlowJob(tmp_path / "slow", 2),
+        LogJob(tmp_path / "later", 3),
+    )
+    with pytest.raises(RuntimeError, match="failed on purpose"):
+        run_jobs([failing, running, later], workers=2, progress=False)
+    assert is_done(running), "what finished beside the failure is recorded: the same command does not run it again"
+    assert not is_done(failing) and not (tmp_path / "later").exists(), "no job starts after a failure"
 
 
 @dataclass(frozen=True)

@@ -114,6 +114,21 @@ def test_a_fresh_checkout_continues_from_the_ledger_committed_beside_the_results
     }
 
 
+def test_a_collection_stopped_after_its_files_before_its_record_is_recorded_by_the_same_command(tmp_path):
+    """A collection job whose demonstrations were saved whole but whose record was not (the run stopped in between)
+    takes them as they are when the same command runs it again: they were collected with its settings."""
+    from snapflow.jobs.runner import _start
+    from snapflow.jobs.sweep import CollectJob
+    from tests.training.fixtures import synthetic_demonstrations
+
+    job = next(job for job in jobs(load_sweep(write_config(tmp_path))) if isinstance(job, CollectJob))
+    _start(job)  # what the interrupted run noted: its settings, pending
+    synthetic_demonstrations().save(job.directory)
+    saved = {path.name: path.read_bytes() for path in job.directory.iterdir() if path.is_file()}
+    assert job.run() == {}, "no collection again (it would refuse a folder that holds demonstrations)"
+    assert {path.name: path.read_bytes() for path in job.directory.iterdir() if path.is_file()} == saved
+
+
 def test_job_settings_are_complete_and_keys_follow_the_dependencies(tmp_path):
     config = load_sweep(write_config(tmp_path))
     by_name = {next(iter(names([job]))): job for job in jobs(config)}

@@ -260,8 +260,9 @@ def run_jobs(
     depth, then :func:`to_run`'s order: a worker freed by a student evaluates it before starting a teacher of hours,
     so results a session can commit come as early as they can.
 
-    A failed job stops the run with its own error (after the jobs already running have finished); a worker killed
-    from outside (or for memory) stops it with a :class:`~snapflow.errors.SnapflowError` naming its job.
+    A failed job stops the run with its own error once the jobs already running have finished, each of them recorded;
+    a worker killed from outside (or for memory) stops it with a :class:`~snapflow.errors.SnapflowError` naming its
+    job.
     """
     if workers < 1:
         raise InvalidInputError(f"workers must be at least 1, got {workers}")
@@ -279,13 +280,14 @@ def run_jobs(
     # the memory a job frees is not all handed back to the system (glibc keeps MuJoCo's), so a worker that went on to
     # a second 500-episode evaluation reached 12.6 GB and was killed for memory
     context = get_context("spawn")
+    failure: BaseException | None = None  # the first job's error: no job starts after it, those running finish
     with ProcessPoolExecutor(max_workers=workers, mp_context=context, max_tasks_per_child=1) as pool:
-        while waiting or running:
+        while (waiting and failure is None) or running:
             ready = sorted(
                 (job for job in waiting if not unfinished.intersection(job.dependencies)),
                 key=lambda job: job in awaited,
             )
-            for job in ready[: workers - len(running)]:
+            for job in ready[: workers - len(running)] if failure is None else ():
                 waiting.remove(job)
                 _start(job)
                 running[pool.submit(_work, job, threads)] = job
@@ -295,18 +297,30 @@ def run_jobs(
                 job = running.pop(future)
                 try:
                     results, seconds = future.result()
-                except BrokenProcessPool:
-                    raise SnapflowError(
-                        f"the worker running {job.describe()} died (killed, or out of memory); what finished is "
-                        "kept, and its checkpoints: run the same command again to go on"
-                    ) from None
-                _finish(job, results)
+                except Exception as error:  # raised below, once the jobs running are recorded
+                    failure = failure or _failure(job, error)
+                    if running:
+                        bar.write(f"failed: {job.describe()}; the {len(running)} job(s) running finish first")
+                    continue
+                _finish(job, results)  # a job that finished is recorded even when another one failed
                 unfinished.discard(job)
                 times[job.describe()] = seconds
                 bar.write(f"done in {seconds / 60:.1f} min: {job.describe()}")
                 bar.update()
     bar.close()
+    if failure is not None:
+        raise failure
     return times
+
+
+def _failure(job: Job, error: Exception) -> Exception:
+    """What stops the run for ``job``'s ``error``: its own error, or, where its worker died, one that says so."""
+    if isinstance(error, BrokenProcessPool):
+        return SnapflowError(
+            f"the worker running {job.describe()} died (killed, or out of memory); what finished is kept, and its "
+            "checkpoints: run the same command again to go on"
+        )
+    return error
 
 
 __all__ = ["Job", "record", "write_record", "read_record", "is_done", "is_recorded", "to_run", "run_jobs"]

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from snapflow.data.collect import collect
-from snapflow.data.demonstrations import Demonstrations
+from snapflow.data.demonstrations import META_FILE, Demonstrations
 from snapflow.envs.factory import make_benchmark
 from snapflow.jobs.runner import Job
 from snapflow.jobs.sweep.specs import DataSpec
@@ -47,6 +47,11 @@ class CollectJob(FolderJob):
 
     def run(self) -> dict[str, Any]:
         data = self.data
+        if (self.directory / META_FILE).is_file():
+            # collected whole (meta.json is written last) by a run stopped before its record: the runner keeps a
+            # pending job's outputs only where they were made with its settings, so they are this collection's
+            Demonstrations.load(self.directory)
+            return {}
         collect(
             make_benchmark(data.env),
             list(data.tasks),
