@@ -42,6 +42,12 @@ def _distill_arguments(tmp_path, dataset) -> list[str]:
     ]
 
 
+def _replaced(arguments: list[str], replacements: dict) -> list[str]:
+    """``arguments`` with each one that is a key of ``replacements`` (a path or a string) replaced by its value."""
+    by_text = {str(old): str(new) for old, new in replacements.items()}
+    return [by_text.get(argument, argument) for argument in arguments]
+
+
 @pytest.mark.slow
 def test_cli_distills_a_saved_smolvla_on_a_local_lerobot_dataset(vlm_directory, tmp_path, capsys):
     from snapflow.cli import main
@@ -92,29 +98,17 @@ def test_cli_distills_a_saved_smolvla_on_a_local_lerobot_dataset(vlm_directory, 
     assert "either --teacher and --data" in capsys.readouterr().err
     # a policy whose state is shorter than the dataset's is named before any step (LeRobot would pad silently)
     build_tiny_smolvla(vlm_directory, state_dim=5).save_pretrained(tmp_path / "narrow")
-    narrow = [
-        str(tmp_path / "narrow")
-        if a == str(tmp_path / "teacher")
-        else str(tmp_path / "narrow_run")
-        if a == str(tmp_path / "run")
-        else a
-        for a in arguments
-    ]
+    narrow = _replaced(
+        arguments, {tmp_path / "teacher": tmp_path / "narrow", tmp_path / "run": tmp_path / "narrow_run"}
+    )
     assert main(narrow) == 2
     assert "observation.state: the dataset has shape (6,), the policy expects (5,)" in capsys.readouterr().err
     assert not (tmp_path / "narrow_run" / "checkpoints").exists()
     # NaN in a dataset, which LeRobot records without complaint, is refused before any step
     nan_dataset = write_tiny_dataset(tmp_path / "nan_dataset", repo_id="local/nan", nan_at=17)
-    poisoned = [
-        str(nan_dataset)
-        if a == str(dataset)
-        else "local/nan"
-        if a == "local/tiny"
-        else str(tmp_path / "nan_run")
-        if a == str(tmp_path / "run")
-        else a
-        for a in arguments
-    ]
+    poisoned = _replaced(
+        arguments, {dataset: nan_dataset, "local/tiny": "local/nan", tmp_path / "run": tmp_path / "nan_run"}
+    )
     assert main(poisoned) == 2
     assert "action holds NaN or inf (first at frame 17, dimension 1)" in capsys.readouterr().err
     assert not (tmp_path / "nan_run" / "checkpoints").exists()
