@@ -1,8 +1,9 @@
-"""The two small protocols that connect a policy to SnapFlow.
+"""The two small protocols that connect a policy to SnapFlow, and one optional capability.
 
 ``FlowPolicy`` is all the objective and the samplers ever see. ``TimeEmbeddingModel`` is what a plain
 flow-matching policy exposes so that :class:`snapflow.nn.SnapFlowPolicy` can add the target-time
-embedding to it without editing its code.
+embedding to it without editing its code. ``PaddedActions`` is what a policy whose chunks hold entries its
+own loss leaves out (GR00T's padded width) adds, so that the objective leaves them out too.
 
 A *context* is whatever ``encode`` returns: a tensor, or a (nested) dict / list / tuple of tensors whose
 first dimension is the batch (other leaves pass through untouched). The objective computes it once per
@@ -58,6 +59,16 @@ class TimeEmbeddingModel(Protocol):
     # frozen by default (see SnapFlowPolicy.expert_parameters).
 
 
+@runtime_checkable
+class PaddedActions(Protocol):
+    """A policy whose action chunks hold entries that no loss weighs (padding to a fixed width or length)."""
+
+    def action_weights(self, observation: Any) -> Tensor | None:
+        """Per-entry loss weights for the chunks of ``observation``'s batch, broadcastable to (B, *action_shape)
+        (1 where an entry counts, 0 where it is padding), or None where every entry counts."""
+        ...
+
+
 def map_tensors(context: Context, function: Callable[[Tensor], Tensor]) -> Context:
     """Apply ``function`` to every tensor in a (nested) context; non-tensor leaves are returned as they are."""
     if isinstance(context, Tensor):
@@ -77,4 +88,4 @@ def index_batch(context: Context, index: slice | Tensor) -> Context:
     return map_tensors(context, lambda tensor: tensor[index])
 
 
-__all__ = ["Context", "FlowPolicy", "TimeEmbeddingModel", "index_batch", "map_tensors"]
+__all__ = ["Context", "FlowPolicy", "PaddedActions", "TimeEmbeddingModel", "index_batch", "map_tensors"]

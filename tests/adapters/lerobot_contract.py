@@ -48,6 +48,10 @@ class LeRobotAdapterContract(FlowPolicyContract):
 
         return lerobot.model.forward(*model_inputs(lerobot, observation), actions, noise, time).mean()
 
+    def entry_weights(self, observation: Any, actions: Tensor) -> Tensor:
+        """Which entries of the padded chunks the policy's own loss weighs: every one by default."""
+        return torch.ones_like(actions)
+
     def lerobot_chunk(self, lerobot: nn.Module, observation: Any, noise: Tensor) -> Tensor:
         """LeRobot's action API's chunk from ``noise`` (drawn by :meth:`noise_like` with seed 0)."""
         return lerobot.predict_action_chunk(observation, noise=noise)
@@ -139,7 +143,8 @@ class LeRobotAdapterContract(FlowPolicyContract):
         # consistency target: two LeRobot Euler steps from x_1 land on x_1 - target
         target = noise[2:] - self.lerobot_own_sample(lerobot, sc_rows, noise[2:], 2)
         jump = policy.velocity(noise[2:], torch.ones(2), torch.zeros(2), policy.encode(sc_rows))
-        sc = (jump - target).pow(2).mean()
+        weights = self.entry_weights(observation, actions)[2:]  # each row's mean over the entries its loss weighs
+        sc = ((jump - target).pow(2) * weights).flatten(1).sum(1).div(weights.flatten(1).sum(1)).mean()
         assert torch.allclose(output.flow_matching_loss, fm, atol=1e-5)
         assert torch.allclose(output.consistency_loss, sc, atol=1e-5)
         assert torch.allclose(output.loss, 0.5 * fm + 0.5 * 0.1 * sc, atol=1e-5)

@@ -81,11 +81,18 @@ class TestGrootAdapter(LeRobotAdapterContract):
     def lerobot_own_flow_matching_loss(
         self, lerobot: nn.Module, observation: Any, actions: Tensor, noise: Tensor, time: Tensor
     ) -> Tensor:
-        own_time = (1 - time)[:, None, None]  # GR00T's path and bucket; its squared error over every entry
+        own_time = (1 - time)[:, None, None]  # GR00T's path and bucket; its squared error over the masked entries
         x_t = (1 - own_time) * noise + own_time * actions
         bucket = (own_time[:, 0, 0] * 1000).long()
         prediction = self.own_prediction(lerobot, self.own_prefix(lerobot, observation), x_t, bucket)
-        return (prediction - (actions - noise)).pow(2).mean()
+        mask = observation["action_mask"]
+        return ((prediction - (actions - noise)).pow(2) * mask).sum() / (mask.sum() + 1e-6)
+
+    def entry_weights(self, observation: Any, actions: Tensor) -> Tensor:
+        """GR00T's ``action_mask``: its padded width (and steps past an episode's end) weigh nothing."""
+        mask = observation["action_mask"].expand_as(actions)
+        assert 0 < mask.sum() < mask.numel(), "the tiny GR00T's chunks hold padding"
+        return mask
 
     def lerobot_chunk(self, lerobot: nn.Module, observation: Any, noise: Tensor) -> Tensor:
         """The padded chunk GR00T's action API samples (it draws its own noise after the prefix), checked against the

@@ -6,6 +6,10 @@ F(x_t, s=t, t) on eps - a, which is also what the one-step targets are built fro
 gradient, and one gradient pass covers both kinds of rows:
 
     L = alpha * L_FM + (1 - alpha) * lambda * mean_rows(w * || F(x, t, s) - target ||^2).
+
+A policy whose chunks hold padding (:class:`snapflow.protocol.PaddedActions`) has both means taken over the
+entries it weighs only: L_FM over all the FM rows' weighted entries (as GR00T's own loss), each one-step row's
+error over its own.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ from torch import Tensor
 from snapflow.errors import InvalidInputError
 from snapflow.flow.path import conditional_velocity, interpolate
 from snapflow.flow.time_sampling import TimeSampler
-from snapflow.protocol import Context, FlowPolicy, index_batch
+from snapflow.protocol import Context, FlowPolicy, PaddedActions, index_batch
 
 
 def draw_device(generator: torch.Generator | None, device: torch.device) -> torch.device:
@@ -33,6 +37,24 @@ def draw_device(generator: torch.Generator | None, device: torch.device) -> torc
 def uniform(count: int, generator: torch.Generator | None, like: Tensor) -> Tensor:
     """``count`` draws from U(0, 1) with the device and dtype of ``like``, reproducible from ``generator``."""
     return torch.rand(count, generator=generator, device=draw_device(generator, like.device)).to(like)
+
+
+def weighted_mean(squared: Tensor, weights: Tensor | None) -> Tensor:
+    """The mean of ``squared`` over the entries ``weights`` (same shape) weighs; a plain mean where None."""
+    if weights is None:
+        return squared.mean()
+    return (weights * squared).sum() / weights.sum().clamp_min(WEIGHT_FLOOR)
+
+
+def row_means(squared: Tensor, weights: Tensor | None) -> Tensor:
+    """Each row's :func:`weighted_mean` of ``squared`` (B, ...): (B,); a row that weighs no entry has 0."""
+    if weights is None:
+        return squared.flatten(1).mean(1)
+    weights = weights.flatten(1)
+    return (weights * squared.flatten(1)).sum(1) / weights.sum(1).clamp_min(WEIGHT_FLOOR)
+
+
+WEIGHT_FLOOR = 1e-12  # a denominator's floor: a chunk that weighs nothing has a zero numerator too
 
 
 @dataclass(frozen=True)
@@ -144,6 +166,9 @@ class TwoBranchObjective(ABC):
         elif time.shape != (n_fm,):
             raise ValueError(f"time must have shape ({n_fm},) for the FM samples, got {tuple(time.shape)}")
         fm_rows, sc_rows = slice(0, n_fm), slice(n_fm, batch)
+        weights = policy.action_weights(observation) if isinstance(policy, PaddedActions) else None
+        if weights is not None:
+            weights = weights.to(actions.dtype).expand_as(actions)
 
         context = policy.encode(observation)
         x_in, t_in, s_in = (
@@ -172,10 +197,11 @@ class TwoBranchObjective(ABC):
         zero = prediction.new_zeros(())
         fm_loss = zero
         if n_fm:
-            fm_loss = (prediction[fm_rows] - conditional_velocity(actions[fm_rows], noise[fm_rows])).pow(2).mean()
+            squared = (prediction[fm_rows] - conditional_velocity(actions[fm_rows], noise[fm_rows])).pow(2)
+            fm_loss = weighted_mean(squared, None if weights is None else weights[fm_rows])
         sc_loss = zero
         if rows is not None:
-            error = (prediction[sc_rows] - rows.target).pow(2).flatten(1).mean(1)
+            error = row_means((prediction[sc_rows] - rows.target).pow(2), None if weights is None else weights[sc_rows])
             weighted = error if rows.weight is None else rows.weight * error
             if rows.adaptive_power:
                 weighted = weighted / (error.detach() + ADAPTIVE_EPSILON) ** rows.adaptive_power
@@ -184,4 +210,4 @@ class TwoBranchObjective(ABC):
         return LossOutput(loss, fm_loss.detach(), sc_loss.detach(), n_fm, n_sc)
 
 
-__all__ = ["LossOutput", "OneStepRows", "TwoBranchObjective", "draw_device", "uniform"]
+__all__ = ["LossOutput", "OneStepRows", "TwoBranchObjective", "draw_device", "row_means", "uniform", "weighted_mean"]

@@ -129,9 +129,13 @@ class GrootFlowPolicy(LeRobotFlowPolicy):
 
     def action_targets(self, batch: dict[str, Tensor]) -> Tensor:
         """The pre-processor's padded chunk, zero where its ``action_mask`` is zero (the padded width, steps past an
-        episode's end). GR00T's loss weighs those entries out; snapflow's objective weighs every entry, so there it
-        trains the padding's velocity towards the straight path to zero, which GR00T leaves free."""
+        episode's end)."""
         return batch[ACTION] * batch["action_mask"].to(batch[ACTION].dtype)
+
+    def action_weights(self, batch: dict[str, Tensor]) -> Tensor:
+        """The pre-processor's ``action_mask``: GR00T's loss weighs the padding out, and so does the objective
+        (:class:`snapflow.protocol.PaddedActions`), so the padding's velocity stays as free as GR00T leaves it."""
+        return batch["action_mask"]
 
     @classmethod
     def training_time_sampler(cls, config: Any) -> BetaTimeSampler:
