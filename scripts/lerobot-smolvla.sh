@@ -12,8 +12,9 @@
 #   BENCH=libero bash scripts/lerobot-smolvla.sh [OUTPUT]
 #   DATA=DIR ...                                          # demonstrations already collected with the same settings
 #                                                         # (a sweep's data folder): written as the dataset, not collected
-#   SHORT=1 bash scripts/lerobot-smolvla.sh OUTPUT        # one or two tasks, a tiny SmolVLA, a few steps, episodes
-#                                                         # cut at 10 steps: the chain only
+#   SHORT=1 bash scripts/lerobot-smolvla.sh OUTPUT        # one or two tasks (one or two demonstrations each), a
+#                                                         # tiny SmolVLA, a few steps, episodes cut at 10 steps:
+#                                                         # the chain only
 #   THREADS=1 ...                                         # torch threads, where other jobs share the cores
 #   KEEP=DIR ...                                          # keep the teacher's and the student's latest checkpoints
 #                                                         # in DIR/teacher and DIR/student (to commit): another
@@ -32,13 +33,13 @@ out="${1:-outputs/lerobot-smolvla-$bench}"
 options=(${THREADS:+--threads "$THREADS"})
 [ -t 2 ] || options+=(--no-progress)
 case "$bench" in
-    mt10) env=metaworld tasks=mt10 short_tasks=reach-v3,button-press-topdown-v3 ;;
-    libero) env=libero tasks=libero_spatial short_tasks=libero_spatial_0 ;;
+    mt10) env=metaworld tasks=mt10 short_tasks=reach-v3,button-press-topdown-v3 short_demos=2 ;;
+    libero) env=libero tasks=libero_spatial short_tasks=libero_spatial_0 short_demos=1 ;;  # ~140 steps a demonstration
     *) echo "BENCH must be mt10 or libero, got $bench" >&2; exit 2 ;;
 esac
 collect=() max_steps=
 if [ "${SHORT:-0}" = 1 ]; then
-    tasks=$short_tasks demos=2 image=32 seen=32 size=tiny max_steps=10
+    tasks=$short_tasks demos=$short_demos image=32 seen=32 size=tiny max_steps=10
     teacher=(--steps 4 --batch-size 4 --checkpoint-every 2) student=(--steps 2 --batch-size 4) episodes=1
 elif [ "$bench" = libero ] && [ "${DART:-0}" = 1 ]; then
     # DART demonstrations (as libero-spatial-dart.toml's, with the wrist camera too), four times the budget

@@ -3,11 +3,11 @@ snapflow benchmark's episodes (LIBERO's fixed initial states, Meta-World's evalu
 and the round trip of every chunk timed, as a robot would meet the server.
 
     python scripts/serve_closed_loop.py --policy STUDENT --env libero --tasks libero_spatial --episodes 2 \\
-        --output OUTPUT [--mode snapflow-1] [--n-action-steps 4] [--first-variation 0]
+        --output OUTPUT [--mode snapflow-1] [--n-action-steps 4] [--first-variation 0] [--max-episode-steps N]
 
 It starts ``snapflow serve`` on the loopback as a command (LeRobot's latency floor off: each chunk comes back when it
 is ready), sends the policy instructions, then for each episode resets the environment on its variation and, until
-success or the task's step limit, sends the observation as LeRobot's robot client does (joint-like state entries,
+success or the task's step limit (or ``--max-episode-steps``, a quick check's cut), sends the observation as LeRobot's robot client does (joint-like state entries,
 HWC uint8 frames, the instruction), takes the chunk's first ``--n-action-steps`` actions back (read through snapflow's
 allow-list unpickler) and executes them. The policy folder is served from a copy whose config names ``--mode``.
 Writes ``OUTPUT/episodes.jsonl`` (one line an episode, as it ends), ``summary.json`` and ``summary.md``. Needs
@@ -94,8 +94,11 @@ def start_server(port: int, folder: Path) -> subprocess.Popen:
     return process
 
 
-def run_episode(stub, environment, variation: int, cameras: list[str], state_dim: int, start_step: int) -> dict:
-    """One episode in closed loop through the server; its success, steps and each chunk's round trip (ms)."""
+def run_episode(
+    stub, environment, variation: int, cameras: list[str], state_dim: int, start_step: int, limit: int | None
+) -> dict:
+    """One episode in closed loop through the server, ended at success, the task's limit or after ``limit`` steps;
+    its success, steps and each chunk's round trip (ms)."""
     from lerobot.async_inference.helpers import TimedObservation
     from lerobot.transport import services_pb2
     from lerobot.transport.utils import send_bytes_in_chunks
@@ -123,6 +126,7 @@ def run_episode(stub, environment, variation: int, cameras: list[str], state_dim
             last = index == len(chunk) - 1
             observation, success, done = environment.step(action.get_action().numpy(), render=last)
             timestep += 1
+            done = done or environment.steps == limit
             if success or done:
                 break
     return {"success": bool(success), "steps": environment.steps, "round_trip_ms": round_trips, "timestep": timestep}
@@ -137,8 +141,11 @@ def main() -> None:
     parser.add_argument("--first-variation", type=int, default=0)
     parser.add_argument("--mode", default="snapflow-1", help="the sampling mode the server runs")
     parser.add_argument("--n-action-steps", type=int, default=4, help="actions executed per chunk")
+    parser.add_argument("--max-episode-steps", type=int, default=None, help="end each episode there (a quick check)")
     parser.add_argument("--output", type=Path, required=True)
     args = parser.parse_args()
+    if args.max_episode_steps is not None and args.max_episode_steps < 1:
+        parser.error(f"--max-episode-steps must be at least 1, got {args.max_episode_steps}")
 
     import grpc
     from lerobot.async_inference.helpers import RemotePolicyConfig
@@ -167,7 +174,9 @@ def main() -> None:
                     environment = benchmark.make_env(task, "eval", side, cameras[1:])
                     try:
                         for variation in range(args.first_variation, args.first_variation + args.episodes):
-                            episode = run_episode(stub, environment, variation, cameras, state_dim, timestep)
+                            episode = run_episode(
+                                stub, environment, variation, cameras, state_dim, timestep, args.max_episode_steps
+                            )
                             timestep = episode.pop("timestep")
                             episodes.append({"task": task, "variation": variation, **episode})
                             with log.open("a") as lines:
@@ -191,6 +200,7 @@ def main() -> None:
         "episodes_per_task": args.episodes,
         "first_variation": args.first_variation,
         "n_action_steps": args.n_action_steps,
+        "max_episode_steps": args.max_episode_steps,
         "episodes": len(episodes),
         "successes": successes,
         "success_rate": successes / len(episodes),

@@ -29,10 +29,10 @@ MAX_STEPS = 10  # and the steps its episodes are cut at
 
 # ~150 s on two busy cores, paid once for the module's tests: the LIBERO guide's whole LeRobot chain on LIBERO, whose
 # environments alone take 4-9 s to make and ~20 ms a step; its parts (collection, dataset, training, both evaluators)
-# are each at their smallest (two demonstrations, four training steps, one episode a row cut at MAX_STEPS).
+# are each at their smallest (one demonstration, four training steps, one episode a row cut at MAX_STEPS).
 @pytest.fixture(scope="module")
 def collected(tmp_path_factory):
-    """The short chain on one LIBERO-Spatial task: two demonstrations with 32-pixel images from both cameras as npz
+    """The short chain on one LIBERO-Spatial task: one demonstration with 32-pixel images from both cameras as npz
     and as a LeRobotDataset, a tiny SmolVLA teacher, its student, one episode of each row in snapflow's evaluator and
     one of the student in LeRobot's LIBERO environment, from LIBERO's first initial state."""
     return run_short_lerobot_chain(tmp_path_factory.mktemp("libero"), "libero")
@@ -47,7 +47,7 @@ def test_lerobot_reads_back_both_cameras_state_and_actions(collected):
     assert demonstrations.states.shape[1] == 8 and demonstrations.actions.shape[1] == 7
     assert set(demonstrations.extra_images) == {"image2"}
     dataset = LeRobotDataset("local/lerobot", root=collected / "lerobot")
-    assert dataset.num_episodes == len(demonstrations.episodes) == 2
+    assert dataset.num_episodes == len(demonstrations.episodes) == 1
     assert dataset.num_frames == len(demonstrations.states)
     assert dataset.fps == 20
     last = len(demonstrations.states) - 1
