@@ -154,3 +154,24 @@ def test_the_repository_manifest_names_blobs_its_history_holds() -> None:
     assert json.loads((REPOSITORY / MANIFEST).read_text())["files"] == sorted(
         json.loads((REPOSITORY / MANIFEST).read_text())["files"], key=lambda entry: entry["path"]
     )
+
+
+def test_kept_progress_that_moved_on_leaves_the_manifest_and_history_keeps_it(repository: Path) -> None:
+    """A run's kept progress moves to a later checkpoint folder (the trainer removes the earlier one): the next
+    archive names the new weights and drops the old folder's, whose commit still holds them."""
+    import shutil
+
+    assert snapflow(repository, "checkpoints", "archive").returncode == 0
+    (first,) = read_manifest(repository)
+    later = CHECKPOINT.replace("step_0000010", "step_0000020")
+    shutil.rmtree(repository / CHECKPOINT)
+    (repository / later).mkdir()
+    (repository / later / "policy.safetensors").write_bytes(os.urandom(1024))
+    (repository / later / "policy.json").write_text("{}\n")
+
+    result = snapflow(repository, "checkpoints", "archive", "-m", "Teacher at step 20")
+    assert result.returncode == 0, result.stderr
+    assert f"dropped from {MANIFEST}, their folders gone (their weights stay in history): {first.path}" in result.stdout
+    (entry,) = read_manifest(repository)
+    assert entry.path == f"{later}/policy.safetensors"
+    assert git(repository, "rev-parse", f"{first.commit}:{first.path}").strip() == first.blob

@@ -53,8 +53,11 @@ def run(args: argparse.Namespace) -> int:
         if not paths:
             print(f"nothing to archive: every {ARCHIVED_GLOB} under {ARCHIVED_ROOT}/ is in {MANIFEST}")
             return 0
-        added, removed = archive(root, paths, args.message)
-        print(f"archived {len(paths)} file(s) in commit {added[:12]}; out of the tree in {removed[:12]}")
+        done = archive(root, paths, args.message)
+        print(f"archived {len(paths)} file(s) in commit {done.added[:12]}; out of the tree in {done.removed[:12]}")
+        if done.superseded:
+            gone = ", ".join(done.superseded)
+            print(f"dropped from {MANIFEST}, their folders gone (their weights stay in history): {gone}")
         return 0
     entries = select(read_manifest(root), args.paths)
     if args.action == "list":

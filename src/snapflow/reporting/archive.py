@@ -130,10 +130,24 @@ def pending(root: Path) -> list[str]:
     return [path for path in paths if path not in known or not is_present(root, known[path])]
 
 
-def archive(root: Path, paths: Sequence[str], message: str) -> tuple[str, str]:
+@dataclass(frozen=True)
+class Archived:
+    """What :func:`archive` did: the commit holding the files, the one taking them out of the tree, and the manifest
+    entries it dropped as superseded."""
+
+    added: str
+    removed: str
+    superseded: tuple[str, ...]
+
+
+def archive(root: Path, paths: Sequence[str], message: str) -> Archived:
     """Commit ``paths`` (files under ``root``) into the current branch, then a second commit that removes them from
     the tree and names that first commit in the manifest; the files stay on disk. Neither commit touches the index
-    or any other change in the working tree (each is built on a temporary index). The two commits' ids."""
+    or any other change in the working tree (each is built on a temporary index).
+
+    An entry whose folder the working tree no longer holds is dropped from the manifest as superseded: a run's kept
+    progress moved on to a later checkpoint folder (every kept folder holds small tracked files beside its weights,
+    so a fresh clone has each folder the manifest names). Its weights stay in history at the commit it named."""
     if not paths:
         raise ArchiveError("nothing to archive")
     blobs = {path: _git(root, "hash-object", "-w", "--", path).decode().strip() for path in paths}
@@ -144,6 +158,9 @@ def archive(root: Path, paths: Sequence[str], message: str) -> tuple[str, str]:
         listing = "".join(f"  {path}\n" for path in paths)
         added = _commit(root, head, f"{message}\n\nInto history, out of the tree in the next commit:\n{listing}", blobs)
     entries = {entry.path: entry for entry in read_manifest(root)}
+    superseded = tuple(path for path in entries if not (root / path).parent.is_dir())
+    for path in superseded:
+        del entries[path]
     for path, blob in blobs.items():
         entries[path] = ArchivedFile(path, added, blob, (root / path).stat().st_size)
     write_manifest(root, entries.values())
@@ -158,7 +175,7 @@ def archive(root: Path, paths: Sequence[str], message: str) -> tuple[str, str]:
     _git(root, "update-ref", "-m", "snapflow checkpoints archive", "HEAD", removed, head)  # fails if HEAD moved
     _git(root, "add", "--", str(MANIFEST))  # the index now agrees with the new HEAD on the manifest
     _git(root, "rm", "-q", "--cached", "--ignore-unmatch", "--", *paths)  # and no longer tracks the files
-    return added, removed
+    return Archived(added, removed, superseded)
 
 
 def archived_hint(path: str | Path) -> str:
@@ -214,6 +231,7 @@ def _git(root: Path, *arguments: str, environment: dict[str, str] | None = None)
 
 
 __all__ = [
+    "Archived",
     "MANIFEST",
     "ARCHIVED_ROOT",
     "ARCHIVED_GLOB",
