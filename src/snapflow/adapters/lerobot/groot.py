@@ -134,8 +134,11 @@ class GrootFlowPolicy(LeRobotFlowPolicy):
 
     def action_weights(self, batch: dict[str, Tensor]) -> Tensor:
         """The pre-processor's ``action_mask``: GR00T's loss weighs the padding out, and so does the objective
-        (:class:`snapflow.protocol.PaddedActions`), so the padding's velocity stays as free as GR00T leaves it."""
-        return batch["action_mask"]
+        (:class:`snapflow.protocol.PaddedActions`), so the padding's velocity stays as free as GR00T leaves it. A
+        batch without actions carries the checkpoint processor's mask of the horizon alone (B, horizon): every width
+        of a step it keeps."""
+        mask = batch["action_mask"]
+        return mask if mask.ndim == 3 else mask[..., None]
 
     @classmethod
     def training_time_sampler(cls, config: Any) -> BetaTimeSampler:
