@@ -7,9 +7,9 @@ and the round trip of every chunk timed, as a robot would meet the server.
 
 It starts ``snapflow serve`` on the loopback as a command (LeRobot's latency floor off: each chunk comes back when it
 is ready), sends the policy instructions, then for each episode resets the environment on its variation and, until
-success or the task's step limit (or ``--max-episode-steps``, a quick check's cut), sends the observation as LeRobot's robot client does (joint-like state entries,
-HWC uint8 frames, the instruction), takes the chunk's first ``--n-action-steps`` actions back (read through snapflow's
-allow-list unpickler) and executes them. The policy folder is served from a copy whose config names ``--mode``.
+success or the task's step limit (or ``--max-episode-steps``, a quick check's cut), sends the observation as LeRobot's
+robot client does (joint-like state entries, HWC uint8 frames, the instruction), takes the chunk's first
+``--n-action-steps`` actions back (read through snapflow's allow-list unpickler) and executes them. The policy folder is served from a copy whose config names ``--mode``.
 Writes ``OUTPUT/episodes.jsonl`` (one line an episode, as it ends), ``summary.json`` and ``summary.md``. Needs
 lerobot >= 0.5 (``snapflow serve``).
 """
