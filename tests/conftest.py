@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import atexit
+import collections
 import os
 import shutil
 import tempfile
@@ -31,11 +32,36 @@ from tests.helpers import ACTION_DIM, CHUNK, OBSERVATION_DIM, make_model, random
 ADAPTER_TESTS = Path(__file__).parent / "adapters"
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """Under ``--dist loadscope`` the workers take the modules (and classes) in collection order, heaviest first
+    (:class:`HeaviestFirst`): pytest-xdist's own order, most tests first, put the heaviest last (a tutorial session
+    or a tiny sweep is one test of minutes), and one worker ran them while the other had nothing left."""
+    if hasattr(config.option, "loadscopereorder"):  # pytest-xdist's option; absent under -p no:xdist
+        config.option.loadscopereorder = False
+    config.pluginmanager.register(HeaviestFirst(), "snapflow-heaviest-first")
+
+
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Marks every test under tests/adapters `lerobot` (they all run LeRobot), so `-m lerobot` selects them."""
     for item in items:
         if ADAPTER_TESTS in item.path.parents:
             item.add_marker(pytest.mark.lerobot)
+
+
+class HeaviestFirst:
+    """Collects the modules that hold slow tests first, those of fewest selected tests first: longest first is what
+    balances two workers, and a slow module of one or two tests is one whole chain (a tutorial session, a sweep),
+    minutes long; the fast modules then fill in around the slow ones' ends. Each module keeps its own order."""
+
+    @pytest.hookimpl(trylast=True)  # after `-m` has deselected: the sizes are of what runs
+    def pytest_collection_modifyitems(self, items: list[pytest.Item]) -> None:
+        sizes = collections.Counter(item.path for item in items)
+        slow_modules = {item.path for item in items if item.get_closest_marker("slow")}
+
+        def heaviest_first(item: pytest.Item) -> tuple[bool, int]:
+            return (False, sizes[item.path]) if item.path in slow_modules else (True, 0)
+
+        items.sort(key=heaviest_first)  # a stable sort: each module stays contiguous
 
 
 @pytest.fixture
