@@ -65,7 +65,9 @@ def build_tiny_smolvla(
     state_dim: int = 6,
     image_key: str = "observation.images.top",
     image_size: int = IMAGE_SIZE,
+    action_dim: int = 4,
 ):
+    """A random LeRobot SmolVLAPolicy at tiny size; ``action_dim`` below ``max_action_dim`` (4) pads its chunks."""
     from lerobot.configs.types import FeatureType, PolicyFeature
     from lerobot.policies.smolvla.configuration_smolvla import SmolVLAConfig
     from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
@@ -82,7 +84,7 @@ def build_tiny_smolvla(
             "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(state_dim,)),
             image_key: PolicyFeature(type=FeatureType.VISUAL, shape=(3, image_size, image_size)),
         },
-        output_features={"action": PolicyFeature(type=FeatureType.ACTION, shape=(4,))},
+        output_features={"action": PolicyFeature(type=FeatureType.ACTION, shape=(action_dim,))},
     )
     return SmolVLAPolicy(config)
 
@@ -140,9 +142,11 @@ def build_tiny_pi(
     state_dim: int = 6,
     image_key: str = "observation.images.top",
     image_size: int = PI_IMAGE_SIZE,
+    action_dim: int = 4,
 ):
     """A random LeRobot PI0Policy ("pi0") or PI05Policy ("pi05") at tiny size (about 40M parameters, nearly all
-    in the 257k-token embedding tables); its camera's frames of ``image_size`` are resized to 28 px inside."""
+    in the 257k-token embedding tables); its camera's frames of ``image_size`` are resized to 28 px inside, and an
+    ``action_dim`` below ``max_action_dim`` (4) pads its chunks."""
     from lerobot.configs.types import FeatureType, PolicyFeature
     from lerobot.policies.factory import get_policy_class, make_policy_config
 
@@ -156,7 +160,7 @@ def build_tiny_pi(
             "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(state_dim,)),
             image_key: PolicyFeature(type=FeatureType.VISUAL, shape=(3, image_size, image_size)),
         },
-        output_features={"action": PolicyFeature(type=FeatureType.ACTION, shape=(4,))},
+        output_features={"action": PolicyFeature(type=FeatureType.ACTION, shape=(action_dim,))},
     )
     with tiny_pi_configs(policy_type):
         policy = get_policy_class(policy_type)(config)

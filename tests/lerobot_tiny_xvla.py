@@ -18,10 +18,12 @@ def build_tiny_xvla(
     image_key: str = "observation.images.top",
     image_size: int = IMAGE_SIZE,
     tokenizer: str | None = None,
+    action_dim: int = 4,
 ):
     """A random LeRobot XVLAPolicy at tiny size (about 160k parameters): a two-stage-wide DaViT and a one-layer
-    BART encoder as its Florence-2, a two-block soft-prompted transformer, X-VLA's ``auto`` action space;
-    ``tokenizer`` names a local tokenizer folder for its processors (X-VLA's default is a hub id)."""
+    BART encoder as its Florence-2, a two-block soft-prompted transformer, X-VLA's ``auto`` action space (an
+    ``action_dim`` below ``max_action_dim``, 4, pads its chunks); ``tokenizer`` names a local tokenizer folder for its
+    processors (X-VLA's default is a hub id)."""
     from lerobot.configs.types import FeatureType, PolicyFeature
     from lerobot.policies.xvla.configuration_xvla import XVLAConfig
     from lerobot.policies.xvla.modeling_xvla import XVLAPolicy
@@ -52,6 +54,7 @@ def build_tiny_xvla(
         ),
     }
     sizes = {**TINY_POLICY_SIZES, **({"tokenizer_name": tokenizer} if tokenizer else {})}
+    sizes["max_action_dim"] = max(sizes["max_action_dim"], action_dim)  # auto's width holds the dataset's
     torch.manual_seed(seed)
     config = XVLAConfig(
         florence_config=florence,
@@ -67,7 +70,7 @@ def build_tiny_xvla(
             "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(state_dim,)),
             image_key: PolicyFeature(type=FeatureType.VISUAL, shape=(3, image_size, image_size)),
         },
-        output_features={"action": PolicyFeature(type=FeatureType.ACTION, shape=(4,))},
+        output_features={"action": PolicyFeature(type=FeatureType.ACTION, shape=(action_dim,))},
     )
     return without_dropout(XVLAPolicy(config))
 
@@ -87,16 +90,21 @@ def save_tiny_xvla_student(
     state_dim: int = 6,
     image_key: str = "observation.images.top",
     image_size: int = IMAGE_SIZE,
+    action_dim: int = 4,
 ) -> Path:
-    """A distilled tiny X-VLA (phi_s non-zero; by default a 6-D state and one ``observation.images.top``) saved by
-    snapflow with its processors, which tokenize with the tiny SmolVLM's word-level tokenizer (ids under
-    :data:`XVLA_VOCABULARY`)."""
+    """A distilled tiny X-VLA (phi_s non-zero; by default a 6-D state, one ``observation.images.top`` and 4-D
+    actions) saved by snapflow with its processors, which tokenize with the tiny SmolVLM's word-level tokenizer (ids
+    under :data:`XVLA_VOCABULARY`)."""
     from lerobot.policies.factory import make_pre_post_processors
 
     from snapflow.adapters.lerobot import save_distilled, wrap_policy
 
     policy = build_tiny_xvla(
-        state_dim=state_dim, image_key=image_key, image_size=image_size, tokenizer=str(vlm_directory)
+        state_dim=state_dim,
+        image_key=image_key,
+        image_size=image_size,
+        tokenizer=str(vlm_directory),
+        action_dim=action_dim,
     )
     save_distilled(randomise_target_time(wrap_policy(policy)), directory)
     for processor in make_pre_post_processors(policy.config, dataset_stats=None):

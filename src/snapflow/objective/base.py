@@ -168,7 +168,7 @@ class TwoBranchObjective(ABC):
         fm_rows, sc_rows = slice(0, n_fm), slice(n_fm, batch)
         weights = policy.action_weights(observation) if isinstance(policy, PaddedActions) else None
         if weights is not None:
-            weights = weights.to(actions.dtype).expand_as(actions)
+            weights = weights.to(actions).expand_as(actions)
 
         context = policy.encode(observation)
         x_in, t_in, s_in = (

@@ -166,6 +166,23 @@ class LeRobotFlowPolicy(nn.Module, ABC):
         """The batch's action chunk as the policy's training forward pads it."""
         return self.policy.prepare_action(batch)
 
+    def loss_cuts_padded_width(self) -> bool:
+        """Whether the policy's own loss leaves out the chunk's padded action width (pi0's and pi0.5's training
+        forward cuts its losses to the dataset's action width)."""
+        return True
+
+    def action_weights(self, batch: dict[str, Tensor]) -> Tensor | None:
+        """1 on the dataset's action width and 0 on the padding past it, where the policy's own loss cuts that
+        padding off (:meth:`loss_cuts_padded_width`), so the objective weighs what the teacher was trained on
+        (:class:`snapflow.protocol.PaddedActions`); None where the chunk is no wider than the actions (a policy
+        trained from scratch here pads to its own width) or the policy's loss weighs its padding too."""
+        width = self.action_shape[1]
+        actions = self.policy.config.action_feature.shape[0]
+        if actions >= width or not self.loss_cuts_padded_width():
+            return None
+        device = next(self.policy.parameters()).device
+        return torch.arange(width, device=device) < actions
+
     @classmethod
     def training_time_sampler(cls, config: Any) -> BetaTimeSampler:
         """The flow-matching times a policy of ``config`` trains on, read from its config where LeRobot keeps

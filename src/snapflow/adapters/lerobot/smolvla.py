@@ -102,6 +102,14 @@ class SmolVLAFlowPolicy(PrefixCacheFlowPolicy):
             model.action_time_mlp_out,
         ]
 
+    def loss_cuts_padded_width(self) -> bool:
+        """From LeRobot 0.5.1 on; before, SmolVLA's loss weighed the whole padded width (it cut at ``max_action_dim``)."""
+        from importlib.metadata import version
+
+        from packaging.version import Version
+
+        return Version(version("lerobot")) >= Version("0.5.1")
+
     def model_inputs(self, batch: dict[str, Tensor]) -> tuple[Any, ...]:
         images, image_masks = self.policy.prepare_images(batch)
         return (

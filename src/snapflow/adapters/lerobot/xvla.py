@@ -187,6 +187,10 @@ class XVLAFlowPolicy(LeRobotFlowPolicy):
     def action_targets(self, batch: dict[str, Tensor]) -> Tensor:
         return self.policy._prepare_action_targets(batch)
 
+    def loss_cuts_padded_width(self) -> bool:
+        """``auto``'s loss is on the dataset's width alone; a named space's chunk is its own width, no padding."""
+        return self.policy.config.action_mode.lower() == "auto"
+
     @classmethod
     def training_time_sampler(cls, config: Any) -> BetaTimeSampler:
         """Uniform times, as X-VLA trains, from :data:`XVLA_MIN_TIME` up."""
