@@ -67,7 +67,7 @@ def evaluate_in_lerobot_env(
     LeRobot's rollout reaches through the adapter's sampling.
     """
     os.environ.setdefault("MUJOCO_GL", "egl")  # Meta-World and ALOHA render off-screen
-    from lerobot.envs.factory import make_env, make_env_pre_post_processors
+    from lerobot.envs.factory import make_env
     from lerobot.envs.utils import close_envs
     from lerobot.scripts.lerobot_eval import eval_policy_all
 
@@ -91,7 +91,7 @@ def evaluate_in_lerobot_env(
     cameras = [feature.shape[-1] for feature in policy.config.image_features.values()]
     env_config = make_lerobot_env_config(env_type, task, cameras[0] if cameras else None)
     preprocessor, postprocessor = saved_processors(policy.config, policy_directory, device)
-    env_preprocessor, env_postprocessor = make_env_pre_post_processors(env_config, policy.config)
+    env_preprocessor, env_postprocessor = adapter.env_processors(env_config, policy.config)
     with packaged_initial_states() if env_type == "libero" else nullcontext():
         try:
             environments = make_env(env_config, n_envs=n_envs)

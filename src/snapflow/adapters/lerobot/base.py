@@ -184,6 +184,14 @@ class LeRobotFlowPolicy(nn.Module, ABC):
         return torch.arange(width, device=device) < actions
 
     @classmethod
+    def env_processors(cls, env_config: Any, config: Any) -> tuple[Any, Any]:
+        """The (pre, post) processors between LeRobot's environment of ``env_config`` and a policy of ``config`` in
+        LeRobot's rollout: LeRobot's own choice."""
+        from lerobot.envs.factory import make_env_pre_post_processors
+
+        return make_env_pre_post_processors(env_config, config)
+
+    @classmethod
     def training_time_sampler(cls, config: Any) -> BetaTimeSampler:
         """The flow-matching times a policy of ``config`` trains on, read from its config where LeRobot keeps
         them (pi0 / pi0.5: ``time_sampling_beta_alpha`` / ``_beta``); SmolVLA's code fixes Beta(1.5, 1). Every one

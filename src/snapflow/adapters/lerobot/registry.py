@@ -11,7 +11,7 @@ from torch import nn
 
 from snapflow._lazy import resolve
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
-from snapflow.adapters.lerobot_types import lerobot_policy_type
+from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES, lerobot_policy_type
 from snapflow.errors import InvalidInputError
 from snapflow.flow.time_sampling import BetaTimeSampler
 
@@ -44,10 +44,26 @@ def lerobot_chunk_shape(config: Any) -> tuple[int, int]:
     return adapter_class(base_policy_type(config)).chunk_shape(config)
 
 
+def lerobot_env_processors(env_config: Any, config: Any) -> tuple[Any, Any]:
+    """The (pre, post) processors between LeRobot's environment of ``env_config`` and a policy (or a student) of
+    ``config``, as its adapter chooses them; LeRobot's own choice for a type snapflow does not declare."""
+    policy_type = base_policy_type(config)
+    if policy_type not in LEROBOT_POLICY_TYPES:
+        return LeRobotFlowPolicy.env_processors(env_config, config)
+    return adapter_class(policy_type).env_processors(env_config, config)
+
+
 def wrap_policy(policy: nn.Module) -> LeRobotFlowPolicy:
     """The SnapFlow adapter for a LeRobot policy of a declared type (phi_s added at zero), or for a SnapFlow
     student of one (its phi_s kept)."""
     return adapter_class(base_policy_type(policy.config))(policy)
 
 
-__all__ = ["adapter_class", "base_policy_type", "lerobot_chunk_shape", "lerobot_time_sampler", "wrap_policy"]
+__all__ = [
+    "adapter_class",
+    "base_policy_type",
+    "lerobot_chunk_shape",
+    "lerobot_env_processors",
+    "lerobot_time_sampler",
+    "wrap_policy",
+]

@@ -30,6 +30,8 @@ from snapflow.nn.time_embedding import TargetTimeEmbedding
 #: the least flow-matching time distillation trains on: X-VLA weighs its clean-chunk error alike at every t, and the
 #: velocity's error is that error over t, so times near 0 would outweigh all others (1 / t^2: 400 at this bound)
 XVLA_MIN_TIME = 0.05
+#: the action width LeRobot's X-VLA LIBERO post-processor reads: position 3, 6-D rotation 6, gripper 1
+XVLA_LIBERO_ACTION_WIDTH = 10
 
 
 def _transformer_with_target_time(
@@ -190,6 +192,17 @@ class XVLAFlowPolicy(LeRobotFlowPolicy):
     def loss_cuts_padded_width(self) -> bool:
         """``auto``'s loss is on the dataset's width alone; a named space's chunk is its own width, no padding."""
         return self.policy.config.action_mode.lower() == "auto"
+
+    @classmethod
+    def env_processors(cls, env_config: Any, config: Any) -> tuple[Any, Any]:
+        """LeRobot hands every X-VLA the pipeline of its pretrained LIBERO checkpoint: ImageNet normalisation and a
+        domain id, then 10-D end-effector actions whose 6-D rotation becomes axis-angle. A policy of the dataset's
+        own narrower actions (LIBERO's 7-D, as one trained from scratch here) takes the environment's own
+        processors, as every other type: its own pre-processor normalises its images and sets its domain, which
+        LeRobot's pipeline would do twice (LeRobot issue #2955), and no rotation is there to convert."""
+        if config.action_feature.shape[0] >= XVLA_LIBERO_ACTION_WIDTH:
+            return super().env_processors(env_config, config)
+        return env_config.get_env_processors()
 
     @classmethod
     def training_time_sampler(cls, config: Any) -> BetaTimeSampler:
