@@ -147,3 +147,21 @@ class TestGrootAdapter(LeRobotAdapterContract):
         config.max_state_dim = 132
         with pytest.raises(InvalidInputError, match="pads to max_state_dim=132, but its checkpoint .* built for 8"):
             wrap_policy(GrootPolicy(config))
+
+
+def test_the_checkpoint_writer_runs_as_a_module_and_its_checkpoint_builds_a_groot(groot_checkpoint, tmp_path):
+    """``python -m snapflow.adapters.lerobot.groot_checkpoint DIR --size tiny``, as the LeRobot guide gives it for a
+    full-size one: its folder is what LeRobot's GrootPolicy builds from, and the same seed writes the same weights."""
+    import subprocess
+    import sys
+
+    from safetensors.torch import load_file
+
+    from tests.lerobot_tiny_groot import build_tiny_groot
+
+    command = [sys.executable, "-m", "snapflow.adapters.lerobot.groot_checkpoint", str(tmp_path), "--size", "tiny"]
+    written = Path(subprocess.run(command, check=True, capture_output=True, text=True).stdout.strip())
+    assert written == tmp_path / "gr00t_n1_7" and (tmp_path / "qwen3_vl" / "config.json").is_file()
+    assert build_tiny_groot(written).config.base_model_path == str(written)
+    ours, fixture = (load_file(folder / "model.safetensors") for folder in (written, groot_checkpoint))
+    assert ours.keys() == fixture.keys() and all(torch.equal(ours[name], fixture[name]) for name in ours)
