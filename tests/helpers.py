@@ -131,6 +131,22 @@ def run_tiny_lerobot_train(student: Path, data: Path, output: Path, steps: int, 
     return output / "checkpoints" / "last" / "pretrained_model"
 
 
+def run_in_policy_folder(folder: Path, command: list[str]) -> subprocess.CompletedProcess:
+    """A LeRobot command (``lerobot-eval`` and its arguments, say) run from inside the policy folder ``folder``, as a
+    user runs it with ``--policy.path=.``: off-screen rendering, no stdin; its stderr tail is the failure message."""
+    finished = subprocess.run(
+        command,
+        cwd=folder,
+        env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")},
+        capture_output=True,
+        text=True,
+        stdin=subprocess.DEVNULL,
+        timeout=900,
+    )
+    assert finished.returncode == 0, finished.stderr[-3000:]
+    return finished
+
+
 def free_loopback_port() -> int:
     """A port on the loopback that nothing listens on now, for a server a test starts."""
     with socket.socket() as probe:

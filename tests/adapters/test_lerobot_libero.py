@@ -7,8 +7,6 @@ on them and its student are evaluated by snapflow's evaluator and by LeRobot's L
 from __future__ import annotations
 
 import json
-import os
-import subprocess
 import sys
 from importlib.metadata import PackageNotFoundError, distribution
 from pathlib import Path
@@ -18,7 +16,7 @@ import pytest
 
 from snapflow.adapters.lerobot_types import lerobot_loads_plugins
 from snapflow.data.demonstrations import Demonstrations
-from tests.helpers import run_short_lerobot_chain
+from tests.helpers import run_in_policy_folder, run_short_lerobot_chain
 
 pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test command; this environment lacks it")
 pytest.importorskip("libero")
@@ -171,16 +169,7 @@ def test_lerobots_own_lerobot_eval_command_runs_the_student_as_the_readme_types_
     arguments += ["--env.task_ids=[0]", "--env.init_states=false", f"--env.episode_length={MAX_STEPS}"]
     arguments += [f"--env.observation_height={IMAGE_SIZE}", f"--env.observation_width={IMAGE_SIZE}"]
     arguments += ["--eval.n_episodes=1", "--eval.batch_size=1", f"--output_dir={tmp_path / 'eval'}"]
-    finished = subprocess.run(
-        [str(Path(sys.executable).with_name("lerobot-eval")), *arguments],
-        cwd=student,
-        env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")},
-        capture_output=True,
-        text=True,
-        stdin=subprocess.DEVNULL,
-        timeout=900,
-    )
-    assert finished.returncode == 0, finished.stderr[-3000:]
+    finished = run_in_policy_folder(student, [str(Path(sys.executable).with_name("lerobot-eval")), *arguments])
     assert "Imported third-party plugin: lerobot_policy_snapflow" in finished.stderr
     info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == 1 and 0 <= info["overall"]["pc_success"] <= 100

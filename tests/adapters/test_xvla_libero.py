@@ -6,12 +6,11 @@ of such a policy (LeRobot issue #2955); snapflow's adapter gives it the environm
 from __future__ import annotations
 
 import json
-import os
-import subprocess
 import sys
 
 import pytest
 
+from tests.helpers import run_in_policy_folder
 from tests.lerobot_tiny import PI_SKIP
 
 pytestmark = PI_SKIP
@@ -59,15 +58,6 @@ def test_lerobot_eval_runs_an_x_vla_student_of_liberos_7d_actions(vlm_directory,
     arguments += ["--env.task_ids=[0]", f"--env.episode_length={MAX_STEPS}"]
     arguments += [f"--env.observation_height={IMAGE_SIZE}", f"--env.observation_width={IMAGE_SIZE}"]
     arguments += ["--eval.n_episodes=1", "--eval.batch_size=1", f"--output_dir={tmp_path / 'eval'}"]
-    finished = subprocess.run(
-        [sys.executable, "-m", "snapflow.adapters.lerobot.libero", *arguments],
-        cwd=student,
-        env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")},
-        capture_output=True,
-        text=True,
-        stdin=subprocess.DEVNULL,
-        timeout=900,
-    )
-    assert finished.returncode == 0, finished.stderr[-3000:]
+    run_in_policy_folder(student, [sys.executable, "-m", "snapflow.adapters.lerobot.libero", *arguments])
     info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == 1 and 0 <= info["overall"]["pc_success"] <= 100
