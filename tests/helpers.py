@@ -79,33 +79,46 @@ class RecordingPolicy(nn.Module):
         return output
 
 
+def run_checked(
+    command: list[str], environment: dict[str, str], cwd: Path | None = None, timeout: float = 900
+) -> subprocess.CompletedProcess:
+    """``command`` as a subprocess with ``environment`` added to this one's, no stdin, its output captured; it must
+    exit 0, its stderr tail the failure message."""
+    finished = subprocess.run(
+        command,
+        cwd=cwd,
+        env={**os.environ, **environment},
+        capture_output=True,
+        text=True,
+        stdin=subprocess.DEVNULL,
+        timeout=timeout,
+    )
+    assert finished.returncode == 0, finished.stderr[-3000:]
+    return finished
+
+
 def run_short_lerobot_chain(folder: Path, bench: str) -> Path:
     """The LeRobot SmolVLA chain of the LeRobot guide (docs/guides/lerobot.md) in its short form (``SHORT=1 BENCH=<bench> scripts/lerobot-smolvla.sh``)
     into ``folder``, which it returns, keeping its checkpoints in ``folder/kept``; the chain's stderr tail is the
     failure message."""
-    finished = subprocess.run(
+    run_checked(
         ["bash", str(Path(__file__).resolve().parents[1] / "scripts" / "lerobot-smolvla.sh"), str(folder)],
         # the chain's python and snapflow are this interpreter's, whichever environment is first on PATH
-        env={
-            **os.environ,
+        {
             "SHORT": "1",
             "BENCH": bench,
             "KEEP": str(folder / "kept"),
             "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}",
         },
-        capture_output=True,
-        text=True,
-        stdin=subprocess.DEVNULL,
         timeout=1800,
     )
-    assert finished.returncode == 0, finished.stderr[-3000:]
     return folder
 
 
 def run_tiny_lerobot_train(student: Path, data: Path, output: Path, steps: int, batch_size: int, *flags: str) -> Path:
     """``lerobot-train`` itself, offline on the CPU, on the tiny dataset at ``data``; checks it ran SnapFlow's
     objective and returns its last checkpoint's policy folder."""
-    finished = subprocess.run(
+    finished = run_checked(
         [
             str(Path(sys.executable).with_name("lerobot-train")),
             f"--policy.path={student}",
@@ -121,30 +134,16 @@ def run_tiny_lerobot_train(student: Path, data: Path, output: Path, steps: int, 
             "--policy.push_to_hub=false",
             *flags,
         ],
-        env={**os.environ, "HF_HUB_OFFLINE": "1"},
-        capture_output=True,
-        text=True,
-        timeout=900,
+        {"HF_HUB_OFFLINE": "1"},
     )
-    assert finished.returncode == 0, finished.stderr[-3000:]
     assert "consistency_loss" in finished.stderr, "LeRobot logs the objective's parts"
     return output / "checkpoints" / "last" / "pretrained_model"
 
 
 def run_in_policy_folder(folder: Path, command: list[str]) -> subprocess.CompletedProcess:
     """A LeRobot command (``lerobot-eval`` and its arguments, say) run from inside the policy folder ``folder``, as a
-    user runs it with ``--policy.path=.``: off-screen rendering, no stdin; its stderr tail is the failure message."""
-    finished = subprocess.run(
-        command,
-        cwd=folder,
-        env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")},
-        capture_output=True,
-        text=True,
-        stdin=subprocess.DEVNULL,
-        timeout=900,
-    )
-    assert finished.returncode == 0, finished.stderr[-3000:]
-    return finished
+    user runs it with ``--policy.path=.``: off-screen rendering; its stderr tail is the failure message."""
+    return run_checked(command, {"MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}, cwd=folder)
 
 
 def free_loopback_port() -> int:

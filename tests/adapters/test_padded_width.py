@@ -57,7 +57,7 @@ def padded_batch(policy: nn.Module) -> tuple[dict[str, Tensor], Tensor]:
     return batch, actions
 
 
-def consistency_by_hand(policy: nn.Module, observation: dict, actions: Tensor, noise: Tensor, width: int) -> Tensor:
+def consistency_by_hand(policy: nn.Module, observation: dict, noise: Tensor, width: int) -> Tensor:
     """The one-step rows' loss over ``width`` columns: the jump from x_1 against two teacher Euler steps."""
     ones, halves = torch.ones(2), torch.full((2,), 0.5)
     with torch.no_grad():
@@ -85,10 +85,10 @@ def test_the_objective_weighs_the_action_width_the_policys_own_loss_weighs(polic
     with torch.no_grad():
         own = own_flow_matching_loss(policy.policy, first, noise[:2], time)
     torch.testing.assert_close(output.flow_matching_loss, own, atol=1e-5, rtol=1e-5)
-    sc = consistency_by_hand(policy, last, actions[2:], noise[2:], width)
+    sc = consistency_by_hand(policy, last, noise[2:], width)
     torch.testing.assert_close(output.consistency_loss, sc, atol=1e-5, rtol=1e-5)
     if width < actions.shape[-1]:  # the padding's error is not nothing: weighing it would have changed the loss
-        everything = consistency_by_hand(policy, last, actions[2:], noise[2:], actions.shape[-1])
+        everything = consistency_by_hand(policy, last, noise[2:], actions.shape[-1])
         assert not torch.allclose(everything, sc, atol=1e-4)
 
 
