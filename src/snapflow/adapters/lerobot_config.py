@@ -65,4 +65,13 @@ SMOLVLM_SIZES = {
 }
 
 
-__all__ = ["SmolVLMSize", "SMOLVLM_SIZES"]
+#: the video codecs a sweep may store its frames with (LeRobot's encoder names; AV1 is LeRobot's default and its
+#: smallest: a 64-px LIBERO frame ~0.2 KB, against ~6 KB as PNG)
+VIDEO_CODECS = ("libsvtav1", "h264", "hevc")
+
+# the decoder of a dataset's video frames in snapflow's training and in the lerobot-train it runs: PyAV brings its own
+# FFmpeg; torchcodec (LeRobot's first choice) needs the system's, and without it LeRobot falls back to PyAV only after
+# a traceback of a hundred lines in every process
+VIDEO_BACKEND = "pyav"
+
+__all__ = ["SmolVLMSize", "SMOLVLM_SIZES", "VIDEO_CODECS", "VIDEO_BACKEND"]

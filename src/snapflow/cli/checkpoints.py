@@ -8,7 +8,7 @@ from typing import Any
 
 from snapflow.cli.common import add_command
 from snapflow.reporting.archive import (
-    ARCHIVED_GLOB,
+    ARCHIVED_GLOBS,
     ARCHIVED_ROOT,
     MANIFEST,
     archive,
@@ -38,7 +38,7 @@ def add_parser(subparsers: Any) -> None:
     )
     archiving = actions.add_parser(
         "archive",
-        help=f"commit the {ARCHIVED_GLOB} files under {ARCHIVED_ROOT}/ not yet archived, then a commit that removes "
+        help=f"commit the {' and '.join(ARCHIVED_GLOBS)} files under {ARCHIVED_ROOT}/ not yet archived, then a commit that removes "
         "them from the tree and names the first in the manifest; the files stay on disk",
     )
     archiving.add_argument(
@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     if args.action == "archive":
         paths = pending(root)
         if not paths:
-            print(f"nothing to archive: every {ARCHIVED_GLOB} under {ARCHIVED_ROOT}/ is in {MANIFEST}")
+            print(f"nothing to archive: every {' and '.join(ARCHIVED_GLOBS)} under {ARCHIVED_ROOT}/ is in {MANIFEST}")
             return 0
         done = archive(root, paths, args.message)
         print(f"archived {len(paths)} file(s) in commit {done.added[:12]}; out of the tree in {done.removed[:12]}")

@@ -25,6 +25,12 @@ def add_parser(subparsers: Any) -> None:
     )
     parser.add_argument("--report-only", action="store_true", help="only rebuild the results from finished runs")
     parser.add_argument(
+        "--status",
+        action="store_true",
+        help="run nothing: print each job as done, kept (in the committed records), running or missing, and the "
+        "machine time left, estimated from the measured times of finished jobs of each kind (on --workers)",
+    )
+    parser.add_argument(
         "--tables",
         type=lambda text: text.split(","),
         help="comma-separated: run and rebuild only these tables; the others keep their results in results.json "
@@ -38,6 +44,12 @@ def run(args: argparse.Namespace) -> int:
     configs = [load_sweep(path) for path in args.configs]
     for config in configs:
         config.table_names(args.tables)  # a mistyped table is refused before anything runs
+    if args.status:
+        from snapflow.jobs.sweep.status import format_status, sweep_status
+
+        for config in configs:
+            print(format_status(config, sweep_status(config.only(args.tables)), args.workers))
+        return 0
     if not args.report_only:
         run_sweeps([config.only(args.tables) for config in configs], args.workers, not args.no_progress, args.threads)
     for config in configs:

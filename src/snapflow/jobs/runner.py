@@ -163,6 +163,12 @@ def _pending_path(job: Job) -> Path:
     return job.record_path.with_name(f".{job.record_path.name}.pending")
 
 
+def is_started(job: Job) -> bool:
+    """Whether a run of the job with its current settings has begun here and not finished (it is running, or was
+    interrupted: run again, it goes on from where it stopped)."""
+    return holds_record_of(_pending_path(job), job) and not is_done(job)
+
+
 def _remove(path: Path) -> None:
     if path.is_dir():
         shutil.rmtree(path)
@@ -323,4 +329,14 @@ def _failure(job: Job, error: Exception) -> Exception:
     return error
 
 
-__all__ = ["Job", "record", "write_record", "read_record", "is_done", "is_recorded", "to_run", "run_jobs"]
+__all__ = [
+    "Job",
+    "record",
+    "write_record",
+    "read_record",
+    "is_done",
+    "is_recorded",
+    "is_started",
+    "to_run",
+    "run_jobs",
+]

@@ -5,8 +5,9 @@ survive a change of machine with main alone. So :func:`archive` commits such fil
 tree in the next commit; the tracked manifest (:data:`MANIFEST`) names for each file its path, the commit that holds
 it and its git blob id. :func:`restore` writes them back where they were, byte for byte (a partial clone,
 ``git clone --filter=blob:none``, fetches each blob only then), so the sweep runner and ``open_policy`` find them where
-they found them before. Archived files are git-ignored (:data:`ARCHIVED_GLOB` in ``.gitignore``), so a restored or
-newly written checkpoint never travels with the working tree by accident. History is never rewritten.
+they found them before. The same holds for a sweep's collected demonstrations, kept packed (one tar a task,
+:mod:`snapflow.reporting.packed`). Archived files are git-ignored (:data:`ARCHIVED_GLOBS` in ``.gitignore``), so a
+restored or newly written checkpoint never travels with the working tree by accident. History is never rewritten.
 """
 
 from __future__ import annotations
@@ -25,7 +26,8 @@ from snapflow.reporting.files import atomic_write, write_json
 
 MANIFEST = PurePosixPath("docs/results/archive.json")  # relative to the repository's root
 ARCHIVED_ROOT = PurePosixPath("docs/results")  # where the files that are archived live
-ARCHIVED_GLOB = "*.safetensors"  # which files there are archived: every weight and optimizer state
+# which files there are archived: every weight and optimizer state, and every packed folder (a task's demonstrations)
+ARCHIVED_GLOBS = ("*.safetensors", "*.tar")
 RESTORE_COMMAND = "snapflow checkpoints restore"
 
 
@@ -120,11 +122,11 @@ def restore(root: Path, entries: Sequence[ArchivedFile], into: Path | None = Non
 
 
 def pending(root: Path) -> list[str]:
-    """The files under :data:`ARCHIVED_ROOT` matching :data:`ARCHIVED_GLOB` that the manifest lacks or names with
+    """The files under :data:`ARCHIVED_ROOT` matching :data:`ARCHIVED_GLOBS` that the manifest lacks or names with
     other content: tracked ones (committed before the archive existed) and ignored ones (written since)."""
-    pathspec = f":(glob){ARCHIVED_ROOT}/**/{ARCHIVED_GLOB}"
-    tracked = _git(root, "ls-files", "-z", "--", pathspec)
-    ignored = _git(root, "ls-files", "-z", "--others", "--ignored", "--exclude-standard", "--", pathspec)
+    pathspecs = [f":(glob){ARCHIVED_ROOT}/**/{pattern}" for pattern in ARCHIVED_GLOBS]
+    tracked = _git(root, "ls-files", "-z", "--", *pathspecs)
+    ignored = _git(root, "ls-files", "-z", "--others", "--ignored", "--exclude-standard", "--", *pathspecs)
     known = {entry.path: entry for entry in read_manifest(root)}
     paths = sorted({path for path in (tracked + ignored).decode().split("\0") if path})
     return [path for path in paths if path not in known or not is_present(root, known[path])]
@@ -176,6 +178,19 @@ def archive(root: Path, paths: Sequence[str], message: str) -> Archived:
     _git(root, "add", "--", str(MANIFEST))  # the index now agrees with the new HEAD on the manifest
     _git(root, "rm", "-q", "--cached", "--ignore-unmatch", "--", *paths)  # and no longer tracks the files
     return Archived(added, removed, superseded)
+
+
+def restore_if_archived(path: str | Path) -> bool:
+    """Bring ``path`` (a file) back from the history of the checkout that holds it where it is missing and the
+    manifest names it: what a sweep does for the packed demonstrations it needs. False where it is not archived (or
+    not in a checkout)."""
+    path = Path(path).resolve()
+    for root in path.parents:
+        if (root / MANIFEST).is_file():
+            relative = path.relative_to(root).as_posix()
+            entries = [entry for entry in read_manifest(root) if entry.path == relative]
+            return bool(entries) and (bool(restore(root, entries)) or is_present(root, entries[0]))
+    return False
 
 
 def archived_hint(path: str | Path) -> str:
@@ -234,7 +249,7 @@ __all__ = [
     "Archived",
     "MANIFEST",
     "ARCHIVED_ROOT",
-    "ARCHIVED_GLOB",
+    "ARCHIVED_GLOBS",
     "RESTORE_COMMAND",
     "ArchiveError",
     "ArchivedFile",
@@ -247,5 +262,6 @@ __all__ = [
     "restore",
     "pending",
     "archive",
+    "restore_if_archived",
     "archived_hint",
 ]

@@ -83,4 +83,23 @@ def hold_run_lock(directory: str | Path, command: str, remedy: str = _CHOOSE_ANO
                 os.close(_held.pop(key)[0])  # releases the lock
 
 
-__all__ = ["LOCK_FILE", "RunLockedError", "hold_run_lock"]
+def lock_holder(directory: str | Path) -> str | None:
+    """Who holds ``directory`` (``pid N, command``), or None where no live process does: a look that takes nothing
+    (a shared lock tried and let go at once)."""
+    lock = Path(directory) / LOCK_FILE
+    if Path(directory).resolve() in _held:
+        return f"pid {os.getpid()}, this process"
+    try:
+        descriptor = os.open(lock, os.O_RDONLY | os.O_CLOEXEC)
+    except FileNotFoundError:
+        return None
+    try:
+        fcntl.flock(descriptor, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return _holder(lock)
+    finally:
+        os.close(descriptor)  # releases the shared lock if it was taken
+    return None
+
+
+__all__ = ["LOCK_FILE", "RunLockedError", "hold_run_lock", "lock_holder"]

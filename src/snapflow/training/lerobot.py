@@ -22,7 +22,7 @@ from snapflow.adapters.lerobot.dataset import policy_features
 from snapflow.adapters.lerobot.local_vlm import bundle_vlm, saved_processors
 from snapflow.adapters.lerobot.registry import adapter_class, lerobot_time_sampler, wrap_policy
 from snapflow.adapters.lerobot.smolvlm import token_budget, words_of, write_smolvlm
-from snapflow.adapters.lerobot_config import SmolVLMSize
+from snapflow.adapters.lerobot_config import VIDEO_BACKEND, SmolVLMSize
 from snapflow.adapters.lerobot_types import lerobot_policy_type, lerobot_teachers
 from snapflow.data.demonstrations import split_episodes
 from snapflow.errors import InvalidInputError
@@ -162,7 +162,8 @@ def training_dataset(metadata: Any, dataset_root: str | Path | None, chunk_size:
     episodes = None
     if val_fraction > 0:
         episodes, _ = split_episodes([entry["tasks"][0] for entry in metadata.episodes], val_fraction)
-    return ActionChunks(LeRobotDataset(metadata.repo_id, root=dataset_root, episodes=episodes), chunk_size)
+    dataset = LeRobotDataset(metadata.repo_id, root=dataset_root, episodes=episodes, video_backend=VIDEO_BACKEND)
+    return ActionChunks(dataset, chunk_size)
 
 
 def train_lerobot_teacher(

@@ -14,6 +14,7 @@ from typing import Any
 
 from snapflow.adapters.lerobot.plugin.configuration_snapflow import DISTILL_OPTIONS, SnapFlowSampling
 from snapflow.adapters.lerobot_commands import run_lerobot_command
+from snapflow.adapters.lerobot_config import VIDEO_BACKEND
 from snapflow.errors import InvalidInputError
 from snapflow.policies.loaded import CheckpointError
 from snapflow.sources import open_policy
@@ -139,6 +140,7 @@ def run_lerobot_train(
             f"--policy.path={student}",
             f"--dataset.repo_id={repo_id}",
             f"--dataset.root={dataset_root}",
+            f"--dataset.video_backend={VIDEO_BACKEND}",
             f"--output_dir={output}",
             "--num_workers=0",
             "--wandb.enable=false",

@@ -3,21 +3,26 @@
 
 One demonstration is one episode; each frame holds ``observation.state`` (the benchmark's state: Meta-World's full
 state, LIBERO's 8-D proprioception), ``observation.images.<camera>`` for each camera whose frames were collected
-(stored as images, not video, so no encoder is needed), ``action``, and the task's instruction as the frame's task.
+(stored as PNG images, or with ``video`` as video through LeRobot's encoder: a LIBERO frame of 64 px is ~6 KB as PNG,
+~0.2 KB as AV1), ``action``, and the task's instruction as the frame's task.
 A LIBERO dataset's names and shapes are those LeRobot's ``LiberoEnv`` gives a policy (``image``, ``image2``), so
 ``lerobot-eval --env.type=libero`` runs a policy trained on it unchanged."""
 
 from __future__ import annotations
 
+import inspect
 import os
 import shutil
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from tqdm.auto import tqdm
 
+from snapflow.adapters.lerobot_config import VIDEO_CODECS
 from snapflow.data.demonstrations import Demonstrations
 
 STATE = "observation.state"
@@ -33,14 +38,18 @@ def camera_frames(demonstrations: Demonstrations, camera: str) -> dict[str, Any]
     return {IMAGE_PREFIX + name: frames for name, frames in cameras.items()}
 
 
-def lerobot_features(demonstrations: Demonstrations, camera: str) -> dict[str, dict[str, Any]]:
-    """The dataset's features in LeRobot's schema (dtype, shape, names)."""
+def lerobot_features(demonstrations: Demonstrations, camera: str, video: bool = False) -> dict[str, dict[str, Any]]:
+    """The dataset's features in LeRobot's schema (dtype, shape, names); frames as ``video`` or images."""
     features = {
         STATE: {"dtype": "float32", "shape": demonstrations.states.shape[1:], "names": None},
         ACTION: {"dtype": "float32", "shape": demonstrations.actions.shape[1:], "names": None},
     }
     for name, frames in camera_frames(demonstrations, camera).items():
-        features[name] = {"dtype": "image", "shape": frames.shape[1:], "names": ["height", "width", "channels"]}
+        features[name] = {
+            "dtype": "video" if video else "image",
+            "shape": frames.shape[1:],
+            "names": ["height", "width", "channels"],
+        }
     return features
 
 
@@ -62,6 +71,18 @@ def check_dataset_root(root: str | Path) -> Path:
     return root
 
 
+def video_options(codec: str) -> dict[str, Any]:
+    """``LeRobotDataset.create``'s arguments for frames encoded with ``codec`` at LeRobot's other defaults (pixel
+    format yuv420p, a key frame every 2 frames, CRF 30): LeRobot 0.6 takes an encoder config, 0.4 the codec's name."""
+    if codec not in VIDEO_CODECS:
+        raise ValueError(f"codec must be one of {VIDEO_CODECS}, got {codec!r}")
+    if "rgb_encoder" in inspect.signature(LeRobotDataset.create).parameters:
+        from lerobot.configs.video import RGBEncoderConfig
+
+        return {"rgb_encoder": RGBEncoderConfig(vcodec=codec)}
+    return {"vcodec": codec}
+
+
 def write_lerobot_dataset(
     demonstrations: Demonstrations,
     root: str | Path,
@@ -69,9 +90,11 @@ def write_lerobot_dataset(
     fps: int = 80,
     camera: str = "camera",
     progress: bool = True,
+    video: str | None = None,
 ) -> Path:
     """Write ``demonstrations`` as the LeRobotDataset ``repo_id`` (default ``local/<root's name>``) at ``root``;
-    ``camera`` names the main camera's frames (the others carry their own names).
+    ``camera`` names the main camera's frames (the others carry their own names); ``video``: the codec that encodes
+    the frames as video (one of :data:`VIDEO_CODECS`), else they are stored as PNG images.
 
     It is built in a temporary folder beside ``root`` and moved there only once LeRobot has finalised it, so an
     interrupted export leaves no half-written dataset. Returns ``root``."""
@@ -86,11 +109,12 @@ def write_lerobot_dataset(
         dataset = LeRobotDataset.create(
             repo_id=repo_id or f"local/{root.name}",
             fps=fps,
-            features=lerobot_features(demonstrations, camera),
+            features=lerobot_features(demonstrations, camera, video is not None),
             root=staging / "dataset",
-            use_videos=False,
+            use_videos=video is not None,
             image_writer_threads=0,  # frames are written as they are added: nothing is pending at finalize
             image_writer_processes=0,
+            **(video_options(video) if video is not None else {}),
         )
         cameras = camera_frames(demonstrations, camera)
         for episode in tqdm(demonstrations.episodes, desc="writing the LeRobotDataset", disable=not progress):
@@ -101,12 +125,77 @@ def write_lerobot_dataset(
                 dataset.add_frame(frame)
             dataset.save_episode()
         dataset.finalize()
-        if root.exists():  # an empty folder: check_dataset_root allowed it
-            root.rmdir()
-        os.replace(staging / "dataset", root)
+        _move_into(staging / "dataset", root)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return root
 
 
-__all__ = ["STATE", "ACTION", "IMAGE_PREFIX", "lerobot_features", "check_dataset_root", "write_lerobot_dataset"]
+def merge_lerobot_datasets(parts: Sequence[str | Path], root: str | Path, repo_id: str) -> Path:
+    """The LeRobotDatasets at ``parts`` as one, ``repo_id`` at ``root``, by LeRobot's own ``aggregate_datasets``:
+    episodes in the parts' order, statistics aggregated, video files joined without encoding their frames again (so
+    the merged dataset decodes to the very frames of its parts). Built beside ``root`` and moved there whole."""
+    from lerobot.datasets.aggregate import aggregate_datasets
+
+    root = check_dataset_root(root)
+    root.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{root.name}.tmp-", dir=root.parent))
+    try:
+        paths = [Path(part) for part in parts]
+        names = [f"local/part-{index}" for index in range(len(paths))]
+        aggregate_datasets(names, repo_id, roots=paths, aggr_root=staging / "dataset")
+        _move_into(staging / "dataset", root)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return root
+
+
+def decoded_frames(root: str | Path, feature: str) -> np.ndarray:
+    """Every frame of the video feature ``feature`` of the LeRobotDataset at ``root``, decoded in the dataset's order
+    (its video files in order, each from its first frame), (N, H, W, 3) uint8."""
+    import av  # PyAV, LeRobot's video backend
+
+    frames = []
+    for path in sorted((Path(root) / "videos" / feature).rglob("*.mp4")):
+        with av.open(str(path)) as container:
+            frames += [frame.to_ndarray(format="rgb24") for frame in container.decode(video=0)]
+    return np.stack(frames)
+
+
+def video_frame_error(
+    root: str | Path, demonstrations: Demonstrations, camera: str
+) -> dict[str, dict[str, float | None]]:
+    """How far each camera's frames, as the video dataset at ``root`` decodes them, are from the rendered ones in
+    ``demonstrations``: mean and largest absolute error (of 255) and PSNR (dB), over every pixel of every frame."""
+    errors = {}
+    for name, rendered in camera_frames(demonstrations, camera).items():
+        difference = decoded_frames(root, name).astype(np.float64) - rendered
+        mse = float(np.mean(difference**2))
+        errors[name] = {
+            "mean_abs_error": float(np.mean(np.abs(difference))),
+            "max_abs_error": float(np.max(np.abs(difference))),
+            "psnr_db": float(10 * np.log10(255.0**2 / mse)) if mse else None,  # None: lossless
+        }
+    return errors
+
+
+def _move_into(built: Path, root: Path) -> None:
+    """Put a dataset built elsewhere on the same disk at ``root`` (an empty folder there, which
+    :func:`check_dataset_root` allowed, is replaced)."""
+    if root.exists():
+        root.rmdir()
+    os.replace(built, root)
+
+
+__all__ = [
+    "STATE",
+    "ACTION",
+    "IMAGE_PREFIX",
+    "lerobot_features",
+    "check_dataset_root",
+    "video_options",
+    "write_lerobot_dataset",
+    "merge_lerobot_datasets",
+    "decoded_frames",
+    "video_frame_error",
+]

@@ -1,22 +1,38 @@
 """A sweep's demonstrations as jobs: one collection a task, the tasks put together, and the LeRobotDataset the
-LeRobot runs read."""
+LeRobot runs read.
+
+With ``[data] video``, a task's collection is also its part of that LeRobotDataset, its frames encoded once as video
+by LeRobot's writer, and it is kept, packed, beside the sweep's records to be committed as soon as it is collected
+(:mod:`snapflow.reporting.packed`, archived in history as weights are): a fresh clone unpacks what is kept (from
+history, where it is archived) and collects only the tasks missing. Its demonstrations then hold no frames (the video
+holds them), and the LeRobotDataset joins the parts without encoding them again, so that the frames the runs train on
+are the kept ones, collected here or elsewhere."""
 
 from __future__ import annotations
 
+import json
 import shutil
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, ClassVar
 
 from snapflow.data.collect import collect
 from snapflow.data.demonstrations import META_FILE, Demonstrations
 from snapflow.envs.factory import make_benchmark
-from snapflow.jobs.runner import Job
+from snapflow.jobs.runner import Job, record
 from snapflow.jobs.sweep.specs import DataSpec
+from snapflow.reporting.archive import restore_if_archived
+from snapflow.reporting.files import write_json
+from snapflow.reporting.packed import pack_folder, unpack_folder
 from snapflow.reporting.records import as_record
 
 RECORD = "job.json"  # a collect or train job's record, inside the folder it fills
 LEROBOT_REPO_ID = "local/lerobot"  # the LeRobotDataset's name: it is read from its folder, never from a hub
+PART = "lerobot"  # a video collection's part of the LeRobotDataset, inside its folder
+RENDERED = "rendered"  # a video collection's demonstrations with their rendered frames, until encoded
+PACKED = "demonstrations.tar"  # a video collection kept, packed, beside its ledger record
+COLLECTED = "collected.json"  # inside a kept collection: the record of the job that made it
 
 
 class FolderJob(Job):
@@ -35,34 +51,88 @@ class FolderJob(Job):
 
 @dataclass(frozen=True)
 class CollectJob(FolderJob):
-    """The expert demonstrations of one task (``data.tasks`` holds it alone), in ``directory``."""
+    """The expert demonstrations of one task (``data.tasks`` holds it alone), in ``directory``; with ``data.video``
+    also its part of the LeRobotDataset (:data:`PART`), kept packed beside ``ledger`` (its committed record)."""
 
     kind: ClassVar[str] = "collect"
     sweep: str
     directory: Path
     data: DataSpec
+    ledger: Path | None = None
 
     def settings(self) -> dict[str, Any]:
         return as_record(self.data)
 
+    @property
+    def ledger_path(self) -> Path | None:
+        return self.ledger
+
+    @property
+    def packed(self) -> Path | None:
+        """Where the collection is kept to be committed (a video collection with a ledger), else None."""
+        return self.ledger.parent / PACKED if self.ledger is not None and self.data.video is not None else None
+
     def run(self) -> dict[str, Any]:
-        data = self.data
+        data, began = self.data, time.perf_counter()
         if (self.directory / META_FILE).is_file():
             # collected whole (meta.json is written last) by a run stopped before its record: the runner keeps a
             # pending job's outputs only where they were made with its settings, so they are this collection's
             Demonstrations.load(self.directory)
-            return {}
-        collect(
-            make_benchmark(data.env),
-            list(data.tasks),
-            data.episodes_per_task,
-            self.directory,
-            data.image_size,
-            progress=False,
-            extra_cameras=data.extra_cameras,
-            action_noise=data.action_noise,
+            return {} if self.packed is None else self._keep()
+        rendered = self.directory / RENDERED if data.video is not None else self.directory
+        if not (rendered / META_FILE).is_file():
+            collect(
+                make_benchmark(data.env),
+                list(data.tasks),
+                data.episodes_per_task,
+                rendered,
+                data.image_size,
+                progress=False,
+                extra_cameras=data.extra_cameras,
+                action_noise=data.action_noise,
+            )
+        results = {"wall_time_s": time.perf_counter() - began}
+        if data.video is None:
+            return results
+        results["frame_error"] = self._encode(Demonstrations.load(rendered))
+        shutil.rmtree(rendered)
+        return {**results, **(self._keep() if self.packed is not None else {})}
+
+    def _encode(self, demonstrations: Demonstrations) -> dict[str, Any]:
+        """Write the task's LeRobotDataset part with its frames as video, then its demonstrations without frames
+        (meta.json last: the collection is whole); returns the frames' error against the rendered ones."""
+        from snapflow.adapters.lerobot.dataset import video_frame_error, write_lerobot_dataset
+
+        benchmark = make_benchmark(self.data.env)
+        part = self.directory / PART
+        shutil.rmtree(part, ignore_errors=True)  # an interrupted write: LeRobot's writer wants a new folder
+        write_lerobot_dataset(
+            demonstrations, part, LEROBOT_REPO_ID, benchmark.fps, benchmark.camera, False, self.data.video
         )
-        return {}
+        error = video_frame_error(part, demonstrations, benchmark.camera)
+        replace(demonstrations, images=None, extra_images={}).save(self.directory)
+        return error
+
+    def _keep(self) -> dict[str, Any]:
+        """Pack the collection beside its ledger record, with the record of this job inside (what a restore
+        checks); returns its size."""
+        assert self.packed is not None
+        write_json(self.directory / COLLECTED, record(self))
+        return {"packed_bytes": pack_folder(self.directory, self.packed).stat().st_size}
+
+    def restore_outputs(self) -> bool:
+        """Unpack the kept collection (from history where it is archived there) if this job's settings made it."""
+        if self.packed is None or not (self.packed.is_file() or restore_if_archived(self.packed)):
+            return False
+        unpack_folder(self.packed, self.directory)
+        try:
+            made_by = json.loads((self.directory / COLLECTED).read_text())
+        except (FileNotFoundError, json.JSONDecodeError):
+            made_by = None
+        if made_by != record(self):  # another collection's pack: collected again, never mixed in
+            shutil.rmtree(self.directory)
+            return False
+        return True
 
     def describe(self) -> str:
         return f"{self.sweep}: collect {self.data.tasks[0]}"
@@ -110,9 +180,12 @@ class LeRobotDatasetJob(FolderJob):
         return (self.data,)
 
     def run(self) -> dict[str, Any]:
-        from snapflow.adapters.lerobot.dataset import write_lerobot_dataset
+        from snapflow.adapters.lerobot.dataset import merge_lerobot_datasets, write_lerobot_dataset
 
         shutil.rmtree(self.directory, ignore_errors=True)  # an interrupted write: LeRobot's writer wants a new folder
+        if self.data.data.video is not None:  # the tasks' parts, their frames as encoded once, joined
+            merge_lerobot_datasets([part.directory / PART for part in self.data.parts], self.directory, LEROBOT_REPO_ID)
+            return {}
         benchmark = make_benchmark(self.data.data.env)
         demonstrations = Demonstrations.load(self.data.directory)
         write_lerobot_dataset(
@@ -124,4 +197,4 @@ class LeRobotDatasetJob(FolderJob):
         return f"{self.sweep}: demonstrations as a LeRobotDataset"
 
 
-__all__ = ["RECORD", "LEROBOT_REPO_ID", "FolderJob", "CollectJob", "DataJob", "LeRobotDatasetJob"]
+__all__ = ["RECORD", "LEROBOT_REPO_ID", "PART", "PACKED", "FolderJob", "CollectJob", "DataJob", "LeRobotDatasetJob"]

@@ -18,12 +18,14 @@ from snapflow.reporting.locks import hold_run_lock
 
 
 def data_job(config: SweepConfig) -> DataJob:
-    """The sweep's demonstrations, from one collection job a task."""
-    parts = tuple(
-        CollectJob(config.name, config.collect_dir(task), replace(config.data, tasks=(task,)))
-        for task in config.data.tasks
-    )
-    return DataJob(config.name, config.data_dir, config.data, parts)
+    """The sweep's demonstrations, from one collection job a task; a video collection's record and its collection are
+    kept beside the sweep's records (to be committed)."""
+    parts = []
+    for task in config.data.tasks:
+        directory = config.collect_dir(task)
+        ledger = config.ledger_path(directory / RECORD) if config.data.video is not None else None
+        parts.append(CollectJob(config.name, directory, replace(config.data, tasks=(task,)), ledger))
+    return DataJob(config.name, config.data_dir, config.data, tuple(parts))
 
 
 def train_job(config: SweepConfig, run: str, seed: int) -> TrainJob:

@@ -9,7 +9,7 @@ from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
-from snapflow.adapters.lerobot_config import SMOLVLM_SIZES
+from snapflow.adapters.lerobot_config import SMOLVLM_SIZES, VIDEO_CODECS
 from snapflow.adapters.lerobot_types import lerobot_teachers
 from snapflow.data.demonstrations import check_action_noise
 from snapflow.envs.factory import DEFAULT_BENCHMARK, make_benchmark
@@ -27,6 +27,7 @@ from snapflow.jobs.sweep.specs import (
     SweepConfig,
     TableSpec,
 )
+from snapflow.jobs.sweep.table_checks import check_lerobot_eval, first_variation, table_tasks
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import default_config, policy_type
 from snapflow.training.config import TEACHER_TRAINING
@@ -102,6 +103,10 @@ def _data(raw: Any) -> DataSpec:
             entry["action_noise"] = check_action_noise(entry["action_noise"])
         except ValueError as error:
             raise InvalidInputError(f"[data] {error}") from None
+    if entry.get("video") is not None and (entry["video"] not in VIDEO_CODECS or entry.get("image_size") is None):
+        raise InvalidInputError(
+            f"[data] video must be one of {list(VIDEO_CODECS)}, with an image_size, got {entry['video']!r}"
+        )
     return _dataclass_from("[data]", DataSpec(), entry)
 
 
@@ -200,6 +205,8 @@ def _runs(raw: Any, seeds: tuple[int, ...], data: DataSpec, recipe: str) -> dict
                 lerobot = _lerobot(f"{section} lerobot", entry["lerobot"])
                 runs[name] = RunSpec(name, run_seeds, train, commit_checkpoint=commit_checkpoint, lerobot=lerobot)
                 continue
+            if data.video is not None:  # its frames would be read from the demonstrations, which keep none then
+                raise InvalidInputError(f"{section}: a built-in policy cannot read [data] video frames; use 'lerobot'")
             policy = _policy(f"{section} policy", entry.get("policy", {}), data)
             runs[name] = RunSpec(name, run_seeds, train, policy, commit_checkpoint=commit_checkpoint)
     for run in runs.values():
@@ -299,64 +306,17 @@ def _tables(
             entry.get("per_task", False),
             entry.get("x_label"),
             reference,
-            _first_variation(section, entry.get("first_variation", 0)),
+            first_variation(section, entry.get("first_variation", 0)),
             entry.get("evaluator", EVALUATORS[0]),
-            _table_tasks(section, entry.get("tasks"), data),
+            table_tasks(section, entry.get("tasks"), data),
             bool(entry.get("per_set", False)),
             tuple(tuple(pair) for pair in contrasts),
             _count(section, "max_episode_steps", entry["max_episode_steps"]) if "max_episode_steps" in entry else None,
         )
         if table.evaluator != EVALUATORS[0]:
-            _check_lerobot_eval(section, table, runs, data)
+            check_lerobot_eval(section, table, runs, data)
         tables.append(table)
     return tuple(tables)
-
-
-def _check_lerobot_eval(section: str, table: TableSpec, runs: dict[str, RunSpec], data: DataSpec) -> None:
-    """A table that ``lerobot-eval`` runs: LeRobot runs of this sweep on LIBERO, each task's episodes one batch from
-    its first initial states (:mod:`snapflow.evaluation.lerobot_eval`)."""
-    from snapflow.evaluation.lerobot_eval import MAX_EPISODES
-
-    if table.evaluator not in EVALUATORS:
-        raise InvalidInputError(f"{section}: evaluator must be one of {list(EVALUATORS)}, got {table.evaluator!r}")
-    if data.env != "libero":
-        raise InvalidInputError(
-            f"{section}: lerobot-eval evaluates on LeRobot's LIBERO environment; data is {data.env!r}"
-        )
-    if table.first_variation or table.episodes_per_task > MAX_EPISODES:
-        raise InvalidInputError(
-            f"{section}: lerobot-eval runs a task's episodes as one batch from LIBERO's first initial states: "
-            f"first_variation 0 and at most {MAX_EPISODES} episodes a task"
-        )
-    for row in table.rows:
-        run = runs.get(row.run) if row.sweep is None else None
-        teacher = runs[run.teacher] if run is not None and run.teacher is not None else run
-        if teacher is None or teacher.lerobot is None:
-            raise InvalidInputError(
-                f"{section}: row {row.label!r}: lerobot-eval evaluates this sweep's LeRobot runs and their students"
-            )
-        if row.mode.jump and run.teacher is None:
-            raise InvalidInputError(f"{section}: row {row.label!r}: a LeRobot teacher has no jump to sample {row.mode}")
-
-
-def _table_tasks(section: str, value: Any, data: DataSpec) -> tuple[str, ...]:
-    """A table's subset of the data's tasks (task names or the benchmark's sets, e.g. ``"libero_10"``), in the data's
-    order; empty where it names none or all of them, so that such a table shares every other one's evaluations."""
-    if value is None:
-        return ()
-    try:
-        chosen = set(make_benchmark(data.env).resolve_tasks(value))
-    except (TypeError, ValueError) as error:
-        raise InvalidInputError(f"{section}: tasks: {error}") from None
-    if outside := sorted(chosen - set(data.tasks)):
-        raise InvalidInputError(f"{section}: tasks {outside} are not among the data's, whose demonstrations it needs")
-    return () if chosen == set(data.tasks) else tuple(task for task in data.tasks if task in chosen)
-
-
-def _first_variation(section: str, value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise InvalidInputError(f"{section}: first_variation must be an integer of at least 0, got {value!r}")
-    return value
 
 
 def load_sweep(path: str | Path, loading: tuple[Path, ...] = ()) -> SweepConfig:

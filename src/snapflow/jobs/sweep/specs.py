@@ -30,6 +30,10 @@ class DataSpec:
     # the standard deviation of the noise added to the experts' executed actions (DART; the recorded actions are the
     # experts' own): states off the experts' paths in the data, labelled with the way back
     action_noise: float = added_option(0.0)
+    # the codec of LeRobot's video encoder that stores the frames (None: PNG images, the tasks' collections not kept):
+    # a task's demonstrations, ~30x smaller as AV1, are then kept beside the sweep's records as they are collected,
+    # to be committed, and the runs' LeRobotDataset joins them as they are (LeRobot runs only: see schema.py)
+    video: str | None = added_option(None)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,73 @@
+"""``snapflow sweep CONFIG --status``: each job done, kept, running or missing, and the machine time left, estimated
+from the measured times of finished jobs of the same kind; run as a user runs it, from another folder."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from snapflow.jobs.runner import _start, write_record
+from snapflow.jobs.sweep import load_sweep, plan
+from snapflow.jobs.sweep.planning import data_job, eval_job, train_job
+from snapflow.reporting.locks import hold_run_lock
+from tests.jobs.tiny_sweep import write_config
+from tests.reporting.test_archive import SNAPFLOW
+
+
+def status(config_path: Path, cwd: Path, *arguments: str) -> list[str]:
+    result = subprocess.run(
+        [*SNAPFLOW, "sweep", str(config_path), "--status", *arguments], cwd=cwd, capture_output=True, text=True
+    )
+    assert result.returncode == 0, result.stderr
+    return result.stdout.splitlines()
+
+
+def line_of(lines: list[str], words: str) -> str:
+    (found,) = [line for line in lines if words in line]
+    return found
+
+
+@pytest.mark.slow  # ~20 s: the command run four times as a user runs it
+def test_the_status_names_each_jobs_state_and_estimates_the_time_left_from_measured_jobs(tmp_path):
+    config_path = write_config(tmp_path, seeds="[0]")
+    config = load_sweep(config_path)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    lines = status(config_path, elsewhere)
+    assert lines[0] == f"tiny: {len(lines) - 2} jobs: 0 done, 0 kept, 0 running, {len(lines) - 2} missing"
+    assert lines[-1].startswith("machine time left: ~0.0 h for 0 jobs")
+
+    # both collections finished here (times measured), the teacher recorded only in the committed ledger
+    reach, push = data_job(config).parts
+    write_record(reach, {"wall_time_s": 600.0})
+    write_record(push, {"wall_time_s": 1200.0})
+    teacher = train_job(config, "teacher", 0)
+    write_record(teacher, {"wall_time_s": 3600.0})
+    teacher.record_path.unlink()  # as on a fresh clone of the sweep: its result known, its folder not here
+    # a student started and interrupted, another seed's evaluation running under the sweep's lock
+    student = train_job(config, "snapflow", 0)
+    _start(student)
+    lines = status(config_path, elsewhere)
+    assert line_of(lines, "collect reach-v3").split()[:1] == ["done"] and "10.0 min" in line_of(lines, "reach-v3")
+    assert line_of(lines, "train teacher seed 0").startswith("  kept") and "60.0 min" in line_of(
+        lines, "train teacher seed 0"
+    )
+    assert line_of(lines, "train snapflow seed 0").startswith("  missing") and "started" in line_of(
+        lines, "train snapflow seed 0"
+    )
+    # a student's time is estimated from the only training measured (the teacher's hour)
+    assert "~60.0 min" in line_of(lines, "train snapflow seed 0")
+    assert "~60.0 min" in line_of(lines, "train meanflow seed 0")
+
+    evaluation = eval_job(config, config.tables[0], config.tables[0].rows[0], 0)
+    _start(evaluation)
+    with hold_run_lock(config.output_dir, "snapflow sweep"):
+        lines = status(config_path, elsewhere, "--workers", "2")
+    assert line_of(lines, "train snapflow seed 0").startswith("  running")
+    assert line_of(lines, evaluation.describe().removeprefix("tiny: ")).startswith("  running")
+    counts = lines[0].split(": ")[-1]
+    missing = len(plan(config)) - 2  # neither running job is missing
+    assert counts.startswith("2 done, 1 kept, 2 running") and f"{missing - 1} missing" in counts
+    assert "on 2 workers" in lines[-1] and "of kinds never measured here" in lines[-1], "no evaluation measured"
