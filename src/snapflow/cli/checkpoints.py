@@ -1,5 +1,5 @@
-"""``snapflow checkpoints``: the checkpoints kept in the repository's history instead of its tree
-(:mod:`snapflow.reporting.archive`): list them, restore them where they were, archive new ones."""
+"""``snapflow checkpoints``: the checkpoints (and a sweep's packed demonstrations) kept in the repository's history
+instead of its tree (:mod:`snapflow.reporting.archive`): list them, restore them where they were, archive new ones."""
 
 from __future__ import annotations
 
@@ -25,7 +25,8 @@ def add_parser(subparsers: Any) -> None:
     parser = add_command(
         subparsers,
         "checkpoints",
-        f"checkpoints kept in git history, not the tree: list, restore, archive (manifest: {MANIFEST})",
+        f"checkpoints and packed demonstrations kept in git history, not the tree: list, restore, archive "
+        f"(manifest: {MANIFEST})",
         run,
         _interrupted,
     )
