@@ -21,9 +21,14 @@ PACKED_SUFFIX = ".tar"
 
 def pack_folder(folder: str | Path, packed: str | Path) -> Path:
     """Write every file under ``folder`` into the tar ``packed`` (whole or not at all), named relative to
-    ``folder``; returns ``packed``."""
+    ``folder``; returns ``packed``. Hidden names are left out, with all under them: a runner's pending record, the
+    staging folder of a write that a killed process left."""
     folder = Path(folder)
-    files = sorted(path for path in folder.rglob("*") if path.is_file())
+    files = sorted(
+        path
+        for path in folder.rglob("*")
+        if path.is_file() and not any(part.startswith(".") for part in path.relative_to(folder).parts)
+    )
 
     def write(temporary: Path) -> None:
         with tarfile.open(temporary, "w", format=tarfile.PAX_FORMAT) as archive:
