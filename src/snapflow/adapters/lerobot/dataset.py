@@ -10,19 +10,19 @@ A LIBERO dataset's names and shapes are those LeRobot's ``LiberoEnv`` gives a po
 
 from __future__ import annotations
 
-import inspect
 import os
 import shutil
 import tempfile
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from tqdm.auto import tqdm
 
-from snapflow.adapters.lerobot_config import VIDEO_BACKEND, VIDEO_CODECS
+from snapflow.adapters.lerobot.video import check_video_lengths, decoded_frames, encoder_options, frame_error
+from snapflow.adapters.lerobot_config import VIDEO_BACKEND, VideoEncoding
 from snapflow.data.demonstrations import Demonstrations
 
 STATE = "observation.state"
@@ -71,22 +71,6 @@ def check_dataset_root(root: str | Path) -> Path:
     return root
 
 
-def video_options(codec: str) -> dict[str, Any]:
-    """``LeRobotDataset.create``'s arguments for frames encoded with ``codec`` at LeRobot's other defaults (pixel
-    format yuv420p, a key frame every 2 frames, CRF 30), as they are added: LeRobot 0.6 takes an encoder config, 0.4
-    the codec's name."""
-    if codec not in VIDEO_CODECS:
-        raise ValueError(f"codec must be one of {VIDEO_CODECS}, got {codec!r}")
-    # frames encoded as they are added (no PNG written and read back per frame): a 64-px LIBERO episode of two
-    # cameras in ~1 s instead of ~4 s on shared cores
-    streaming = {"streaming_encoding": True}
-    if "rgb_encoder" in inspect.signature(LeRobotDataset.create).parameters:
-        from lerobot.configs.video import RGBEncoderConfig
-
-        return {"rgb_encoder": RGBEncoderConfig(vcodec=codec), **streaming}
-    return {"vcodec": codec, **streaming}
-
-
 def write_lerobot_dataset(
     demonstrations: Demonstrations,
     root: str | Path,
@@ -94,11 +78,11 @@ def write_lerobot_dataset(
     fps: int = 80,
     camera: str = "camera",
     progress: bool = True,
-    video: str | None = None,
+    video: VideoEncoding | None = None,
 ) -> Path:
     """Write ``demonstrations`` as the LeRobotDataset ``repo_id`` (default ``local/<root's name>``) at ``root``;
-    ``camera`` names the main camera's frames (the others carry their own names); ``video``: the codec that encodes
-    the frames as video (one of :data:`VIDEO_CODECS`), else they are stored as PNG images.
+    ``camera`` names the main camera's frames (the others carry their own names); ``video``: how LeRobot's encoder
+    keeps the frames as video (every episode's frames checked to be all there), else they are stored as PNG images.
 
     It is built in a temporary folder beside ``root`` and moved there only once LeRobot has finalised it, so an
     interrupted export leaves no half-written dataset. Returns ``root``."""
@@ -119,7 +103,7 @@ def write_lerobot_dataset(
             video_backend=VIDEO_BACKEND,  # LeRobot would try torchcodec first: a long traceback without FFmpeg
             image_writer_threads=0,  # frames are written as they are added: nothing is pending at finalize
             image_writer_processes=0,
-            **(video_options(video) if video is not None else {}),
+            **(encoder_options(video) if video is not None else {}),
         )
         cameras = camera_frames(demonstrations, camera)
         for episode in tqdm(demonstrations.episodes, desc="writing the LeRobotDataset", disable=not progress):
@@ -130,6 +114,8 @@ def write_lerobot_dataset(
                 dataset.add_frame(frame)
             dataset.save_episode()
         dataset.finalize()
+        if video is not None:
+            check_video_lengths(staging / "dataset", fps)
         _move_into(staging / "dataset", root)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -155,33 +141,22 @@ def merge_lerobot_datasets(parts: Sequence[str | Path], root: str | Path, repo_i
     return root
 
 
-def decoded_frames(root: str | Path, feature: str) -> np.ndarray:
-    """Every frame of the video feature ``feature`` of the LeRobotDataset at ``root``, decoded in the dataset's order
-    (its video files in order, each from its first frame), (N, H, W, 3) uint8."""
-    import av  # PyAV, LeRobot's video backend
-
-    frames = []
-    for path in sorted((Path(root) / "videos" / feature).rglob("*.mp4")):
-        with av.open(str(path)) as container:
-            frames += [frame.to_ndarray(format="rgb24") for frame in container.decode(video=0)]
-    return np.stack(frames)
-
-
-def video_frame_error(
-    root: str | Path, demonstrations: Demonstrations, camera: str
-) -> dict[str, dict[str, float | None]]:
+def video_frame_error(root: str | Path, demonstrations: Demonstrations, camera: str) -> dict[str, dict[str, Any]]:
     """How far each camera's frames, as the video dataset at ``root`` decodes them, are from the rendered ones in
-    ``demonstrations``: mean and largest absolute error (of 255) and PSNR (dB), over every pixel of every frame."""
-    errors = {}
-    for name, rendered in camera_frames(demonstrations, camera).items():
-        difference = decoded_frames(root, name).astype(np.float64) - rendered
-        mse = float(np.mean(difference**2))
-        errors[name] = {
-            "mean_abs_error": float(np.mean(np.abs(difference))),
-            "max_abs_error": float(np.max(np.abs(difference))),
-            "psnr_db": float(10 * np.log10(255.0**2 / mse)) if mse else None,  # None: lossless
-        }
-    return errors
+    ``demonstrations`` (:func:`~snapflow.adapters.lerobot.video.frame_error`), by feature name."""
+    return {
+        name: frame_error(decoded_frames(root, name), rendered)
+        for name, rendered in camera_frames(demonstrations, camera).items()
+    }
+
+
+def with_decoded_frames(
+    demonstrations: Demonstrations, root: str | Path, camera: str, cameras: list[str]
+) -> Demonstrations:
+    """``demonstrations`` (held without frames) with the frames of the video dataset at ``root`` decoded back:
+    ``camera`` the main one, ``cameras`` the others."""
+    decoded = {name: decoded_frames(root, IMAGE_PREFIX + name) for name in [camera, *cameras]}
+    return replace(demonstrations, images=decoded.pop(camera), extra_images=decoded)
 
 
 def _move_into(built: Path, root: Path) -> None:
@@ -198,9 +173,8 @@ __all__ = [
     "IMAGE_PREFIX",
     "lerobot_features",
     "check_dataset_root",
-    "video_options",
     "write_lerobot_dataset",
     "merge_lerobot_datasets",
-    "decoded_frames",
     "video_frame_error",
+    "with_decoded_frames",
 ]

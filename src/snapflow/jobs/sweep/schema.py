@@ -9,7 +9,7 @@ from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
-from snapflow.adapters.lerobot_config import SMOLVLM_SIZES, VIDEO_CODECS
+from snapflow.adapters.lerobot_config import SMOLVLM_SIZES, VIDEO_CODECS, VideoEncoding
 from snapflow.adapters.lerobot_types import lerobot_teachers
 from snapflow.data.demonstrations import check_action_noise
 from snapflow.envs.factory import DEFAULT_BENCHMARK, make_benchmark
@@ -103,10 +103,10 @@ def _data(raw: Any) -> DataSpec:
             entry["action_noise"] = check_action_noise(entry["action_noise"])
         except ValueError as error:
             raise InvalidInputError(f"[data] {error}") from None
-    if entry.get("video") is not None and (entry["video"] not in VIDEO_CODECS or entry.get("image_size") is None):
-        raise InvalidInputError(
-            f"[data] video must be one of {list(VIDEO_CODECS)}, with an image_size, got {entry['video']!r}"
-        )
+    if "video" in entry:  # a table of VideoEncoding's settings ({} for its defaults), for frames of an image_size
+        entry["video"] = _dataclass_from("[data] video", VideoEncoding(), entry["video"])
+        if entry["video"].codec not in VIDEO_CODECS or entry.get("image_size") is None:
+            raise InvalidInputError(f"[data] video: codec one of {list(VIDEO_CODECS)}, and an image_size, needed")
     return _dataclass_from("[data]", DataSpec(), entry)
 
 

@@ -7,6 +7,7 @@ import hashlib
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from snapflow.adapters.lerobot_config import VideoEncoding
 from snapflow.data.collect import EPISODES_PER_TASK
 from snapflow.envs.factory import DEFAULT_BENCHMARK
 from snapflow.errors import InvalidInputError
@@ -30,10 +31,10 @@ class DataSpec:
     # the standard deviation of the noise added to the experts' executed actions (DART; the recorded actions are the
     # experts' own): states off the experts' paths in the data, labelled with the way back
     action_noise: float = added_option(0.0)
-    # the codec of LeRobot's video encoder that stores the frames (None: PNG images, the tasks' collections not kept):
-    # a task's demonstrations, ~30x smaller as AV1, are then kept beside the sweep's records as they are collected,
-    # to be committed, and the runs' LeRobotDataset joins them as they are (LeRobot runs only: see schema.py)
-    video: str | None = added_option(None)
+    # how LeRobot's encoder keeps the frames as video (None: not at all, the tasks' collections not kept): a task's
+    # demonstrations, ~30x smaller than as PNG, are then kept beside the sweep's records as they are collected, to be
+    # committed; the runs read PNG frames decoded from that video (LeRobot runs only: see schema.py)
+    video: VideoEncoding | None = added_option(None)
 
 
 @dataclass(frozen=True)
