@@ -27,6 +27,7 @@ import numpy as np
 
 from snapflow.envs.base import Benchmark, Environment, Observation
 from snapflow.envs.libero_expert import LiberoExpert, NoExpertError, make_libero_expert, privileged_extras
+from snapflow.envs.libero_render import render as render_culled
 from snapflow.envs.rotations import quaternion_to_axis_angle
 from snapflow.errors import InvalidInputError
 
@@ -108,6 +109,30 @@ def _child(element: ElementTree.Element, tag: str) -> ElementTree.Element:
     return found if found is not None else ElementTree.SubElement(element, tag)
 
 
+def _floats(element: ElementTree.Element, attribute: str, default: str) -> list[float]:
+    return [float(value) for value in element.get(attribute, default).split()]
+
+
+class _LoadedModel:
+    """What of a LIBERO model a reset or an episode changes, as the model is compiled from its MJCF, to be put back
+    before a training reset (:meth:`LiberoEnv._reset_as_reloaded`): the fixtures' root body poses (the MJCF's ``pos``
+    and ``quat``, MuJoCo's defaults when absent, as robosuite writes an object's root) and every site's colour (taken
+    from the model before any reset or step has changed it)."""
+
+    def __init__(self, env: Any) -> None:
+        roots = [env.model.worldbody.find(f".//body[@name='{fixture.root_body}']") for fixture in env.fixtures]
+        self.bodies = [env.sim.model.body_name2id(fixture.root_body) for fixture in env.fixtures]
+        self.positions = np.array([_floats(root, "pos", "0 0 0") for root in roots]).reshape(-1, 3)
+        self.orientations = np.array([_floats(root, "quat", "1 0 0 0") for root in roots]).reshape(-1, 4)
+        self.site_rgba = env.sim.model.site_rgba.copy()
+
+    def restore(self, model: Any) -> None:
+        """Puts the loaded values back into ``model`` (robosuite's ``MjModel``), in place."""
+        model.body_pos[self.bodies] = self.positions
+        model.body_quat[self.bodies] = self.orientations
+        model.site_rgba[:] = self.site_rgba
+
+
 class LiberoEnv(Environment):
     """One LIBERO task on ``split``'s variations: LIBERO's fixed initial states (``eval``) or seeded resets
     (``train``)."""
@@ -126,21 +151,22 @@ class LiberoEnv(Environment):
         self.max_steps = MAX_EPISODE_STEPS[suite_of(task)[0]]
         self._initial_states = initial_states(task) if split == "eval" else None
         # Cameras are rendered here, only on the steps that ask, not by robosuite at every step, and an environment
-        # without images has no render context (~400 MB an environment instead of ~850). Evaluation resets softly,
-        # keeping the model (0.04 s against 5 s), since an initial state then sets every body; a fresh placement needs
-        # the model reloaded: a soft reset places the objects that start on a fixture (the bowl on the stove or on the
-        # cabinet) wrongly, off the table.
+        # without images has no render context (~400 MB an environment instead of ~850). No reset reloads the model
+        # (LIBERO's hard reset: ~1.3-3 s, up to a third of an expert's episode): evaluation resets softly, since an
+        # initial state then sets every body, and a training reset puts back what a reload would
+        # (:meth:`_reset_as_reloaded`).
         self._env = ControlEnv(
             bddl_file_name=task_bddl(task),
             use_camera_obs=False,
             has_offscreen_renderer=bool(image_size),
-            hard_reset=split == "train",
+            hard_reset=False,
             camera_heights=image_size or 128,
             camera_widths=image_size or 128,
         )
+        self._as_loaded = _LoadedModel(self._env.env)  # taken before any reset or step has changed the model
         if image_size:
-            # a training reset reloads the model and makes a render context for it: made from the cheap settings
-            # at once (robosuite's own hook on the model's XML), not made and then made again (2 s of a 5-s reset)
+            # a model reloaded all the same (robosuite's reset_from_xml_string, or the tests' reference hard reset)
+            # is compiled with the cheap settings at once (robosuite's own hook on the model's XML)
             self._env.env.set_xml_processor(functools.partial(cheap_offscreen_xml, size=image_size))
             self._cheap_rendering(image_size)
         self.steps = 0
@@ -163,16 +189,19 @@ class LiberoEnv(Environment):
             context._set_mujoco_context_and_buffers()  # the buffer is made from the settings above
         context.scn.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0
 
+    def _render(self) -> dict[str, np.ndarray]:
+        """Each camera's frame of the current state, rotated 180 degrees as LeRobot shows it: robosuite's
+        ``sim.render``'s frames bit for bit, the meshes outside a camera's view left out (a wrist frame in ~60%
+        of the time, an agentview one in ~95%: :mod:`snapflow.envs.libero_render`)."""
+        sim, size = self._env.env.sim, self.image_size
+        # robosuite renders into whichever GL context is current: with several environments in one process (the
+        # evaluator's), another's would receive the frame
+        sim._render_context_offscreen.gl_ctx.make_current()
+        frames = {name: render_culled(sim, CAMERAS[name], size, size) for name in self._cameras}
+        return {name: np.ascontiguousarray(frame[::-1, ::-1]) for name, frame in frames.items()}
+
     def _observe(self, raw: Mapping[str, np.ndarray], render: bool) -> Observation:
-        images = {}
-        if render and self.image_size:
-            sim = self._env.env.sim
-            # robosuite renders into whichever GL context is current: with several environments in one process
-            # (the evaluator's), another's would receive the frame
-            sim._render_context_offscreen.gl_ctx.make_current()
-            for name in self._cameras:
-                frame = sim.render(camera_name=CAMERAS[name], width=self.image_size, height=self.image_size)
-                images[name] = np.ascontiguousarray(frame[::-1, ::-1])  # rotated 180 degrees, as LeRobot shows it
+        images = self._render() if render and self.image_size else {}
         main, *others = self._cameras
         return Observation(
             proprioception(raw),
@@ -192,9 +221,7 @@ class LiberoEnv(Environment):
         # process), as LeRobot's LiberoEnv seeds it.
         self._env.seed(variation)
         if self._initial_states is None:
-            self._env.reset()
-            if self.image_size:  # the reloaded model came with a render context of its own
-                self._cheap_rendering(self.image_size)
+            self._reset_as_reloaded()
         else:
             self._env.reset()
             self._env.set_init_state(self._initial_states[variation])
@@ -202,6 +229,58 @@ class LiberoEnv(Environment):
             raw, _, _, _ = self._env.step(SETTLE_ACTION)
         self.steps = 0
         return self._observe(raw, render)
+
+    def _reset_as_reloaded(self) -> None:
+        """LIBERO's hard reset (robosuite's ``reset`` with ``hard_reset``: the model rebuilt from its MJCF, recompiled,
+        a new render context) without the reload (~20 ms instead of ~2.5 s), ending in the scene a reload leaves, bit
+        for bit: the same draws from NumPy's generator in the same order (but for the one LIBERO bug below), the same
+        model, state, controllers and frames.
+
+        A reload draws nothing; it hands robosuite's ``_reset_internal`` (where every draw is made: the robot's
+        initialisation noise, the drawers' and knobs' joints, then the placements) a freshly compiled model, a fresh
+        ``MjData`` and new Python objects for the robot's gripper and LIBERO's objects. What a kept model and its
+        objects carry over from the last episode, and so is put back here:
+
+        - the fixtures' root bodies (cabinet, stove, rack, ...): each reset writes its fixtures' drawn poses into
+          ``model.body_pos``/``body_quat``; a fresh model holds them where the MJCF puts them (the origin). This is why
+          a plain soft reset put a bowl that starts on a fixture off the table: LIBERO places it at the fixture's drawn
+          position plus the site's ``site_xpos``, read before the new poses are written, which is the site's offset in
+          the fixture only while the fixture sits at the origin (and the whole last pose counted twice otherwise);
+        - ``model.site_rgba``: robosuite hides sites by negating their alpha and LIBERO shows a lit burner by taking
+          ``1 - alpha``, so an episode that lit the stove leaves an alpha (-2 for -1) that no later reset undoes;
+        - the gripper's command (``current_action``), which its fingers move from a step at a time: a new gripper's
+          is at rest;
+        - ``MjData``: ``mj_resetData`` makes it a new one, then forwarded as often as a reload forwards it, once by
+          robosuite's ``_initialize_sim`` and once more by a new render context's constructor: each forward
+          warm-starts the constraint solver from the last one's accelerations, so the count shows in their last bits
+          and, through the settle steps, in the state's (~1e-15 where it is one forward short).
+
+        One draw differs from a reload, on purpose: LIBERO appends each load's drawer and knob samplers
+        (``object_property_initializers``) to those of the loads before, so a hard reset of an environment draws each
+        such joint once more than the one before it did (the scenes of the tasks that open a drawer, the microwave or
+        light the stove depended on how many resets their environment had made); here each is drawn once, as a
+        reload's own samplers draw it. LIBERO's lit-burner flags (``vis_site_names``) are left: each step's
+        ``_post_process`` sets them from the knob's joint before it reads them. The rest of robosuite's reset follows
+        as its own ``reset`` runs it, retried on a failed placement as ``ControlEnv.reset`` retries it."""
+        from robosuite.utils.errors import RandomizationError
+
+        env = self._env.env
+        while True:
+            self._as_loaded.restore(env.sim.model)
+            for robot in env.robots:
+                robot.gripper.current_action = np.zeros(robot.gripper.dof)
+            env.sim.reset()
+            for _ in range(1 + bool(env.has_offscreen_renderer)):
+                env.sim.forward()
+            try:
+                env._reset_internal()
+                break
+            except RandomizationError:
+                continue
+        env.sim.forward()
+        env._obs_cache = {}
+        env.visualize(vis_settings={vis: False for vis in env._visualizations})
+        env._get_observations(force_update=True)
 
     def step(self, action: np.ndarray, render: bool = False) -> tuple[Observation, bool, bool]:
         raw, _, _, _ = self._env.step(np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0))

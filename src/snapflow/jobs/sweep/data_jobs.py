@@ -33,6 +33,7 @@ PART = "lerobot"  # a video collection's part of the LeRobotDataset, inside its 
 RENDERED = "rendered"  # a video collection's demonstrations with their rendered frames, until encoded
 PACKED = "demonstrations.tar"  # a video collection kept, packed, beside its ledger record
 COLLECTED = "collected.json"  # inside a kept collection: the record of the job that made it
+COLLECTING = "collecting.json"  # inside a collection: how long its experts ran
 
 
 class FolderJob(Job):
@@ -80,6 +81,7 @@ class CollectJob(FolderJob):
             Demonstrations.load(self.directory)
             return {} if self.packed is None else self._keep()
         rendered = self.directory / RENDERED if data.video is not None else self.directory
+        collecting = self.directory / COLLECTING
         if not (rendered / META_FILE).is_file():
             collect(
                 make_benchmark(data.env),
@@ -91,11 +93,15 @@ class CollectJob(FolderJob):
                 extra_cameras=data.extra_cameras,
                 action_noise=data.action_noise,
             )
-        results = {"wall_time_s": time.perf_counter() - began}
+            write_json(collecting, {"seconds": time.perf_counter() - began})  # a run stopped after it still knows
         if data.video is None:
-            return results
-        results["frame_error"] = self._encode(Demonstrations.load(rendered))
+            return {"wall_time_s": time.perf_counter() - began}
+        encoding = time.perf_counter()
+        results: dict[str, Any] = {"frame_error": self._encode(Demonstrations.load(rendered))}
         shutil.rmtree(rendered)
+        if collecting.is_file():  # the collection's time and the encoding's: what the status estimates from
+            collected = json.loads(collecting.read_text())["seconds"]
+            results["wall_time_s"] = collected + time.perf_counter() - encoding
         return {**results, **(self._keep() if self.packed is not None else {})}
 
     def _encode(self, demonstrations: Demonstrations) -> dict[str, Any]:
