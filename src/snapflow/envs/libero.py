@@ -27,6 +27,7 @@ import numpy as np
 
 from snapflow.envs.base import Benchmark, Environment, Observation
 from snapflow.envs.libero_expert import LiberoExpert, NoExpertError, make_libero_expert, privileged_extras
+from snapflow.envs.libero_lod import simplify_visual_meshes
 from snapflow.envs.libero_render import render as render_culled
 from snapflow.envs.rotations import quaternion_to_axis_angle
 from snapflow.errors import InvalidInputError
@@ -138,9 +139,14 @@ class LiberoEnv(Environment):
     (``train``)."""
 
     def __init__(
-        self, task: str, split: str = "train", image_size: int | None = None, extra_cameras: Sequence[str] | None = None
+        self,
+        task: str,
+        split: str = "train",
+        image_size: int | None = None,
+        extra_cameras: Sequence[str] | None = None,
+        mesh_triangles: int | None = None,
     ) -> None:
-        benchmark = Libero()
+        benchmark = Libero(mesh_triangles)
         benchmark.check_tasks([task])
         benchmark.check_split(split)
         self._cameras = (benchmark.camera, *benchmark.check_cameras(extra_cameras))
@@ -169,6 +175,8 @@ class LiberoEnv(Environment):
             # is compiled with the cheap settings at once (robosuite's own hook on the model's XML)
             self._env.env.set_xml_processor(functools.partial(cheap_offscreen_xml, size=image_size))
             self._cheap_rendering(image_size)
+            if mesh_triangles:  # the cameras draw simplified copies of the large visual meshes: libero-lod
+                simplify_visual_meshes(self._env.env.sim, mesh_triangles)
         self.steps = 0
 
     def _cheap_rendering(self, size: int) -> None:
@@ -306,6 +314,13 @@ class Libero(Benchmark):
     extra_cameras = tuple(CAMERAS)[1:]  # their frames travel in Observation.extra_images
     max_envs = 16  # ~850 MB an environment with cameras (~400 without): ~14 GB, room for a second process's
 
+    def __init__(self, mesh_triangles: int | None = None) -> None:
+        """``mesh_triangles``: the cameras draw the large visual-only meshes simplified to about that many triangles
+        (:mod:`snapflow.envs.libero_lod`: both 64-px cameras in about half the time, frames within ~1 of 255 of the
+        full meshes'; the physics unchanged), the variant ``libero-lod``; None: the meshes as LIBERO ships them."""
+        self.mesh_triangles = mesh_triangles
+        self.name = "libero-lod" if mesh_triangles else "libero"
+
     @property
     def tasks(self) -> tuple[str, ...]:
         return tuple(task for members in TASK_SETS.values() for task in members)
@@ -334,7 +349,7 @@ class Libero(Benchmark):
     def make_env(
         self, task: str, split: str, image_size: int | None = None, extra_cameras: Sequence[str] | None = None
     ) -> LiberoEnv:
-        return LiberoEnv(task, split, image_size, extra_cameras)
+        return LiberoEnv(task, split, image_size, extra_cameras, self.mesh_triangles)
 
     def make_expert(self, task: str) -> LiberoExpert:
         """The waypoint controller of ``task``'s goal, or :class:`~snapflow.envs.libero_expert.NoExpertError`

@@ -6,6 +6,7 @@ from __future__ import annotations
 from typing import Any
 
 from snapflow.envs.factory import make_benchmark
+from snapflow.envs.libero import Libero
 from snapflow.errors import InvalidInputError
 from snapflow.jobs.sweep.specs import EVALUATORS, DataSpec, RunSpec, TableSpec
 
@@ -17,7 +18,7 @@ def check_lerobot_eval(section: str, table: TableSpec, runs: dict[str, RunSpec],
 
     if table.evaluator not in EVALUATORS:
         raise InvalidInputError(f"{section}: evaluator must be one of {list(EVALUATORS)}, got {table.evaluator!r}")
-    if data.env != "libero":
+    if not isinstance(make_benchmark(data.env), Libero):
         raise InvalidInputError(
             f"{section}: lerobot-eval evaluates on LeRobot's LIBERO environment; data is {data.env!r}"
         )
