@@ -19,6 +19,7 @@ from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1
 from snapflow.flow.solver import sample_actions
 from snapflow.policies.loaded import CheckpointError
 from snapflow.reporting.archive import read_manifest, repository_root, restore
+from snapflow.reporting.packed import PACKED_SUFFIX
 from snapflow.sources import LEROBOT_RUN_FORMAT, open_policy
 
 ROOT = repository_root(Path(__file__))
@@ -36,6 +37,8 @@ def _kept_folders() -> dict[str, bool]:
     run's training checkpoint (what resumes training, and must be refused naming the policy folder)."""
     folders = {}
     for entry in read_manifest(ROOT):
+        if entry.path.endswith(PACKED_SUFFIX):  # a sweep's kept collection, not weights
+            continue
         folder = PurePosixPath(entry.path).parent
         if (ROOT / folder / "config.json").is_file():
             folders[str(folder)] = True
@@ -74,8 +77,13 @@ def fresh_copies(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return into
 
 
+#: the sweeps' kept collections: one packed task each, beside its collection record
+PACKS = [entry for entry in read_manifest(ROOT) if entry.path.endswith(PACKED_SUFFIX)]
+
+
 def test_every_archived_weight_belongs_to_a_kept_folder() -> None:
-    stray = [entry.path for entry in read_manifest(ROOT) if str(PurePosixPath(entry.path).parent) not in KEPT]
+    weights = [entry for entry in read_manifest(ROOT) if entry not in PACKS]
+    stray = [entry.path for entry in weights if str(PurePosixPath(entry.path).parent) not in KEPT]
     assert not stray, f"archived weights in no policy or checkpoint folder: {stray}"
     assert sum(KEPT.values()) >= 18  # the MiniVLA LIBERO teachers and students, and every SmolVLA seed's
 
@@ -101,6 +109,25 @@ def test_a_kept_policy_opens_on_a_fresh_clone_and_samples_a_chunk(fresh_copies: 
         )
     assert chunk.shape == (1, processor.chunk_length, processor.action_dim)
     assert torch.isfinite(chunk).all()
+
+
+@pytest.mark.parametrize("entry", PACKS, ids=[PurePosixPath(entry.path).parent.name for entry in PACKS])
+def test_a_kept_collection_comes_back_whole_and_is_the_one_its_record_names(tmp_path: Path, entry) -> None:
+    """A packed task of a sweep restores from history and unpacks to demonstrations and their video part, made by
+    the collection job its committed record describes (what a sweep on a fresh clone checks before using it)."""
+    from snapflow.data.demonstrations import Demonstrations
+    from snapflow.reporting.packed import unpack_folder
+
+    shallow = subprocess.run(["git", "rev-parse", "--is-shallow-repository"], cwd=ROOT, capture_output=True, text=True)
+    if shallow.stdout.strip() == "true":
+        pytest.skip("a shallow clone lacks the history the packs are archived in (git fetch --unshallow)")
+    restore(ROOT, [entry], tmp_path)
+    record = json.loads((ROOT / PurePosixPath(entry.path).parent / "job.json").read_text())
+    folder = unpack_folder(tmp_path / entry.path, tmp_path / "collection")
+    assert json.loads((folder / "collected.json").read_text())["config"] == record["config"]
+    demonstrations = Demonstrations.load(folder)
+    assert len(demonstrations.episodes) == record["config"]["episodes_per_task"] and demonstrations.images is None
+    assert (folder / "lerobot" / "meta" / "info.json").is_file(), "the frames travel as the task's video part"
 
 
 @pytest.mark.parametrize("folder", sorted(folder for folder, opens in KEPT.items() if not opens))
