@@ -180,33 +180,39 @@ def archive(root: Path, paths: Sequence[str], message: str) -> Archived:
     return Archived(added, removed, superseded)
 
 
+def _in_checkout(path: str | Path) -> tuple[Path, PurePosixPath] | None:
+    """The root of the nearest checkout above ``path`` that has a manifest, and ``path`` relative to it; None where
+    no folder above it has one."""
+    path = Path(path).resolve()
+    root = next((folder for folder in path.parents if (folder / MANIFEST).is_file()), None)
+    return None if root is None else (root, PurePosixPath(path.relative_to(root).as_posix()))
+
+
 def restore_if_archived(path: str | Path) -> bool:
     """Bring ``path`` (a file) back from the history of the checkout that holds it where it is missing and the
     manifest names it: what a sweep does for the packed demonstrations it needs. False where it is not archived (or
     not in a checkout)."""
-    path = Path(path).resolve()
-    for root in path.parents:
-        if (root / MANIFEST).is_file():
-            relative = path.relative_to(root).as_posix()
-            entries = [entry for entry in read_manifest(root) if entry.path == relative]
-            return bool(entries) and (bool(restore(root, entries)) or is_present(root, entries[0]))
-    return False
+    found = _in_checkout(path)
+    if found is None:
+        return False
+    root, relative = found
+    entries = [entry for entry in read_manifest(root) if entry.path == str(relative)]
+    return bool(entries) and (bool(restore(root, entries)) or is_present(root, entries[0]))
 
 
 def archived_hint(path: str | Path) -> str:
     """Where ``path`` (a missing file, or a folder missing files) is archived: the command that restores it, else
     an empty string."""
-    path = Path(path).resolve()
-    for root in path.parents:
-        if (root / MANIFEST).is_file():
-            relative = PurePosixPath(path.relative_to(root).as_posix())
-            try:
-                entries = read_manifest(root)
-            except ArchiveError:
-                return ""
-            if any(_under(PurePosixPath(entry.path), relative) for entry in entries):
-                return f"; it is archived in git history: `{RESTORE_COMMAND} {relative}` brings it back"
-            return ""
+    found = _in_checkout(path)
+    if found is None:
+        return ""
+    root, relative = found
+    try:
+        entries = read_manifest(root)
+    except ArchiveError:
+        return ""
+    if any(_under(PurePosixPath(entry.path), relative) for entry in entries):
+        return f"; it is archived in git history: `{RESTORE_COMMAND} {relative}` brings it back"
     return ""
 
 
