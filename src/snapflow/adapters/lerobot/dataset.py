@@ -13,7 +13,8 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -86,19 +87,16 @@ def write_lerobot_dataset(
 
     It is built in a temporary folder beside ``root`` and moved there only once LeRobot has finalised it, so an
     interrupted export leaves no half-written dataset. Returns ``root``."""
-    root = check_dataset_root(root)
     if not progress:  # LeRobot's writer maps each episode through Hugging Face datasets, with a bar each
         import datasets
 
         datasets.disable_progress_bars()
-    root.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{root.name}.tmp-", dir=root.parent))
-    try:
+    with _built_beside(root) as built:
         dataset = LeRobotDataset.create(
-            repo_id=repo_id or f"local/{root.name}",
+            repo_id=repo_id or f"local/{Path(root).name}",
             fps=fps,
             features=lerobot_features(demonstrations, camera, video is not None),
-            root=staging / "dataset",
+            root=built,
             use_videos=video is not None,
             video_backend=VIDEO_BACKEND,  # LeRobot would try torchcodec first: a long traceback without FFmpeg
             image_writer_threads=0,  # frames are written as they are added: nothing is pending at finalize
@@ -115,30 +113,21 @@ def write_lerobot_dataset(
             dataset.save_episode()
         dataset.finalize()
         if video is not None:
-            check_video_lengths(staging / "dataset", fps)
-        _move_into(staging / "dataset", root)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-    return root
+            check_video_lengths(built, fps)
+    return Path(root)
 
 
 def merge_lerobot_datasets(parts: Sequence[str | Path], root: str | Path, repo_id: str) -> Path:
     """The LeRobotDatasets at ``parts`` as one, ``repo_id`` at ``root``, by LeRobot's own ``aggregate_datasets``:
-    episodes in the parts' order, statistics aggregated, video files joined without encoding their frames again (so
-    the merged dataset decodes to the very frames of its parts). Built beside ``root`` and moved there whole."""
+    episodes in the parts' order, statistics aggregated, files joined as they are (PNG frames copied; video files
+    joined without encoding their frames again). Built beside ``root`` and moved there whole."""
     from lerobot.datasets.aggregate import aggregate_datasets
 
-    root = check_dataset_root(root)
-    root.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{root.name}.tmp-", dir=root.parent))
-    try:
-        paths = [Path(part) for part in parts]
-        names = [f"local/part-{index}" for index in range(len(paths))]
-        aggregate_datasets(names, repo_id, roots=paths, aggr_root=staging / "dataset")
-        _move_into(staging / "dataset", root)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-    return root
+    paths = [Path(part) for part in parts]
+    names = [f"local/part-{index}" for index in range(len(paths))]
+    with _built_beside(root) as built:
+        aggregate_datasets(names, repo_id, roots=paths, aggr_root=built)
+    return Path(root)
 
 
 def video_frame_error(root: str | Path, demonstrations: Demonstrations, camera: str) -> dict[str, dict[str, Any]]:
@@ -159,12 +148,20 @@ def with_decoded_frames(
     return replace(demonstrations, images=decoded.pop(camera), extra_images=decoded)
 
 
-def _move_into(built: Path, root: Path) -> None:
-    """Put a dataset built elsewhere on the same disk at ``root`` (an empty folder there, which
-    :func:`check_dataset_root` allowed, is replaced)."""
-    if root.exists():
-        root.rmdir()
-    os.replace(built, root)
+@contextmanager
+def _built_beside(root: str | Path) -> Iterator[Path]:
+    """A folder to build a dataset in, beside ``root`` (which :func:`check_dataset_root` must allow), put at ``root``
+    only once the block ends without error: an interrupted build leaves no half-written dataset."""
+    root = check_dataset_root(root)
+    root.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{root.name}.tmp-", dir=root.parent))
+    try:
+        yield staging / "dataset"
+        if root.exists():  # an empty folder there is replaced
+            root.rmdir()
+        os.replace(staging / "dataset", root)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
 
 
 __all__ = [

@@ -61,8 +61,9 @@ def sweep_status(config: SweepConfig) -> list[JobStatus]:
     states, seconds, started = {}, {}, {}
     for job in planned:
         started[job] = is_started(job)
-        if is_done(job) or is_recorded(job):
-            states[job] = "done" if is_done(job) else "kept"
+        finished = "done" if is_done(job) else "kept" if is_recorded(job) else None
+        if finished:
+            states[job] = finished
             seconds[job] = measured_seconds(job)
         else:
             states[job] = "running" if running and started[job] else "missing"
