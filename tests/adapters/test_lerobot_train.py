@@ -80,6 +80,33 @@ def test_the_student_types_forward_is_snapflows_objective_on_the_same_batch_and_
         student.forward(dict(batch), reduction="none")
 
 
+def test_the_high_noise_biased_fine_tuning_is_flow_matching_on_shifted_times(vlm_directory):
+    """alpha 1 and time shift 4 (arXiv 2606.05737's recipe on the lerobot-train route): the loss is the policy's
+    flow-matching loss at its own times shifted toward noise, with no consistency row; the settings round-trip
+    through the config's fields."""
+    from snapflow.flow.time_sampling import ShiftedTimeSampler
+    from snapflow.objective.registry import make_objective
+    from snapflow.training.lerobot_student import config_settings, student_fields
+    from snapflow.training.recipes import DistillSettings
+
+    settings = DistillSettings(alpha=1.0, time_shift=4.0)
+    student = _student(vlm_directory, **student_fields(settings))
+    assert config_settings(student.config) == settings
+    objective = student.distillation_objective()
+    assert objective.time_sampler == ShiftedTimeSampler(lerobot_time_sampler(student.config), 4.0)
+
+    batch = tiny_batch(batch_size=6)
+    loss, logs = student.forward(dict(batch), generator=torch.Generator().manual_seed(7))
+    unshifted = make_objective("snapflow", alpha=1.0, time_sampler=lerobot_time_sampler(student.config))
+    on_shifted = make_objective("snapflow", alpha=1.0, time_sampler=objective.time_sampler)
+    expected, other = (
+        made(student.snapflow, dict(batch), student.prepare_action(batch), generator=torch.Generator().manual_seed(7))
+        for made in (on_shifted, unshifted)
+    )
+    assert (expected.num_consistency, logs["consistency_loss"]) == (0, 0.0)
+    assert torch.equal(loss, expected.loss) and not torch.equal(loss, other.loss)
+
+
 def test_update_labels_the_checkpoint_distilled_only_after_a_step_of_the_one_step_objective(vlm_directory):
     from snapflow.adapters.lerobot.plugin.modeling_snapflow import NotDistilledError
 

@@ -11,12 +11,14 @@ from snapflow.flow import (
     TEACHER_10,
     BetaTimeSampler,
     SamplingMode,
+    ShiftedTimeSampler,
     UniformTimeSampler,
     conditional_velocity,
     euler_sample,
     euler_step,
     interpolate,
     sample_actions,
+    shifted,
 )
 from tests.helpers import RecordingPolicy
 
@@ -65,6 +67,38 @@ def test_uniform_time_sampler():
     t = UniformTimeSampler()(100_000, generator=torch.Generator().manual_seed(0))
     assert 0 <= t.min() and t.max() < 1
     assert abs(t.mean().item() - 0.5) < 0.005
+
+
+def test_shifted_times_follow_the_shift_written_out_by_hand():
+    """s t / (1 + (s - 1) t) at s = 4, by hand: 0.5 -> 2 / 2.5 = 0.8, 0.25 -> 1 / 1.75, the ends stay."""
+
+    class Fixed:
+        def __call__(self, batch_size, *, device="cpu", generator=None):
+            return torch.tensor([0.0, 0.25, 0.5, 1.0])
+
+    times = ShiftedTimeSampler(Fixed(), 4.0)(4)
+    assert torch.allclose(times, torch.tensor([0.0, 1 / 1.75, 0.8, 1.0]))
+    assert shifted(Fixed(), 2.0)(4)[2].item() == pytest.approx(2 / 3)
+
+
+def test_shifting_pi0s_times_by_four_gives_the_high_noise_distribution():
+    """T' = 4T / (1 + 3T) with T ~ pi0's times has CDF F(x / (4 - 3x)), F that of T: its median moves from 0.63 to
+    0.87; the same generator gives the same draws, and shift 1 is the sampler itself (its draws unchanged)."""
+    base = BetaTimeSampler()
+    sampler = shifted(base, 4.0)
+    t = sampler(200_000, generator=torch.Generator().manual_seed(0))
+    assert t.min() > 0 and t.max() <= 1.0
+    grid = torch.linspace(0.05, 0.95, 19).double()
+    empirical = (t[None, :] <= grid[:, None]).double().mean(dim=1)
+    exact = (((grid / (4 - 3 * grid)) - 0.001) / 0.999).clamp(min=0) ** 1.5
+    assert (empirical - exact).abs().max() < 0.005
+    median = 0.001 + 0.999 * 0.5 ** (2 / 3)  # pi0's, where x ** 1.5 = 1 / 2
+    assert t.median().item() == pytest.approx(4 * median / (1 + 3 * median), abs=0.005)
+    draws = [sampler(8, generator=torch.Generator().manual_seed(3)) for _ in range(2)]
+    assert torch.equal(draws[0], draws[1])
+    assert shifted(base, 1.0) is base
+    with pytest.raises(ValueError, match="positive"):
+        ShiftedTimeSampler(base, 0.0)
 
 
 def test_sampling_mode_names_round_trip():

@@ -91,6 +91,16 @@ def test_rebuilding_some_tables_keeps_the_others_results_as_they_are(tmp_path, m
             "power of two",
         ),
         (
+            '[runs.teacher]\nlerobot = { policy_type = "smolvla" }\n[runs.biased]\nteacher = "teacher"\n'
+            'trainer = "lerobot-train"\n'
+            'distill = { alpha = 1.0, time_shift = 4.0 }\n[[tables]]\nname = "t"\nrows = [{ label = "x", run = "biased", mode = "snapflow-1" }]\n',
+            "run 'biased' trains no jump (alpha 1 or lambda 0): sample it as naive or teacher-N",
+        ),
+        (
+            '[runs.teacher]\n[runs.student]\nteacher = "teacher"\ndistill = { time_shift = -1 }\n',
+            "a time shift must be positive, got -1",
+        ),
+        (
             '[runs.teacher]\n[[tables]]\nname = "t"\nrows = [{ label = "x", run = "ghost", mode = "naive" }]\n',
             "unknown run 'ghost'",
         ),

@@ -74,6 +74,14 @@ def add_parser(subparsers: Any) -> None:
         default=None,
         help="share of the one-step rows that jump between inner times t -> s instead of 1 -> 0 (default: the recipe's)",
     )
+    parser.add_argument(
+        "--time-shift",
+        type=POSITIVE,
+        default=None,
+        help="push the flow-matching rows' times toward noise, t -> s t / (1 + (s - 1) t) (default 1: the policy's "
+        "own); --alpha 1 --time-shift 4 fine-tunes without distilling, as arXiv 2606.05737 does (the result samples "
+        "as naive or teacher-N)",
+    )
     add_objective_options(parser, None)
     settings_fields = {field.name for field in fields(DistillSettings)}
     own_options = {
@@ -185,6 +193,7 @@ def _student_settings(args: argparse.Namespace, lerobot: bool) -> tuple[TrainCon
         "target": args.target,
         "target_steps": args.target_steps,
         "intermediate_jumps": args.intermediate_jumps,
+        "time_shift": args.time_shift,
         "objective_options": dict(args.objective_option) if args.objective_option else None,
     }
     return student_settings(args.recipe, lerobot, given(training_overrides(args)), given(overrides))

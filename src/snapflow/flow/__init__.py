@@ -8,6 +8,12 @@ __getattr__, __dir__, __all__ = lazy_exports(
         "snapflow.flow.path": ["interpolate", "conditional_velocity", "euler_step"],
         "snapflow.flow.modes": ["SamplingMode", "TEACHER_10", "NAIVE_1", "SNAPFLOW_1"],
         "snapflow.flow.solver": ["euler_sample", "sample_actions"],
-        "snapflow.flow.time_sampling": ["TimeSampler", "UniformTimeSampler", "BetaTimeSampler"],
+        "snapflow.flow.time_sampling": [
+            "TimeSampler",
+            "UniformTimeSampler",
+            "BetaTimeSampler",
+            "ShiftedTimeSampler",
+            "shifted",
+        ],
     },
 )

@@ -56,4 +56,34 @@ class BetaTimeSampler:
         return self.min_time + (1 - self.min_time) * u.pow(1 / self.concentration)
 
 
-__all__ = ["TimeSampler", "UniformTimeSampler", "BetaTimeSampler"]
+@dataclass(frozen=True)
+class ShiftedTimeSampler:
+    """``base``'s times pushed toward the noisy end t = 1: t -> s t / (1 + (s - 1) t), with s = ``shift``.
+
+    The time shift of SD3 (Esser et al., 2024), read in this library's convention (t = 1 is noise). arXiv 2606.05737
+    ("Let It Be Simple") trains one-step VLAs on pi0's Beta(1.5, 1) shifted by s = 4, its best of 3, 4 and 8 at one
+    step. The map is increasing and keeps t = 0 and t = 1 where they are, so times stay in (0, 1]; s > 1 moves
+    every time toward noise (t = 0.5 becomes s / (s + 1): 0.8 at s = 4), s = 1 changes nothing.
+    """
+
+    base: TimeSampler
+    shift: float
+
+    def __post_init__(self) -> None:
+        if not self.shift > 0:
+            raise InvalidInputError(f"a time shift must be positive, got {self.shift}")
+
+    def __call__(
+        self, batch_size: int, *, device: torch.device | str = "cpu", generator: torch.Generator | None = None
+    ) -> Tensor:
+        time = self.base(batch_size, device=device, generator=generator)
+        return self.shift * time / (1 + (self.shift - 1) * time)
+
+
+def shifted(sampler: TimeSampler, shift: float) -> TimeSampler:
+    """``sampler`` with its times shifted by ``shift`` (:class:`ShiftedTimeSampler`); ``sampler`` itself at 1, so
+    its draws stay bit for bit what they were."""
+    return sampler if shift == 1 else ShiftedTimeSampler(sampler, shift)
+
+
+__all__ = ["TimeSampler", "UniformTimeSampler", "BetaTimeSampler", "ShiftedTimeSampler", "shifted"]

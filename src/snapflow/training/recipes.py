@@ -40,7 +40,9 @@ class DistillSettings:
     a list of them is a schedule over equal stages of training) or ``target="bootstrap"`` (built from the model's own
     half-jumps, reaching ``target_steps`` Euler steps at three passes per row; see
     :mod:`snapflow.objective.bootstrap`). ``intermediate_jumps`` is the share of SnapFlow's one-step rows that jump
-    between inner times (t, s) instead of 1 -> 0. ``objective_options`` holds the chosen objective's options that no
+    between inner times (t, s) instead of 1 -> 0. ``time_shift`` pushes the flow-matching rows' times toward noise
+    (:class:`~snapflow.flow.time_sampling.ShiftedTimeSampler`; 1 keeps the policy's own): with ``alpha=1`` and no
+    consistency term it is arXiv 2606.05737's high-noise-biased fine-tuning at 4. ``objective_options`` holds the chosen objective's options that no
     field here holds (e.g. meanflow's ``adaptive_power``; absent: the objective's default). The objective is passed
     the options it declares, from their fields or ``objective_options``; an option of another objective must keep its
     default.
@@ -56,6 +58,7 @@ class DistillSettings:
     target: str = "euler"
     target_steps: int | tuple[int, ...] = PAPER_TARGET_STEPS
     intermediate_jumps: float = 0.0
+    time_shift: float = added_option(1.0)
     # left out of the hash, which a dict cannot join (jobs holding these settings are hashed); equality still sees it
     objective_options: dict[str, Any] = added_option(default_factory=dict, hash=False)
 
@@ -66,6 +69,13 @@ class DistillSettings:
         from snapflow.flow.time_sampling import BetaTimeSampler
 
         self.objective(BetaTimeSampler())  # the objective checks its own values
+
+    @property
+    def trains_jump(self) -> bool:
+        """Whether these settings train a one-step jump at all: some consistency rows (alpha < 1), weighted
+        (lambda > 0). Without, they fine-tune the flow-matching velocity only, to be sampled as ``naive`` or
+        ``teacher-N``."""
+        return self.alpha < 1 and self.consistency_weight > 0
 
     @property
     def objective_type(self) -> ObjectiveType:
@@ -98,12 +108,15 @@ class DistillSettings:
         return {**held, **self.objective_options}
 
     def objective(self, time_sampler: TimeSampler) -> TwoBranchObjective:
-        """The chosen loss with these settings and the policy's own FM time distribution."""
+        """The chosen loss with these settings and the policy's own FM time distribution (shifted by
+        ``time_shift``)."""
+        from snapflow.flow.time_sampling import shifted
+
         return make_objective(
             self.objective_type.name,
             alpha=self.alpha,
             consistency_weight=self.consistency_weight,
-            time_sampler=time_sampler,
+            time_sampler=shifted(time_sampler, self.time_shift),
             **self._passed_options(),
         )
 

@@ -286,6 +286,11 @@ def _tables(
                 mode = SamplingMode.parse(row["mode"])
             except ValueError as error:
                 raise InvalidInputError(f"{section}: row {row['label']!r}: {error}") from None
+            if mode.jump and run.trainer == "lerobot-train" and not run.distill.trains_jump:
+                raise InvalidInputError(  # LeRobot's student labels itself not distilled and refuses the jump
+                    f"{section}: row {row['label']!r}: run {run.name!r} trains no jump (alpha 1 or lambda 0): sample "
+                    f"it as naive or teacher-N, not {mode}"
+                )
             n_act = _count(f"{section}: row {row['label']!r}", "n_act", row.get("n_act", entry.get("n_act", N_ACT)))
             rows.append(RowSpec(row["label"], row["run"], mode, n_act, row.get("series"), row.get("x"), other))
         labels = [row.label for row in rows]

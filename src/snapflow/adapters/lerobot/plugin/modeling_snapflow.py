@@ -18,7 +18,6 @@ from snapflow.adapters.lerobot_types import installed_lerobot_types, lerobot_pol
 from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SamplingMode
 from snapflow.objective.base import TwoBranchObjective
-from snapflow.objective.registry import make_objective
 
 
 class NotDistilledError(InvalidInputError):
@@ -82,10 +81,9 @@ class SnapFlowStudent:
         return trainable
 
     def distillation_objective(self) -> TwoBranchObjective:
-        """The SnapFlow objective with the config's ``distill_*`` settings and the policy's own training times."""
-        return make_objective(
-            "snapflow", time_sampler=lerobot_time_sampler(self.config), **self.config.distill_options()
-        )
+        """The SnapFlow objective with the config's ``distill_*`` settings and the policy's own training times (shifted
+        by ``distill_time_shift``)."""
+        return self.config.distillation_objective(lerobot_time_sampler(self.config))
 
     def forward(
         self,
