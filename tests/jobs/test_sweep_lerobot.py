@@ -22,7 +22,7 @@ from snapflow.sources import open_policy
 TINY_TRAIN = "{ steps = 4, batch_size = 4, warmup_steps = 1, log_every = 2, validate_every = 4, checkpoint_every = 2 }"
 
 
-def write_config(directory: Path, runs: str = "") -> Path:
+def write_config(directory: Path, runs: str = "", rows: str = "") -> Path:
     path = directory / "smolvla.toml"
     path.write_text(f"""
 name = "smolvla"
@@ -57,7 +57,7 @@ rows = [
   {{ label = "teacher 10-NFE", run = "teacher", mode = "teacher-10" }},
   {{ label = "naive 1-NFE", run = "teacher", mode = "naive" }},
   {{ label = "SnapFlow 1-NFE, lerobot-train", run = "lerobot-train", mode = "snapflow-1" }},
-  {{ label = "SnapFlow 1-NFE, snapflow distill", run = "distilled", mode = "snapflow-1" }},
+  {{ label = "SnapFlow 1-NFE, snapflow distill", run = "distilled", mode = "snapflow-1" }},{rows}
 ]
 """)
     return path
@@ -141,9 +141,19 @@ def test_a_bad_lerobot_run_is_refused_with_its_section_named(tmp_path, capsys, r
 def test_a_tiny_smolvla_sweep_trains_distils_by_both_trainers_and_evaluates_every_row(tmp_path):
     from snapflow.adapters.lerobot.local_vlm import BUNDLED_VLM
 
-    config_path = write_config(tmp_path)
+    biased = (
+        '[runs.biased]\nteacher = "teacher"\ntrainer = "lerobot-train"\ndistill = { alpha = 1.0, time_shift = 4.0 }\n'
+    )
+    biased += "train = { steps = 2, batch_size = 4, warmup_steps = 1, log_every = 1, checkpoint_every = 2 }\n"
+    biased_row = '\n  { label = "high-noise biased 1-NFE", run = "biased", mode = "naive" },'
+    config_path = write_config(tmp_path, biased, biased_row)
     assert main(["sweep", str(config_path), "--workers", "1", "--threads", "1", "--no-progress"]) == 0
     runs = tmp_path / "runs"
+    # the high-noise-biased run: flow matching alone at shifted times, so not labelled distilled
+    fine_tuned = json.loads(
+        (runs / "biased/seed-0/lerobot-train/checkpoints/last/pretrained_model/config.json").read_text()
+    )
+    assert (fine_tuned["distilled"], fine_tuned["distill_alpha"], fine_tuned["distill_time_shift"]) == (False, 1.0, 4.0)
     assert (runs / "lerobot" / "meta" / "info.json").is_file()
     student = json.loads(
         (runs / "lerobot-train/seed-0/lerobot-train/checkpoints/last/pretrained_model/config.json").read_text()
@@ -169,7 +179,7 @@ def test_a_tiny_smolvla_sweep_trains_distils_by_both_trainers_and_evaluates_ever
     shutil.rmtree(runs)
     assert not open_policy(moved).distilled
     headline = json.loads((tmp_path / "results" / "results.json").read_text())["tables"]["headline"]["rows"]
-    assert [row["episodes"] for row in headline] == [2, 2, 2, 2]
+    assert [row["episodes"] for row in headline] == [2, 2, 2, 2, 2]
     for row in headline:
         assert 0 <= row["success_mean"] <= 100 and row["offline"]["mse"] >= 0
 
