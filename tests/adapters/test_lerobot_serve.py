@@ -109,8 +109,7 @@ def _chunk(stub, policy_server, student: Served, sampling_mode: str, actions_per
 
 
 @pytest.mark.slow
-def test_lerobots_policy_server_serves_a_student_one_pass_a_chunk(student, tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)  # LeRobot's server writes its logs/ into the working directory
+def test_lerobots_policy_server_serves_a_student_one_pass_a_chunk(student):
     port = free_loopback_port()
     server, policy_server = start_server(PolicyServerConfig(host="127.0.0.1", port=port, inference_latency=0.0))
     try:
@@ -126,8 +125,7 @@ def test_lerobots_policy_server_serves_a_student_one_pass_a_chunk(student, tmp_p
         server.stop(0)
 
 
-def test_a_student_asked_for_under_its_teachers_type_is_refused_by_name(student, tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)  # LeRobot's server writes its logs/ into the working directory
+def test_a_student_asked_for_under_its_teachers_type_is_refused_by_name(student):
     port = free_loopback_port()
     server, _ = start_server(PolicyServerConfig(host="127.0.0.1", port=port))
     try:

@@ -10,6 +10,7 @@ import ipaddress
 import json
 import os
 import pickle
+import shutil
 import subprocess
 import sys
 import time
@@ -48,16 +49,19 @@ class CreatesAFile:
         return open, (str(self.path), "w")
 
 
+def serve_command(port: int) -> list[str]:
+    return [str(Path(sys.executable).with_name("snapflow")), "serve", "--host", "127.0.0.1", "--port", str(port)]
+
+
 @contextlib.contextmanager
 def running_server(folder: Path, *options: str, channel: Callable[[str], Any] = grpc.insecure_channel):
-    """``snapflow serve OPTIONS`` on a free loopback port, in a process of its own started in ``folder`` (LeRobot
-    writes its logs/ into its working directory); its port once it answers on a channel made by ``channel``."""
+    """``snapflow serve OPTIONS`` on a free loopback port, in a process of its own started in ``folder``, its
+    LeRobot log in ``folder/server-logs``; its port once it answers on a channel made by ``channel``."""
     port = free_loopback_port()
-    command = [str(Path(sys.executable).with_name("snapflow")), "serve", "--host", "127.0.0.1", "--port", str(port)]
     process = subprocess.Popen(
-        [*command, *options],
+        [*serve_command(port), *options],
         cwd=folder,
-        env=os.environ,
+        env={**os.environ, "SNAPFLOW_SERVE_LOGS": str(folder / "server-logs")},
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         stdin=subprocess.DEVNULL,
@@ -79,12 +83,28 @@ def server(tmp_path):
         yield port
 
 
+def _kept_student(vlm_directory: Path, folder: Path) -> Path:
+    """A tiny distilled SmolVLA whose SmolVLM lives inside its folder, named relative to it, as a kept one's."""
+    from snapflow.adapters.lerobot.local_vlm import BUNDLED_VLM, bundle_vlm
+
+    save_tiny_student(vlm_directory, folder, image_key="observation.images.front", image_size=IMAGE_SIZE)
+    assert bundle_vlm(folder) and json.loads((folder / "config.json").read_text())["vlm_model_name"] == BUNDLED_VLM
+    return folder
+
+
+def _files(folder: Path) -> dict[str, int]:
+    return {str(path.relative_to(folder)): path.stat().st_mtime_ns for path in sorted(folder.rglob("*"))}
+
+
 @pytest.mark.slow
 def test_the_command_serves_a_student_and_refuses_a_payload_that_runs_code(server, vlm_directory, tmp_path):
-    student = save_tiny_student(
-        vlm_directory, tmp_path / "student", image_key="observation.images.front", image_size=IMAGE_SIZE
-    )
+    """Started outside the policy folder, the server serves a kept student named by a path relative to its working
+    directory, writes nothing into the folder, and tells the client why it refuses a student never distilled, a
+    folder that is not there and a payload that runs code; a second server on its port is refused."""
+    student = _kept_student(vlm_directory, tmp_path / "policies" / "student")
+    untouched = _files(student.parent)
     robot = {**dict.fromkeys(JOINTS, float), "front": (IMAGE_SIZE, IMAGE_SIZE, 3)}
+    features = hw_to_dataset_features(robot, "observation")
     marker = tmp_path / "created-by-a-client"
     with grpc.insecure_channel(f"127.0.0.1:{server}") as channel:
         stub = services_pb2_grpc.AsyncInferenceStub(channel)
@@ -98,9 +118,22 @@ def test_the_command_serves_a_student_and_refuses_a_payload_that_runs_code(serve
             stub.SendObservations(send_bytes_in_chunks(payload, services_pb2.Observation))
         assert not marker.exists(), "the client's code ran in the server"
 
-        # the same server, on: a student of the plugin's type, which the command registered itself
-        features = hw_to_dataset_features(robot, "observation")
-        specs = RemotePolicyConfig("snapflow_smolvla", str(student), features, 4, "cpu")
+        # refusals the client reads: a student never distilled, a folder that is not there
+        never = shutil.copytree(student, tmp_path / "policies" / "never-distilled")
+        config = json.loads((never / "config.json").read_text())
+        (never / "config.json").write_text(json.dumps({**config, "distilled": False}))
+        for folder, status, reason in (
+            (never, grpc.StatusCode.FAILED_PRECONDITION, "was not distilled"),
+            (tmp_path / "nowhere", grpc.StatusCode.NOT_FOUND, "nowhere"),
+        ):
+            specs = RemotePolicyConfig("snapflow_smolvla", str(folder), features, 4, "cpu")
+            with pytest.raises(grpc.RpcError) as refused:
+                stub.SendPolicyInstructions(services_pb2.PolicySetup(data=pickle.dumps(specs)))
+            assert refused.value.code() == status and reason in refused.value.details(), refused.value.details()
+
+        # the same server, on: a student of the plugin's type (which the command registered itself), by a path
+        # relative to the server's working directory, its SmolVLM inside its folder
+        specs = RemotePolicyConfig("snapflow_smolvla", "policies/student", features, 4, "cpu")
         stub.SendPolicyInstructions(services_pb2.PolicySetup(data=pickle.dumps(specs)))
         raw = {joint: 0.1 * index for index, joint in enumerate(JOINTS)}
         raw |= {"front": np.zeros((IMAGE_SIZE, IMAGE_SIZE, 3), np.uint8), "task": "reach the red block"}
@@ -109,6 +142,16 @@ def test_the_command_serves_a_student_and_refuses_a_payload_that_runs_code(serve
         actions = pickle.loads(stub.GetActions(services_pb2.Empty()).data)  # nosec - the answer of our own server
     assert [action.get_timestep() for action in actions] == [0, 1, 2, 3]
     assert all(np.isfinite(action.get_action().numpy()).all() for action in actions)
+    assert {name: time for name, time in _files(student.parent).items() if name in untouched} == untouched
+    assert not (student / "logs").exists() and (tmp_path / "server-logs" / "logs").is_dir()
+
+    # a second server on the port is refused, by name, and exits: it would have listened beside the first
+    second = subprocess.run(
+        serve_command(server), cwd=tmp_path, capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL
+    )
+    assert second.returncode == 2, second.stdout + second.stderr
+    assert f"cannot listen on 127.0.0.1:{server}: the port is in use" in second.stderr
+    assert "Traceback" not in second.stderr and "serving" not in second.stdout
 
 
 @pytest.mark.slow

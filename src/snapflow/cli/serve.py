@@ -74,13 +74,17 @@ def run(args: argparse.Namespace) -> int:
         )
     from lerobot.async_inference.configs import PolicyServerConfig
 
-    from snapflow.adapters.lerobot.serve import serve, tls_credentials
+    from snapflow.adapters.lerobot.serve import log_directory, serve, tls_credentials
 
     credentials = tls_credentials(*map(Path, tls)) if all(tls) else None
-    print(
-        f"serving SnapFlow students on {args.host}:{args.port}{' over mutual TLS' if credentials else ''}; the robot "
-        "client asks for policy_type=snapflow_<type>"
-    )
     latency = {} if args.inference_latency is None else {"inference_latency": args.inference_latency}
-    serve(PolicyServerConfig(host=args.host, port=args.port, **latency), credentials)
+    serve(
+        PolicyServerConfig(host=args.host, port=args.port, **latency),
+        credentials,
+        ready=lambda: print(
+            f"serving SnapFlow students on {args.host}:{args.port}{' over mutual TLS' if credentials else ''}; the "
+            f"robot client asks for policy_type=snapflow_<type>; LeRobot's server log: {log_directory() / 'logs'}",
+            flush=True,
+        ),
+    )
     return 0

@@ -119,15 +119,24 @@ def _tokenizer_override(folder: str | Path) -> dict[str, Any]:
 
 
 def saved_processors(
-    config: Any, folder: str | Path, device: str, overrides: dict[str, Any] | None = None
+    config: Any,
+    folder: str | Path,
+    device: str,
+    overrides: dict[str, Any] | None = None,
+    postprocessor_overrides: dict[str, Any] | None = None,
 ) -> tuple[Any, Any]:
     """LeRobot's pre- and post-processors saved with the policy at ``folder`` (a local folder or hub id), on
     ``device``, the tokenizer step pointed at a VLM kept inside the folder; ``overrides`` (LeRobot's
-    ``preprocessor_overrides``) win."""
+    ``preprocessor_overrides``) and ``postprocessor_overrides`` win."""
     from lerobot.policies.factory import make_pre_post_processors
 
     preprocessor = {"device_processor": {"device": device}, **_tokenizer_override(folder), **(overrides or {})}
-    return make_pre_post_processors(config, pretrained_path=str(folder), preprocessor_overrides=preprocessor)
+    return make_pre_post_processors(
+        config,
+        pretrained_path=str(folder),
+        preprocessor_overrides=preprocessor,
+        postprocessor_overrides=postprocessor_overrides or {},
+    )
 
 
 __all__ = ["BUNDLED_VLM", "bundled_vlm", "bundle_vlm", "resolve_config", "saved_processors"]
