@@ -5,6 +5,7 @@ training forward and action API). Each type's class says how to build it offline
 from __future__ import annotations
 
 import contextlib
+import json
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -12,7 +13,7 @@ import pytest
 import torch
 from torch import Tensor, nn
 
-from snapflow import NAIVE_1, SNAPFLOW_1, SnapFlowObjective, sample_actions
+from snapflow import NAIVE_1, SNAPFLOW_1, SamplingMode, SnapFlowObjective, sample_actions
 from snapflow.protocol import map_tensors
 from tests.adapters.contract import TEACHER_10, FlowPolicyContract
 from tests.lerobot_tiny import randomise_target_time
@@ -210,6 +211,29 @@ class LeRobotAdapterContract(FlowPolicyContract):
         assert torch.equal(teacher, sample_actions(policy, observation, noise, TEACHER_10))
         assert not torch.allclose(teacher, one_step)
 
+    def test_a_bare_teacher_samples_the_types_own_steps_set_by_its_own_field(self, policy, batch, tmp_path):
+        """``sampling_mode=teacher`` samples as many Euler steps as the type's own field says (``teacher-K``
+        exactly K), and ``lerobot-eval`` sets a teacher's steps through that same field."""
+        from snapflow.adapters.lerobot import load_distilled, save_distilled
+        from snapflow.evaluation.lerobot_eval import mode_arguments
+
+        field = type(policy).steps_field
+        assert type(policy).own_steps(policy.policy.config) == (getattr(policy.policy.config, field) or 4)  # GR00T's
+        randomise_target_time(policy)
+        save_distilled(policy, tmp_path / "distilled")
+        with self.loading():
+            reloaded = load_distilled(tmp_path / "distilled")
+        reloaded.policy.config.sampling_mode = "teacher"
+        setattr(reloaded.policy.config, field, 3)
+        observation, actions = batch
+        noise = self.noise_like(actions)
+        chunk = self.lerobot_chunk(reloaded.policy, observation, noise)
+        assert torch.equal(chunk, sample_actions(policy, observation, noise, SamplingMode(3, jump=False)))
+        teacher = tmp_path / "teacher"
+        teacher.mkdir()
+        (teacher / "config.json").write_text(json.dumps({"type": self.policy_type}))
+        assert mode_arguments(teacher, SamplingMode(3, jump=False)) == [f"--policy.{field}=3"]
+
     @pytest.mark.slow
     def test_distillation_lowers_the_consistency_loss(self, policy):
         parameters = policy.expert_parameters()
@@ -241,7 +265,6 @@ class LeRobotAdapterContract(FlowPolicyContract):
 
     @pytest.mark.slow
     def test_bench_cli_times_a_distilled_lerobot_policy(self, policy, tmp_path):
-        import json
 
         from snapflow.adapters.lerobot import save_distilled
         from snapflow.cli import main

@@ -102,13 +102,18 @@ def test_shifting_pi0s_times_by_four_gives_the_high_noise_distribution():
 
 
 def test_sampling_mode_names_round_trip():
-    """Mode names parse (with the bare defaults), canonical names round-trip, and malformed names are refused."""
+    """Mode names parse (with the bare defaults), canonical names round-trip, and malformed names are refused. A bare
+    ``teacher`` is the policy's own number of steps, resolved by the policy, and samples nothing unresolved."""
     assert SamplingMode.parse("teacher-10") == TEACHER_10
-    assert SamplingMode.parse("teacher") == TEACHER_10
+    own = SamplingMode.parse("teacher")
+    assert (own.name, own.resolved, own.num_steps) == ("teacher", False, None)
+    assert own.with_own_steps(4) == SamplingMode(4, jump=False) and TEACHER_10.with_own_steps(4) == TEACHER_10
+    with pytest.raises(ValueError, match="own number of steps"):
+        euler_sample(lambda x, t, s: x, torch.zeros(1, 2), own)
     assert SamplingMode.parse("naive") == NAIVE_1 == SamplingMode.parse("teacher-1")
     assert SamplingMode.parse("snapflow") == SNAPFLOW_1
     assert SamplingMode.parse("SnapFlow-2") == SamplingMode(2, jump=True)
-    for mode in (TEACHER_10, NAIVE_1, SNAPFLOW_1, SamplingMode(4, jump=True)):
+    for mode in (TEACHER_10, NAIVE_1, SNAPFLOW_1, SamplingMode(4, jump=True), own):
         assert SamplingMode.parse(mode.name) == mode
     for bad, message in (
         ("fast", "unknown sampling mode 'fast'"),

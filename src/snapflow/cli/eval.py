@@ -51,7 +51,8 @@ def add_parser(subparsers: Any) -> None:
         "--modes",
         type=_modes,
         default=list(STANDARD_MODES),
-        help="comma-separated: teacher-N, naive, snapflow-N (snapflow-N needs a distilled policy)",
+        help="comma-separated: teacher-N, teacher (its own number of steps), naive, snapflow-N (snapflow-N needs a "
+        "distilled policy)",
     )
     parser.add_argument(
         "--env",
@@ -115,7 +116,9 @@ def run(args: argparse.Namespace) -> int:
     from snapflow.sources import open_policy
 
     modes = dict(_policy_modes(entry, args.modes) for entry in args.policy)
-    policies = {path: (open_policy(path), policy_modes) for path, policy_modes in modes.items()}
+    opened = {path: open_policy(path) for path in modes}
+    # a bare 'teacher' at each policy's own steps, named by them (teacher-4 for GR00T N1.7)
+    policies = {path: (opened[path], [opened[path].resolve_mode(mode) for mode in modes[path]]) for path in modes}
     if args.fast_path:
         for policy, _ in policies.values():
             apply_fast_path(policy.policy, args.fast_path)

@@ -73,7 +73,7 @@ def evaluate_in_lerobot_env(
 
     if episodes < 1 or n_envs < 1:
         raise InvalidInputError("episodes and n_envs must be at least 1")
-    adapter = _open_lerobot_policy(policy_directory, modes)
+    adapter, modes = _open_lerobot_policy(policy_directory, modes)
     policy = adapter.policy
     chunk = adapter.action_shape[0]
     n_action_steps = n_action_steps or policy.config.n_action_steps
@@ -145,10 +145,11 @@ def _missing_env_package(env_type: str, env_config: Any, missing: ModuleNotFound
     return f"LeRobot's {env_type} environment needs {package}, which is not installed: {install}"
 
 
-def _open_lerobot_policy(source: str | Path, modes: list[SamplingMode]) -> Any:
+def _open_lerobot_policy(source: str | Path, modes: list[SamplingMode]) -> tuple[Any, list[SamplingMode]]:
     """The adapter of the LeRobot policy at ``source``, opened as every command opens one (a ``snapflow distill``
-    student, a ``lerobot-train`` checkpoint of a student type, a teacher), each of ``modes`` checked against it: a
-    jump mode of a policy never distilled, an export, or a built-in policy is refused by name."""
+    student, a ``lerobot-train`` checkpoint of a student type, a teacher), and ``modes`` as it samples them (a bare
+    ``teacher`` at its own steps): a jump mode of a policy never distilled, an export, or a built-in policy is
+    refused by name."""
     opened = open_policy(source)
     if not isinstance(opened, LoadedLeRobotPolicy):
         raise CheckpointError(
@@ -160,9 +161,7 @@ def _open_lerobot_policy(source: str | Path, modes: list[SamplingMode]) -> Any:
             f"{source} is a {opened.export['format']} export: LeRobot's rollout runs the PyTorch policy; give the "
             f"folder it was exported from ({opened.export['source']})"
         )
-    for mode in modes:
-        opened.check_mode(mode)
-    return opened.policy
+    return opened.policy, [opened.resolve_mode(mode) for mode in modes]
 
 
 def lerobot_eval_table(report: dict[str, Any]) -> str:

@@ -33,8 +33,10 @@ TIMING = "wall_time.json"  # beside it: the task's wall time, which lerobot-eval
 
 
 def mode_arguments(policy: Path, mode: SamplingMode) -> list[str]:
-    """The flags that make ``lerobot-eval`` sample ``mode``: a student type's ``sampling_mode``, or the number of
-    Euler steps of a LeRobot teacher (a plain type knows no jump)."""
+    """The flags that make ``lerobot-eval`` sample ``mode``: a student type's ``sampling_mode``, or a LeRobot
+    teacher's number of Euler steps in its type's own field (a plain type knows no jump)."""
+    from snapflow.adapters.lerobot.registry import adapter_class
+
     config = json.loads((policy / "config.json").read_text())
     if config["type"] in {declared.student_type for declared in LEROBOT_POLICY_TYPES.values()}:
         return [f"--policy.sampling_mode={mode.name}"]
@@ -42,7 +44,7 @@ def mode_arguments(policy: Path, mode: SamplingMode) -> list[str]:
         raise InvalidInputError(
             f"{policy} is LeRobot's {config['type']!r}, which has no jump to sample {mode.name}: give a student type"
         )
-    return [f"--policy.num_steps={mode.num_steps}"]
+    return [f"--policy.{adapter_class(config['type']).steps_field}={mode.num_steps}"]
 
 
 def lerobot_eval_arguments(

@@ -16,18 +16,33 @@ class SamplingMode:
 
     ``jump=False``: s = t at every step (the flow-matching teacher; with one step, the naive baseline).
     ``jump=True``: s = the next grid time, the average-velocity jumps SnapFlow trains for.
+    ``num_steps=None`` (``teacher``): the teacher at the policy's own number of steps, which the policy resolves
+    (:meth:`with_own_steps`) before it samples.
     """
 
-    num_steps: int
+    num_steps: int | None
     jump: bool
 
     def __post_init__(self) -> None:
-        if self.num_steps < 1:
+        if self.num_steps is None and self.jump:
+            raise InvalidInputError("a jump mode names its number of jumps (snapflow-N)")
+        if self.num_steps is not None and self.num_steps < 1:
             raise InvalidInputError(f"num_steps must be at least 1, got {self.num_steps}")
+
+    @property
+    def resolved(self) -> bool:
+        """Whether it names its number of steps (every mode but the bare ``teacher``)."""
+        return self.num_steps is not None
+
+    def with_own_steps(self, own_steps: int) -> SamplingMode:
+        """This mode with a policy's own number of steps ``own_steps`` where it asks for them (``teacher``)."""
+        return self if self.resolved else SamplingMode(own_steps, jump=False)
 
     @property
     def name(self) -> str:
         """Canonical name, accepted back by :meth:`parse`."""
+        if not self.resolved:
+            return "teacher"
         if self.jump:
             return f"snapflow-{self.num_steps}"
         return "naive-1" if self.num_steps == 1 else f"teacher-{self.num_steps}"
@@ -38,6 +53,8 @@ class SamplingMode:
     @property
     def description(self) -> str:
         """What this mode computes, in one line for a report."""
+        if not self.resolved:
+            return "the flow-matching sampler at the policy's own number of Euler steps"
         if self.jump:
             if self.num_steps == 1:
                 return "one jump from noise to actions with the distilled average velocity F(x_1, s=0, t=1)"
@@ -51,7 +68,8 @@ class SamplingMode:
 
     @classmethod
     def parse(cls, name: str) -> SamplingMode:
-        """Read ``teacher-N``, ``snapflow-N``, ``naive`` / ``naive-1`` (bare ``teacher`` = 10, ``snapflow`` = 1)."""
+        """Read ``teacher-N``, ``snapflow-N``, ``naive`` / ``naive-1``; bare ``teacher`` is the policy's own number of
+        steps, bare ``snapflow`` one jump."""
         match = re.fullmatch(r"(teacher|snapflow|naive)(?:-(\d+))?", name.strip().lower())
         if match is None:
             raise InvalidInputError(
@@ -64,8 +82,9 @@ class SamplingMode:
             return cls(1, jump=False)
         if steps is not None and int(steps) < 1:
             raise InvalidInputError(f"sampling mode {name!r} takes no step; a mode needs at least one")
-        default_steps = 10 if kind == "teacher" else 1
-        return cls(int(steps) if steps else default_steps, jump=kind == "snapflow")
+        if kind == "teacher":
+            return cls(int(steps) if steps else None, jump=False)
+        return cls(int(steps) if steps else 1, jump=True)
 
 
 TEACHER_10 = SamplingMode(10, jump=False)

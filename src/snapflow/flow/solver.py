@@ -13,6 +13,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
 from snapflow.flow.path import euler_step
 from snapflow.protocol import FlowPolicy
@@ -23,6 +24,11 @@ VelocityFn = Callable[[Tensor, Tensor, Tensor], Tensor]
 
 def euler_sample(velocity: VelocityFn, noise: Tensor, mode: SamplingMode) -> Tensor:
     """Integrate from x_1 = ``noise`` at t = 1 to t = 0 with ``mode.num_steps`` Euler steps."""
+    if not mode.resolved:
+        raise InvalidInputError(
+            "the bare 'teacher' mode samples at a policy's own number of steps: name them (teacher-N), or let the "
+            "opened policy resolve it (OpenedPolicy.resolve_mode)"
+        )
     # one (steps + 1, B) grid of times; each step reads two rows of it (views, no new tensors per step)
     grid = torch.linspace(1.0, 0.0, mode.num_steps + 1, device=noise.device, dtype=torch.float32)[:, None].expand(
         -1, noise.shape[0]

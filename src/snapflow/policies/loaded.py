@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from snapflow.errors import InvalidInputError
-from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
+from snapflow.flow.modes import SNAPFLOW_1, TEACHER_10, SamplingMode
 from snapflow.inference.formats import export_record
 
 
@@ -73,6 +73,19 @@ class OpenedPolicy(ABC):
     @property
     def exported(self) -> bool:
         return self.export is not None
+
+    @property
+    def own_steps(self) -> int:
+        """How many Euler steps its own sampler takes a chunk: what the bare ``teacher`` mode means for it (ten for
+        the built-in policies; a LeRobot type's own field)."""
+        return TEACHER_10.num_steps
+
+    def resolve_mode(self, mode: SamplingMode) -> SamplingMode:
+        """``mode`` as this policy samples it (``teacher`` at :attr:`own_steps`), refused where it cannot
+        honestly run it (:meth:`check_mode`)."""
+        resolved = mode.with_own_steps(self.own_steps)
+        self.check_mode(resolved)
+        return resolved
 
     def check_mode(self, mode: SamplingMode) -> None:
         """Refuse ``snapflow-N`` on a policy never distilled: without a trained target-time embedding the jump is the

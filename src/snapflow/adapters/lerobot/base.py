@@ -81,6 +81,8 @@ class LeRobotFlowPolicy(nn.Module, ABC):
     """
 
     policy_type: ClassVar[str]
+    #: the config field that sets how many denoising steps its own sampler takes a chunk (each type names it its way)
+    steps_field: ClassVar[str]
     #: the oldest LeRobot release whose internals the adapter follows
     minimum_lerobot: ClassVar[str] = "0.4.4"
     #: what :func:`snapflow.inference.compile_policy` compiles: the prefix pass LeRobot's sampling calls (``encode``
@@ -153,9 +155,9 @@ class LeRobotFlowPolicy(nn.Module, ABC):
 
     @classmethod
     def own_steps(cls, config: Any) -> int:
-        """How many denoising steps the policy of ``config`` takes a chunk by its own sampler, as configured (SmolVLA's
-        ``num_steps``, pi0's ``num_inference_steps``)."""
-        return getattr(config, "num_steps", None) or config.num_inference_steps
+        """How many denoising steps the policy of ``config`` takes a chunk by its own sampler, as configured
+        (:attr:`steps_field`)."""
+        return getattr(config, cls.steps_field)
 
     @property
     def action_shape(self) -> tuple[int, int]:

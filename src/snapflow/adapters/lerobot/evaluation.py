@@ -30,7 +30,12 @@ from snapflow.adapters.lerobot.checkpoint import (
 )
 from snapflow.adapters.lerobot.dataset import IMAGE_PREFIX, STATE
 from snapflow.adapters.lerobot.local_vlm import saved_processors
-from snapflow.adapters.lerobot.registry import lerobot_chunk_shape, lerobot_time_sampler, wrap_policy
+from snapflow.adapters.lerobot.registry import (
+    lerobot_chunk_shape,
+    lerobot_own_steps,
+    lerobot_time_sampler,
+    wrap_policy,
+)
 from snapflow.errors import InvalidInputError
 from snapflow.flow.time_sampling import BetaTimeSampler
 from snapflow.inference.formats import export_format, export_record
@@ -156,6 +161,10 @@ class LoadedLeRobotPolicy(OpenedPolicy):
     @property
     def distill_command(self) -> str:
         return f"snapflow distill --policy {self.path} ..."
+
+    @property
+    def own_steps(self) -> int:
+        return lerobot_own_steps(self.config)
 
     @property
     def time_sampler(self) -> BetaTimeSampler:

@@ -70,6 +70,7 @@ class GrootFlowPolicy(LeRobotFlowPolicy):
     state encoder are the frozen prefix; the action encoder, the DiT and the action decoder the action expert."""
 
     policy_type = "groot"
+    steps_field = "num_inference_timesteps"
     minimum_lerobot = "0.6"
     # the prefix's VL self-attention attends to every prompt token, padding included (left padding besides)
     masks_prompt_padding = False

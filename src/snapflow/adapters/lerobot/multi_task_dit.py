@@ -43,6 +43,7 @@ class MultiTaskDiTFlowPolicy(LeRobotFlowPolicy):
     """SnapFlow view of a LeRobot ``MultiTaskDiTPolicy`` trained by flow matching."""
 
     policy_type = "multi_task_dit"
+    steps_field = "num_integration_steps"
     minimum_lerobot = "0.5"
     # CLIP's text encoder pools the token its config names by id: its padding is kept as the policy saw it
     masks_prompt_padding = False
@@ -74,10 +75,6 @@ class MultiTaskDiTFlowPolicy(LeRobotFlowPolicy):
 
     def expert_modules(self) -> list[nn.Module]:
         return [self.policy.noise_predictor]
-
-    @classmethod
-    def own_steps(cls, config: Any) -> int:
-        return config.num_integration_steps
 
     @classmethod
     def chunk_shape(cls, config: Any) -> tuple[int, int]:

@@ -94,6 +94,7 @@ class PI0FlowPolicy(PrefixCacheFlowPolicy):
     """SnapFlow view of a LeRobot ``PI0Policy``."""
 
     policy_type = "pi0"
+    steps_field = "num_inference_steps"
     time_fusion_layer = "action_time_mlp_in"
     embed_suffix_with_target_time = staticmethod(_pi0_embed_suffix_with_target_time)
     minimum_lerobot = "0.5"  # 0.4.4's pi0 needs a transformers fork and has another internal layout

@@ -39,6 +39,12 @@ def lerobot_time_sampler(config: Any) -> BetaTimeSampler:
     return adapter_class(base_policy_type(config)).training_time_sampler(config)
 
 
+def lerobot_own_steps(config: Any) -> int:
+    """How many denoising steps a LeRobot policy (or a student) of ``config`` takes a chunk by its own sampler, as
+    its type's own field sets it."""
+    return adapter_class(base_policy_type(config)).own_steps(config)
+
+
 def lerobot_chunk_shape(config: Any) -> tuple[int, int]:
     """(chunk length, action width, padding included) a LeRobot policy (or a student) of ``config`` samples."""
     return adapter_class(base_policy_type(config)).chunk_shape(config)
@@ -65,5 +71,6 @@ __all__ = [
     "lerobot_chunk_shape",
     "lerobot_env_processors",
     "lerobot_time_sampler",
+    "lerobot_own_steps",
     "wrap_policy",
 ]

@@ -82,6 +82,7 @@ class SmolVLAFlowPolicy(PrefixCacheFlowPolicy):
     """SnapFlow view of a LeRobot ``SmolVLAPolicy``."""
 
     policy_type = "smolvla"
+    steps_field = "num_steps"
     time_fusion_layer = "action_time_mlp_in"
     embed_suffix_with_target_time = staticmethod(_embed_suffix_with_target_time)
 

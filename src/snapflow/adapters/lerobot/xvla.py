@@ -103,6 +103,7 @@ class XVLAFlowPolicy(LeRobotFlowPolicy):
     transformer the action expert."""
 
     policy_type = "xvla"
+    steps_field = "num_denoising_steps"
     minimum_lerobot = "0.5"
     # X-VLA's encoder attends to every prompt token, padding included: cutting it would change the chunk
     masks_prompt_padding = False
@@ -172,10 +173,6 @@ class XVLAFlowPolicy(LeRobotFlowPolicy):
 
     def expert_modules(self) -> list[nn.Module]:
         return [self.policy.model.transformer]
-
-    @classmethod
-    def own_steps(cls, config: Any) -> int:
-        return config.num_denoising_steps
 
     @classmethod
     def chunk_shape(cls, config: Any) -> tuple[int, int]:

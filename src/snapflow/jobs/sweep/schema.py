@@ -286,6 +286,10 @@ def _tables(
                 mode = SamplingMode.parse(row["mode"])
             except ValueError as error:
                 raise InvalidInputError(f"{section}: row {row['label']!r}: {error}") from None
+            if not mode.resolved:
+                raise InvalidInputError(
+                    f"{section}: row {row['label']!r}: a table states its number of steps: teacher-N, not 'teacher'"
+                )
             if mode.jump and run.trainer == "lerobot-train" and not run.distill.trains_jump:
                 raise InvalidInputError(  # LeRobot's student labels itself not distilled and refuses the jump
                     f"{section}: row {row['label']!r}: run {run.name!r} trains no jump (alpha 1 or lambda 0): sample "

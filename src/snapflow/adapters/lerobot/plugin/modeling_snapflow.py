@@ -54,8 +54,9 @@ class SnapFlowStudent:
         return super()._load_as_safetensor(model, model_file, map_location, True)
 
     def requested_sampling_mode(self) -> SamplingMode:
-        """The config's ``sampling_mode`` as it reads now; ``snapflow-N`` of a student never distilled is refused."""
-        mode = self.config.mode
+        """The config's ``sampling_mode`` as it reads now (``teacher``: the type's own number of steps);
+        ``snapflow-N`` of a student never distilled is refused."""
+        mode = self.config.mode.with_own_steps(type(self.snapflow).own_steps(self.config))
         if mode.jump and self.config.distilled is False:
             raise NotDistilledError(
                 f"this {self.config.type} policy was not distilled (config distilled=false: a teacher's weights not "
