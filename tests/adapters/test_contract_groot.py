@@ -165,3 +165,17 @@ def test_the_checkpoint_writer_runs_as_a_module_and_its_checkpoint_builds_a_groo
     assert build_tiny_groot(written).config.base_model_path == str(written)
     ours, fixture = (load_file(folder / "model.safetensors") for folder in (written, groot_checkpoint))
     assert ours.keys() == fixture.keys() and all(torch.equal(ours[name], fixture[name]) for name in ours)
+
+
+def test_a_groot_base_checkpoint_given_as_a_policy_is_refused_with_the_step_that_makes_one(
+    groot_checkpoint, tmp_path, capsys
+):
+    """NVIDIA's format holds no LeRobot type and no robot's features: distilling it names LeRobot's fine-tuning over
+    it, where LeRobot's loader raised "Missing 'type' field" and snapflow called that a bug of its own."""
+    from snapflow.cli import main
+
+    arguments = ["distill", "--policy", str(groot_checkpoint), "--lerobot-train", "--output", str(tmp_path / "out")]
+    assert main(arguments) == 2
+    error = capsys.readouterr().err
+    assert "is a GR00T N1.7 base checkpoint (NVIDIA's format), not a LeRobot policy" in error
+    assert f"--policy.base_model_path={groot_checkpoint}" in error and "Traceback" not in error

@@ -116,6 +116,21 @@ def load_distilled(directory: str | Path, mode: SamplingMode = SNAPFLOW_1) -> Le
     return wrap_policy(policy).eval()  # as LeRobot's from_pretrained leaves a policy: X-VLA's dropout off
 
 
+def _not_a_policy(path: str, error: ValueError) -> str:
+    """Why the folder or hub repo ``path`` does not load as a LeRobot policy, and for a GR00T N1.7 base checkpoint
+    (NVIDIA's format: no LeRobot type, no robot's features) what makes one of it."""
+    config = Path(path) / "config.json"
+    architectures = json.loads(config.read_text()).get("architectures", []) if config.is_file() else []
+    if any(str(name).startswith("GR00T") for name in architectures):
+        return (
+            f"{path} is a GR00T N1.7 base checkpoint (NVIDIA's format), not a LeRobot policy: LeRobot's GrootPolicy "
+            f"first learns a robot's features and statistics from a dataset over it (lerobot-train "
+            f"--policy.type=groot --policy.base_model_path={path} --dataset.repo_id=<dataset> ...); distil the "
+            "policy folder that writes (<output_dir>/checkpoints/last/pretrained_model)"
+        )
+    return f"{path} is not a LeRobot policy LeRobot can load: {error}"
+
+
 def load_pretrained_policy(path: str) -> nn.Module:
     """A LeRobot policy from a hub id or a local pretrained directory, as ``lerobot-eval`` loads it; a mistyped
     folder, an unreachable hub or an unusable repo is named in one line before anything loads, and a SnapFlow student
@@ -129,8 +144,12 @@ def load_pretrained_policy(path: str) -> nn.Module:
     from snapflow.adapters.lerobot.plugin import SnapFlowSampling, student_policy  # registers the student types
     from snapflow.adapters.lerobot.student_folder import refuse_student_as_teacher
 
+    try:
+        own_config = PreTrainedConfig.from_pretrained(path)
+    except ValueError as error:  # LeRobot's "Missing 'type' field", a type no installed plugin registered
+        raise CheckpointError(_not_a_policy(path, error)) from None
     # a VLM kept inside the folder named by its absolute path: LeRobot reads the name from the working directory
-    config = resolve_config(PreTrainedConfig.from_pretrained(path), path)
+    config = resolve_config(own_config, path)
     adapter_class(base_policy_type(config))
     if isinstance(config, SnapFlowSampling):  # LeRobot < 0.5 resolves only its own types
         return student_policy(config.base_type).from_pretrained(path, config=config)
