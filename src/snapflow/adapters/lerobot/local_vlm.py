@@ -1,14 +1,21 @@
-"""A LeRobot policy folder that opens on any machine, where its VLM is a local folder (a SmolVLA over a SmolVLM
-written by :func:`~snapflow.adapters.lerobot.smolvlm.write_smolvlm`: config, tokenizer and processor, a few kB; an
-X-VLA trained from scratch reads that folder's tokenizer).
+"""A LeRobot policy folder that opens on any machine, where its VLM is a local folder (a
+SmolVLA over a SmolVLM written by :func:`~snapflow.adapters.lerobot.smolvlm.write_smolvlm`: config, tokenizer and
+processor, a few kB; an X-VLA trained from scratch reads that folder's tokenizer).
 
 LeRobot names such a VLM by the path it was given, in the policy's ``config.json`` (SmolVLA's ``vlm_model_name``,
 X-VLA's ``tokenizer_name``), LeRobot's ``train_config.json`` and the pre-processor's tokenizer step
 (``tokenizer_name``): an absolute path of the machine that trained it makes the folder useless anywhere else.
 :func:`bundle_vlm` copies the VLM folder into the policy folder (:data:`BUNDLED_VLM`) and names it there relative to
-the policy folder. LeRobot reads these names relative to the working directory, so snapflow hands them to LeRobot as
-absolute paths when it loads such a folder (:func:`resolve_config`, :func:`saved_processors`), and runs LeRobot's own
-commands on one from inside it (LeRobot's ``lerobot-eval --policy.path=.`` in the policy folder works the same way).
+the policy folder. LeRobot reads these names relative to the working directory, so:
+
+- snapflow's own commands hand them to LeRobot as absolute paths when they load such a folder
+  (:func:`resolve_config`, :func:`saved_processors`);
+- :func:`bundle_vlm` gives a SnapFlow student's pre-processor snapflow's tokenizer step, which carries the
+  tokenizer's files in its state
+  (:class:`~snapflow.adapters.lerobot.plugin.processor_snapflow.SnapFlowTokenizerStep`): LeRobot's loader opens it
+  from any working directory;
+- a teacher's folder (LeRobot's own type, which LeRobot 0.4.4 reads too) keeps LeRobot's tokenizer step: LeRobot's
+  own tools open it only from inside it (``cd <folder> && lerobot-eval --policy.path=.``).
 """
 
 from __future__ import annotations
@@ -18,6 +25,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES
 from snapflow.policies.loaded import CheckpointError
 from snapflow.reporting.files import write_json
 
@@ -62,11 +70,20 @@ def bundled_vlm(folder: str | Path) -> Path | None:
 
 
 def bundle_vlm(folder: str | Path) -> bool:
-    """Copy the local VLM folder that the policy folder ``folder`` names by an absolute path into
-    ``folder/smolvlm``, and name it there by that relative path in every file of ``folder`` that names it. False
-    (nothing changed) where the folder names a hub model or has its VLM inside already. The VLM's copy is whole
-    before any file names it."""
+    """Make the policy folder ``folder`` open on any machine and, for a SnapFlow student, in LeRobot's own tools from
+    any working directory; True where anything changed. A local VLM folder that ``folder`` names by an absolute path
+    is copied into ``folder/smolvlm`` and named there by that relative path in every file of ``folder`` that names
+    it (the copy whole before any file names it). A student's pre-processor then carries its tokenizer in its
+    tokenizer step's state (also where its VLM was inside already); a teacher's keeps LeRobot's step. Nothing changes
+    where the folder names a hub model."""
     folder = Path(folder)
+    moved = _move_vlm_inside(folder)
+    carried = _carry_tokenizer(folder)
+    return moved or carried
+
+
+def _move_vlm_inside(folder: Path) -> bool:
+    """:func:`bundle_vlm`'s copy of a VLM named by an absolute path into the folder (False: no such VLM)."""
     name = _vlm_name(folder)
     if not name or not Path(name).is_absolute():
         return False
@@ -80,6 +97,38 @@ def bundle_vlm(folder: str | Path) -> bool:
     partial.rename(folder / BUNDLED_VLM)
     _rename_vlm(folder, name, BUNDLED_VLM)
     return True
+
+
+def _carry_tokenizer(folder: Path) -> bool:
+    """In a SnapFlow student's folder, LeRobot's tokenizer step that reads the VLM kept inside (by a name LeRobot
+    reads from the working directory) replaced by snapflow's, which carries the tokenizer's files in its state, a
+    ``.safetensors`` file beside the pre-processor named as LeRobot names a step's; the other steps and their files
+    are left as they are. False where the folder is a teacher's (LeRobot's own type) or has no such step."""
+    from safetensors.torch import save_file
+
+    from snapflow.adapters.lerobot.plugin.processor_snapflow import TOKENIZER_STEP, SnapFlowTokenizerStep
+
+    override = _tokenizer_override(folder)  # none without a config naming a VLM inside
+    if not override or json.loads((folder / _CONFIG).read_text()).get("type") not in _student_types():
+        return False
+    content = json.loads((folder / _PREPROCESSOR).read_text())
+    for index, step in enumerate(content["steps"]):
+        if step.get("registry_name") == _TOKENIZER_STEP:
+            carried = SnapFlowTokenizerStep(**{**step["config"], **override[_TOKENIZER_STEP]})
+            state_file = f"{Path(_PREPROCESSOR).stem}_step_{index}_{TOKENIZER_STEP}.safetensors"
+            save_file(carried.state_dict(), folder / state_file)
+            content["steps"][index] = {
+                "registry_name": TOKENIZER_STEP,
+                "config": carried.get_config(),
+                "state_file": state_file,
+            }
+    write_json(folder / _PREPROCESSOR, content)
+    return True
+
+
+def _student_types() -> set[str]:
+    """The LeRobot types of the SnapFlow students, ``snapflow_<type>``."""
+    return {declared.student_type for declared in LEROBOT_POLICY_TYPES.values()}
 
 
 def _rename_vlm(folder: Path, old: str, new: str) -> None:
@@ -104,18 +153,28 @@ def _rename_vlm(folder: Path, old: str, new: str) -> None:
 
 def resolve_config(config: Any, folder: str | Path) -> Any:
     """``config`` (LeRobot's, loaded from the policy folder ``folder``) naming its bundled VLM by absolute path, as
-    LeRobot builds the model from it; unchanged for any other policy."""
+    LeRobot builds the model from it; unchanged for any other policy, and where ``config`` names another VLM than the
+    folder's config does (a name given on LeRobot's command line)."""
     vlm = bundled_vlm(folder)
     if vlm is not None:
-        setattr(config, _vlm_field(vars(config)), str(vlm))
+        field = _vlm_field(vars(config))
+        if getattr(config, field) == _vlm_name(Path(folder)):
+            setattr(config, field, str(vlm))
     return config
 
 
 def _tokenizer_override(folder: str | Path) -> dict[str, Any]:
-    """LeRobot's ``preprocessor_overrides`` that point the tokenizer step at the policy folder's bundled VLM (none
-    for any other policy)."""
+    """LeRobot's ``preprocessor_overrides`` that point LeRobot's own tokenizer step at the policy folder's bundled
+    VLM (none where the folder keeps no VLM inside, or its pre-processor has no such step: a student's carries its
+    tokenizer in snapflow's step, and LeRobot refuses an override no step takes)."""
     vlm = bundled_vlm(folder)
-    return {} if vlm is None else {_TOKENIZER_STEP: {"tokenizer_name": str(vlm)}}
+    preprocessor = Path(folder) / _PREPROCESSOR
+    if vlm is None or not preprocessor.is_file():
+        return {}
+    steps = json.loads(preprocessor.read_text())["steps"]
+    if not any(step.get("registry_name") == _TOKENIZER_STEP for step in steps):
+        return {}
+    return {_TOKENIZER_STEP: {"tokenizer_name": str(vlm)}}
 
 
 def saved_processors(
@@ -127,8 +186,11 @@ def saved_processors(
 ) -> tuple[Any, Any]:
     """LeRobot's pre- and post-processors saved with the policy at ``folder`` (a local folder or hub id), on
     ``device``, the tokenizer step pointed at a VLM kept inside the folder; ``overrides`` (LeRobot's
-    ``preprocessor_overrides``) and ``postprocessor_overrides`` win."""
+    ``preprocessor_overrides``) and ``postprocessor_overrides`` win. A student's tokenizer step, snapflow's, is
+    registered with LeRobot here (LeRobot >= 0.5 imports it in its own tools; 0.4.4 never does)."""
     from lerobot.policies.factory import make_pre_post_processors
+
+    import snapflow.adapters.lerobot.plugin.processor_snapflow  # noqa: F401 - registers the students' tokenizer step
 
     preprocessor = {"device_processor": {"device": device}, **_tokenizer_override(folder), **(overrides or {})}
     return make_pre_post_processors(
