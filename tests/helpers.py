@@ -115,9 +115,12 @@ def run_short_lerobot_chain(folder: Path, bench: str) -> Path:
     return folder
 
 
-def run_tiny_lerobot_train(student: Path, data: Path, output: Path, steps: int, batch_size: int, *flags: str) -> Path:
-    """``lerobot-train`` itself, offline on the CPU, on the tiny dataset at ``data``; checks it ran SnapFlow's
-    objective and returns its last checkpoint's policy folder."""
+def run_tiny_lerobot_train(
+    student: Path, data: Path, output: Path, steps: int, batch_size: int, *flags: str, cwd: Path | None = None
+) -> Path:
+    """``lerobot-train`` itself, offline on the CPU, on the tiny dataset at ``data``, started in ``cwd`` (default:
+    this process's working directory, which relative paths are read from); checks it ran SnapFlow's objective and
+    returns its last checkpoint's policy folder."""
     finished = run_checked(
         [
             str(Path(sys.executable).with_name("lerobot-train")),
@@ -135,6 +138,7 @@ def run_tiny_lerobot_train(student: Path, data: Path, output: Path, steps: int, 
             *flags,
         ],
         {"HF_HUB_OFFLINE": "1"},
+        cwd=cwd,
     )
     assert "consistency_loss" in finished.stderr, "LeRobot logs the objective's parts"
     return output / "checkpoints" / "last" / "pretrained_model"

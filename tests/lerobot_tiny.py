@@ -67,7 +67,8 @@ def build_tiny_smolvla(
     image_size: int = IMAGE_SIZE,
     action_dim: int = 4,
 ):
-    """A random LeRobot SmolVLAPolicy at tiny size; ``action_dim`` below ``max_action_dim`` (4) pads its chunks."""
+    """A random LeRobot SmolVLAPolicy at tiny size; ``action_dim`` below ``max_action_dim`` (4) pads its chunks, a
+    wider one widens it."""
     from lerobot.configs.types import FeatureType, PolicyFeature
     from lerobot.policies.smolvla.configuration_smolvla import SmolVLAConfig
     from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
@@ -79,7 +80,7 @@ def build_tiny_smolvla(
         num_vlm_layers=2,
         expert_width_multiplier=0.5,
         resize_imgs_with_padding=(IMAGE_SIZE, IMAGE_SIZE),
-        **TINY_POLICY_SIZES,
+        **{**TINY_POLICY_SIZES, "max_action_dim": max(TINY_POLICY_SIZES["max_action_dim"], action_dim)},
         input_features={
             "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(state_dim,)),
             image_key: PolicyFeature(type=FeatureType.VISUAL, shape=(3, image_size, image_size)),
@@ -233,18 +234,21 @@ def save_tiny_student(
     state_dim: int = 4,
     image_key: str = "observation.image",
     image_size: int = 480,
+    action_dim: int = 4,
 ) -> Path:
     """A distilled tiny SmolVLA (phi_s non-zero) saved by snapflow with unit-statistics processors beside it; by
     default with the features LeRobot's Meta-World env produces (4-D agent state, one 480-pixel
-    ``observation.image``)."""
+    ``observation.image``, 4-D actions)."""
     from lerobot.policies.factory import make_pre_post_processors
 
     from snapflow.adapters.lerobot import save_distilled, wrap_policy
 
-    policy = build_tiny_smolvla(vlm_directory, state_dim=state_dim, image_key=image_key, image_size=image_size)
+    policy = build_tiny_smolvla(
+        vlm_directory, state_dim=state_dim, image_key=image_key, image_size=image_size, action_dim=action_dim
+    )
     save_distilled(randomise_target_time(wrap_policy(policy)), directory)
     stats = {"observation.state": {"mean": torch.zeros(state_dim), "std": torch.ones(state_dim)}}
-    stats["action"] = {"mean": torch.zeros(4), "std": torch.ones(4)}
+    stats["action"] = {"mean": torch.zeros(action_dim), "std": torch.ones(action_dim)}
     for processor in make_pre_post_processors(policy.config, dataset_stats=stats):
         processor.save_pretrained(directory)
     return directory

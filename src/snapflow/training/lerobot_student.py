@@ -12,6 +12,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from snapflow.adapters.lerobot.local_vlm import bundle_vlm
 from snapflow.adapters.lerobot.plugin.configuration_snapflow import DISTILL_OPTIONS, SnapFlowSampling
 from snapflow.adapters.lerobot_commands import run_lerobot_command
 from snapflow.adapters.lerobot_config import VIDEO_BACKEND
@@ -55,7 +56,10 @@ def write_student(
     student, ready for ``lerobot-train --policy.path=output``: its weights with phi_s at zero (bit for bit the
     teacher), its config typed ``snapflow_<type>`` with ``distilled`` false (it refuses ``snapflow-N`` until trained)
     and ``settings`` (default: the paper's) as its ``distill_*`` fields, and the teacher's own processors (built
-    from its config when its folder has none; ``lerobot-train`` gives them the dataset's statistics).
+    from its config when its folder has none; ``lerobot-train`` gives them the dataset's statistics). A SmolVLM the
+    teacher reads from a local folder is copied inside, its tokenizer carried by the pre-processor
+    (:func:`~snapflow.adapters.lerobot.local_vlm.bundle_vlm`), so that LeRobot's tools take ``output`` from any
+    working directory.
 
     A student given as ``policy_path`` keeps its phi_s and its ``distilled`` record: training it again continues
     the distillation."""
@@ -77,6 +81,7 @@ def write_student(
     config._save_pretrained(output)
     for processor in policy_processors(policy, policy_path, None, preprocessor_overrides):
         processor.save_pretrained(output)
+    bundle_vlm(output)  # its own SmolVLM and tokenizer inside: lerobot-train runs on it from any working directory
     return output
 
 

@@ -1,4 +1,4 @@
-"""A LeRobot policy folder that opens on any machine, where its VLM is a local folder (a
+"""A LeRobot policy folder that opens on any machine, from any working directory, where its VLM is a local folder (a
 SmolVLA over a SmolVLM written by :func:`~snapflow.adapters.lerobot.smolvlm.write_smolvlm`: config, tokenizer and
 processor, a few kB; an X-VLA trained from scratch reads that folder's tokenizer).
 
@@ -10,12 +10,15 @@ the policy folder. LeRobot reads these names relative to the working directory, 
 
 - snapflow's own commands hand them to LeRobot as absolute paths when they load such a folder
   (:func:`resolve_config`, :func:`saved_processors`);
-- :func:`bundle_vlm` gives a SnapFlow student's pre-processor snapflow's tokenizer step, which carries the
-  tokenizer's files in its state
-  (:class:`~snapflow.adapters.lerobot.plugin.processor_snapflow.SnapFlowTokenizerStep`): LeRobot's loader opens it
-  from any working directory;
-- a teacher's folder (LeRobot's own type, which LeRobot 0.4.4 reads too) keeps LeRobot's tokenizer step: LeRobot's
-  own tools open it only from inside it (``cd <folder> && lerobot-eval --policy.path=.``).
+- in a SnapFlow student's folder (``snapflow_<type>``) LeRobot's own tools (``lerobot-eval``, ``lerobot-train``) find
+  them from any working directory too: the student policy's ``from_pretrained`` resolves the config's name against
+  the folder (:mod:`~snapflow.adapters.lerobot.plugin.modeling_snapflow`), and :func:`bundle_vlm` gives the
+  student's pre-processor snapflow's tokenizer step, which carries the tokenizer's files in its state
+  (:class:`~snapflow.adapters.lerobot.plugin.processor_snapflow.SnapFlowTokenizerStep`). A ``lerobot-train``
+  checkpoint of such a student names the VLM by absolute path again (LeRobot saves the config it trained with);
+  keeping it bundles it anew;
+- a teacher's folder (LeRobot's own type, which snapflow cannot hook and LeRobot 0.4.4 reads too) keeps LeRobot's
+  tokenizer step: LeRobot's own tools open it only from inside it (``cd <folder> && lerobot-eval --policy.path=.``).
 """
 
 from __future__ import annotations

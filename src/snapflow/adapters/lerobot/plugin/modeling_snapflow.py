@@ -5,6 +5,7 @@ step, ``get_optim_params``) running SnapFlow distillation, so ``lerobot-train`` 
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -12,6 +13,7 @@ from torch import Tensor, nn
 
 from snapflow._lazy import resolve
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
+from snapflow.adapters.lerobot.local_vlm import bundled_vlm, resolve_config
 from snapflow.adapters.lerobot.plugin.configuration_snapflow import student_config_class
 from snapflow.adapters.lerobot.registry import adapter_class, lerobot_time_sampler
 from snapflow.adapters.lerobot_types import installed_lerobot_types, lerobot_policy_type
@@ -46,6 +48,20 @@ class SnapFlowStudent:
         self._distilled_by_last_forward = False
 
     snapflow: LeRobotFlowPolicy
+
+    @classmethod
+    def from_pretrained(cls, pretrained_name_or_path: str | Path, *, config: Any = None, **kwargs: Any) -> Any:
+        """LeRobot's, the config naming a VLM kept inside the local folder ``pretrained_name_or_path`` by its absolute
+        path (:func:`~snapflow.adapters.lerobot.local_vlm.resolve_config`): LeRobot builds the model from that name
+        and reads a relative one from the working directory. Every LeRobot tool builds a policy from a folder here
+        (``make_policy``), after loading its config through the base class's ``PreTrainedConfig.from_pretrained``,
+        which a config class of its own cannot hook."""
+        if bundled_vlm(pretrained_name_or_path) is not None:
+            from lerobot.configs.policies import PreTrainedConfig
+
+            loaded = PreTrainedConfig.from_pretrained(pretrained_name_or_path) if config is None else config
+            config = resolve_config(loaded, pretrained_name_or_path)
+        return super().from_pretrained(pretrained_name_or_path, config=config, **kwargs)
 
     @classmethod
     def _load_as_safetensor(cls, model: Any, model_file: str, map_location: str, strict: bool) -> Any:
