@@ -178,4 +178,4 @@ def test_a_groot_base_checkpoint_given_as_a_policy_is_refused_with_the_step_that
     assert main(arguments) == 2
     error = capsys.readouterr().err
     assert "is a GR00T N1.7 base checkpoint (NVIDIA's format), not a LeRobot policy" in error
-    assert f"--policy.base_model_path={groot_checkpoint}" in error and "Traceback" not in error
+    assert f"--policy.base_model_path={groot_checkpoint.resolve()}" in error and "Traceback" not in error

@@ -125,8 +125,11 @@ def _not_a_policy(path: str, error: ValueError) -> str:
         return (
             f"{path} is a GR00T N1.7 base checkpoint (NVIDIA's format), not a LeRobot policy: LeRobot's GrootPolicy "
             f"first learns a robot's features and statistics from a dataset over it (lerobot-train "
-            f"--policy.type=groot --policy.base_model_path={path} --dataset.repo_id=<dataset> ...); distil the "
-            "policy folder that writes (<output_dir>/checkpoints/last/pretrained_model)"
+            f"--policy.type=groot --policy.base_model_path={Path(path).resolve()} --dataset.repo_id=<dataset> ...: "
+            "an absolute path, which LeRobot does not take for a hub id); distil the "
+            "policy folder that writes (<output_dir>/checkpoints/last/pretrained_model). Over a checkpoint "
+            "snapflow's writer made, offline: python -m snapflow.adapters.lerobot.groot_checkpoint DIR --dataset "
+            "<dataset root> writes one in DIR/lerobot_policy"
         )
     return f"{path} is not a LeRobot policy LeRobot can load: {error}"
 

@@ -6,7 +6,10 @@ with random weights; the tests build a tiny one.
 
 Run as a module::
 
-    python -m snapflow.adapters.lerobot.groot_checkpoint FOLDER [--size full]
+    python -m snapflow.adapters.lerobot.groot_checkpoint FOLDER [--size full] [--dataset ROOT]
+
+With ``--dataset``, LeRobot's GrootPolicy over it for that LeRobotDataset too (``FOLDER/lerobot_policy``): a GR00T
+teacher to distil, made offline (LeRobot's own GR00T processor reads its Qwen3-VL files from the hub).
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-QWEN_FOLDER, CHECKPOINT_FOLDER = "qwen3_vl", "gr00t_n1_7"
+QWEN_FOLDER, CHECKPOINT_FOLDER, LEROBOT_POLICY_FOLDER = "qwen3_vl", "gr00t_n1_7", "lerobot_policy"
 SPECIAL_TOKENS = [
     "<|endoftext|>",
     "<|im_start|>",
@@ -211,22 +214,74 @@ def write_groot_checkpoint(directory: Path, qwen: Path, size: GrootSize, seed: i
 
 def write_random_groot(directory: str | Path, size: str = "full") -> Path:
     """The Qwen3-VL folder and the GR00T N1.7 checkpoint over it, inside ``directory``; the checkpoint's folder, which
-    ``GrootConfig(base_model_path=...)`` and ``snapflow bench --architecture groot --vlm`` take."""
-    directory, chosen = Path(directory), SIZES[size]
+    ``GrootConfig(base_model_path=...)`` and ``snapflow bench --architecture groot --vlm`` take. Both are named by
+    absolute paths, as a hub id names them from anywhere: LeRobot reads a relative one as a hub id."""
+    directory, chosen = Path(directory).resolve(), SIZES[size]
     qwen = write_qwen3_vl(directory / QWEN_FOLDER, chosen)
     return write_groot_checkpoint(directory / CHECKPOINT_FOLDER, qwen, chosen)
+
+
+def write_lerobot_policy(checkpoint: Path, dataset_root: Path, output: Path) -> Path:
+    """LeRobot's GrootPolicy over the GR00T N1.7 ``checkpoint`` for the LeRobotDataset at ``dataset_root`` (its state,
+    cameras and actions; its statistics in the processors, whose Qwen3-VL step reads the checkpoint's backbone),
+    saved as a policy folder at ``output``: the teacher ``snapflow distill --policy`` takes. LeRobot's own
+    ``lerobot-train --policy.type=groot`` builds the same, reading the Qwen3-VL processor files from the hub."""
+    from lerobot.configs.types import FeatureType
+    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+    from lerobot.policies.groot.configuration_groot import GrootConfig
+    from lerobot.policies.groot.modeling_groot import GrootPolicy
+
+    from snapflow.adapters.lerobot.dataset import policy_features
+    from snapflow.adapters.lerobot.groot import groot_processors
+
+    metadata = LeRobotDatasetMetadata(f"local/{dataset_root.name}", root=dataset_root)
+    features = policy_features(metadata.features)
+    checkpoint_config = json.loads((checkpoint / "config.json").read_text())
+    config = GrootConfig(
+        base_model_path=str(checkpoint.resolve()),
+        max_state_dim=checkpoint_config["max_state_dim"],
+        max_action_dim=checkpoint_config["max_action_dim"],
+        chunk_size=checkpoint_config["action_horizon"],
+        n_action_steps=checkpoint_config["action_horizon"],
+        use_bf16=False,  # the CPU's float32; a GPU run may turn it on
+        input_features={key: value for key, value in features.items() if value.type is not FeatureType.ACTION},
+        output_features={key: value for key, value in features.items() if value.type is FeatureType.ACTION},
+    )
+    policy = GrootPolicy(config)
+    policy.save_pretrained(output)
+    for processor in groot_processors(policy, metadata.stats):
+        processor.save_pretrained(output)
+    return output
 
 
 def main(arguments: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("directory", type=Path, help="where the Qwen3-VL folder and the checkpoint go")
     parser.add_argument("--size", choices=sorted(SIZES), default="full")
+    parser.add_argument(
+        "--dataset",
+        type=Path,
+        metavar="ROOT",
+        help="also write LeRobot's GrootPolicy over the checkpoint for this LeRobotDataset (its features and "
+        "statistics) in DIRECTORY/lerobot_policy, a teacher for snapflow distill --policy",
+    )
     options = parser.parse_args(arguments)
-    print(write_random_groot(options.directory, options.size))
+    checkpoint = write_random_groot(options.directory, options.size)
+    if options.dataset is not None:
+        print(write_lerobot_policy(checkpoint, options.dataset, checkpoint.parent / LEROBOT_POLICY_FOLDER))
+    else:
+        print(checkpoint)
 
 
 if __name__ == "__main__":
     main()
 
 
-__all__ = ["GrootSize", "SIZES", "write_groot_checkpoint", "write_qwen3_vl", "write_random_groot"]
+__all__ = [
+    "GrootSize",
+    "SIZES",
+    "write_groot_checkpoint",
+    "write_lerobot_policy",
+    "write_qwen3_vl",
+    "write_random_groot",
+]
