@@ -66,16 +66,13 @@ def test_cli_distills_a_saved_smolvla_on_a_local_lerobot_dataset(vlm_directory, 
         assert torch.equal(parameter, distilled.policy.model.vlm_with_expert.vlm.get_parameter(name)), (
             f"frozen {name} moved"
         )
-    # the exported folder carries LeRobot's processors: raw observations in, 1-NFE actions out
+    # the exported folder carries LeRobot's processors, its tokenizer inside: raw observations in, 1-NFE actions out
     from lerobot.policies.factory import make_pre_post_processors
 
     preprocessor, postprocessor = make_pre_post_processors(
         distilled.policy.config,
         pretrained_path=str(tmp_path / "run" / "lerobot_policy"),
-        preprocessor_overrides={
-            "tokenizer_processor": {"tokenizer_name": str(vlm_directory)},
-            "device_processor": {"device": "cpu"},
-        },
+        preprocessor_overrides={"device_processor": {"device": "cpu"}},
     )
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 

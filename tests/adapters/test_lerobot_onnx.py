@@ -38,7 +38,10 @@ def _raw_batch(rows: int, seed: int) -> tuple[np.ndarray, list[str], np.ndarray]
 def test_a_distilled_smolvla_exports_to_one_graph_that_gives_its_actions(vlm_directory, tmp_path, capsys):
     import onnx
 
+    from snapflow.adapters.lerobot.local_vlm import bundle_vlm
+
     student = save_tiny_student(vlm_directory, tmp_path / "student", STATE_DIM, "observation.images.top", IMAGE_SIZE)
+    bundle_vlm(student)  # as a student is kept: its SmolVLM inside, its tokenizer carried by its tokenizer step
     (student / "snapflow.json").unlink()  # as lerobot-train leaves its checkpoint: the student config's label alone
     output = tmp_path / "onnx"
     assert main(["export", "--policy", str(student), "--output", str(output)]) == 0

@@ -29,7 +29,7 @@ from snapflow.adapters.lerobot.checkpoint import (
     write_marker,
 )
 from snapflow.adapters.lerobot.dataset import IMAGE_PREFIX, STATE
-from snapflow.adapters.lerobot.local_vlm import saved_processors
+from snapflow.adapters.lerobot.local_vlm import bundled_vlm, saved_processors
 from snapflow.adapters.lerobot.registry import (
     lerobot_chunk_shape,
     lerobot_own_steps,
@@ -198,6 +198,9 @@ class LoadedLeRobotPolicy(OpenedPolicy):
         for source in sorted(self.path.iterdir()):
             if source.is_file() and source.name not in {SAFETENSORS_FILE, SNAPFLOW_MARKER, entry.file}:
                 atomic_write(output / source.name, lambda target, source=source: shutil.copyfile(source, target))
+        vlm = bundled_vlm(self.path)
+        if vlm is not None:  # a VLM kept inside, which the copied config names relative to the folder
+            shutil.copytree(vlm, output / vlm.relative_to(self.path.resolve()), dirs_exist_ok=True)
         _pad_prompts_to_full_length(output)
         # a lerobot-train checkpoint has no marker of its own: the export's names what it was exported from
         source = {**marker_of(adapter.policy_type, True, self.val_fraction), **self.marker}
@@ -221,12 +224,14 @@ def load_lerobot_policy(source: str | Path) -> LoadedLeRobotPolicy:
 def _pad_prompts_to_full_length(folder: Path) -> None:
     """The graph is traced at the full prompt length (``tokenizer_max_length``): the exported folder's tokenizer pads
     every prompt to it, where LeRobot's may pad to the batch's longest (padding is masked out of the attention)."""
+    from snapflow.adapters.lerobot.plugin.processor_snapflow import TOKENIZER_STEP
+
     config = json.loads((folder / "config.json").read_text())
     if "pad_language_to" in config:
         write_json(folder / "config.json", {**config, "pad_language_to": "max_length"})
     preprocessor = json.loads((folder / PREPROCESSOR_FILE).read_text())
     for step in preprocessor["steps"]:
-        if step.get("registry_name") == "tokenizer_processor":
+        if step.get("registry_name") in ("tokenizer_processor", TOKENIZER_STEP):  # LeRobot's, or a kept student's
             step["config"]["padding"] = "max_length"
     write_json(folder / PREPROCESSOR_FILE, preprocessor)
 
