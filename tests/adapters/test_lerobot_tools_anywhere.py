@@ -155,7 +155,7 @@ def test_lerobot_eval_runs_a_kept_student_from_another_directory(tmp_path):
     assert _files(student) == before, "nothing written into the policy folder"
 
 
-# ~25 s: lerobot-train's start, two steps and a checkpoint
+# ~10-15 s on two busy cores: lerobot-train's start, two steps and a checkpoint
 @pytest.mark.slow
 @PLUGINS
 def test_lerobot_train_steps_a_written_student_from_another_directory_and_its_kept_checkpoint_is_relative(tmp_path):
