@@ -118,15 +118,16 @@ def test_the_command_serves_a_student_and_refuses_a_payload_that_runs_code(serve
             stub.SendObservations(send_bytes_in_chunks(payload, services_pb2.Observation))
         assert not marker.exists(), "the client's code ran in the server"
 
-        # refusals the client reads: a student never distilled, a folder that is not there
+        # refusals the client reads: a student never distilled, a folder that is not there, a type not served
         never = shutil.copytree(student, tmp_path / "policies" / "never-distilled")
         config = json.loads((never / "config.json").read_text())
         (never / "config.json").write_text(json.dumps({**config, "distilled": False}))
-        for folder, status, reason in (
-            (never, grpc.StatusCode.FAILED_PRECONDITION, "was not distilled"),
-            (tmp_path / "nowhere", grpc.StatusCode.NOT_FOUND, "nowhere"),
+        for policy_type, folder, status, reason in (
+            ("snapflow_smolvla", never, grpc.StatusCode.FAILED_PRECONDITION, "was not distilled"),
+            ("snapflow_smolvla", tmp_path / "nowhere", grpc.StatusCode.NOT_FOUND, "nowhere"),
+            ("no_such_type", student, grpc.StatusCode.INVALID_ARGUMENT, "'no_such_type' is not served"),
         ):
-            specs = RemotePolicyConfig("snapflow_smolvla", str(folder), features, 4, "cpu")
+            specs = RemotePolicyConfig(policy_type, str(folder), features, 4, "cpu")
             with pytest.raises(grpc.RpcError) as refused:
                 stub.SendPolicyInstructions(services_pb2.PolicySetup(data=pickle.dumps(specs)))
             assert refused.value.code() == status and reason in refused.value.details(), refused.value.details()
