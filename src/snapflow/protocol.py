@@ -1,9 +1,11 @@
-"""The two small protocols that connect a policy to SnapFlow, and one optional capability.
+"""The two small protocols that connect a policy to SnapFlow, and the optional capabilities a policy may add.
 
 ``FlowPolicy`` is all the objective and the samplers ever see. ``TimeEmbeddingModel`` is what a plain
 flow-matching policy exposes so that :class:`snapflow.nn.SnapFlowPolicy` can add the target-time
 embedding to it without editing its code. ``PaddedActions`` is what a policy whose chunks hold entries its
-own loss leaves out (GR00T's padded width) adds, so that the objective leaves them out too.
+own loss leaves out (GR00T's padded width) adds, so that the objective leaves them out too. The fast paths
+(:mod:`snapflow.inference`) ask for the others by ``isinstance``: ``CompiledParts``, ``VisionPrecision``,
+``HostSyncFree``, ``PromptPaddingTrim`` and ``FusedOneStep``.
 
 A *context* is whatever ``encode`` returns: a tensor, or a (nested) dict / list / tuple of tensors whose
 first dimension is the batch (other leaves pass through untouched). The objective computes it once per
@@ -69,6 +71,43 @@ class PaddedActions(Protocol):
         ...
 
 
+@runtime_checkable
+class CompiledParts(Protocol):
+    """A policy that names the two methods a compiled fast path compiles (default: ``encode`` and ``velocity``):
+    its prefix pass and its velocity; none where it is one compiled graph already (an ONNX export)."""
+
+    compiled_methods: tuple[str, ...]
+
+
+@runtime_checkable
+class VisionPrecision(Protocol):
+    """A policy whose vision tower can run in another dtype than the rest (pi0's SigLIP in bfloat16)."""
+
+    def run_vision_in(self, dtype: Any) -> None: ...
+
+
+@runtime_checkable
+class HostSyncFree(Protocol):
+    """A policy that can drop the host synchronisations of its own prefix pass, which a CUDA graph cannot hold."""
+
+    def without_host_syncs(self) -> None: ...
+
+
+@runtime_checkable
+class PromptPaddingTrim(Protocol):
+    """A policy whose prompt padding can be cut from a batch without changing a chunk (it is masked out)."""
+
+    def without_prompt_padding(self, batch: Any) -> Any: ...
+
+
+@runtime_checkable
+class FusedOneStep(Protocol):
+    """A policy whose one-step chunk (prefix pass and SnapFlow jump) runs as one fused call, as
+    :func:`snapflow.inference.compile.fuse_one_step` leaves it."""
+
+    def one_step_chunk(self, observation: Any, noise: Tensor) -> Tensor: ...
+
+
 def map_tensors(context: Context, function: Callable[[Tensor], Tensor]) -> Context:
     """Apply ``function`` to every tensor in a (nested) context; non-tensor leaves are returned as they are."""
     if isinstance(context, Tensor):
@@ -88,4 +127,16 @@ def index_batch(context: Context, index: slice | Tensor) -> Context:
     return map_tensors(context, lambda tensor: tensor[index])
 
 
-__all__ = ["Context", "FlowPolicy", "PaddedActions", "TimeEmbeddingModel", "index_batch", "map_tensors"]
+__all__ = [
+    "CompiledParts",
+    "Context",
+    "FlowPolicy",
+    "FusedOneStep",
+    "HostSyncFree",
+    "PaddedActions",
+    "PromptPaddingTrim",
+    "TimeEmbeddingModel",
+    "VisionPrecision",
+    "index_batch",
+    "map_tensors",
+]

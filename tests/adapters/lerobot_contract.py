@@ -23,6 +23,8 @@ class LeRobotAdapterContract(FlowPolicyContract):
     """A LeRobot policy of ``policy_type`` under its adapter, built offline at tiny size (tests/lerobot_tiny.py)."""
 
     policy_type: ClassVar[str]
+    #: the fast paths' capabilities beyond those every adapter has (CompiledParts, PromptPaddingTrim)
+    capabilities: ClassVar[frozenset[str]] = frozenset()
 
     @pytest.fixture(autouse=True)
     def _tiny_vlm(self, vlm_directory: Path) -> None:  # also skips the class where LeRobot is not installed
@@ -210,6 +212,17 @@ class LeRobotAdapterContract(FlowPolicyContract):
         teacher = self.lerobot_chunk(reloaded.policy, observation, noise)
         assert torch.equal(teacher, sample_actions(policy, observation, noise, TEACHER_10))
         assert not torch.allclose(teacher, one_step)
+
+    def test_it_claims_exactly_the_fast_path_capabilities_its_type_declares(self, policy):
+        """The fast paths ask a policy by ``isinstance`` what it can do (no probing by name): every adapter names
+        its compiled parts and trims its prompt's padding; the others are each type's own (their effect is checked
+        in tests/adapters/test_lerobot.py)."""
+        from snapflow import protocol
+
+        assert isinstance(policy, protocol.CompiledParts) and isinstance(policy, protocol.PromptPaddingTrim)
+        assert all(callable(getattr(policy, name)) for name in policy.compiled_methods)
+        optional = ("VisionPrecision", "HostSyncFree", "FusedOneStep")
+        assert {name for name in optional if isinstance(policy, getattr(protocol, name))} == self.capabilities
 
     def test_a_bare_teacher_samples_the_types_own_steps_set_by_its_own_field(self, policy, batch, tmp_path):
         """``sampling_mode=teacher`` samples as many Euler steps as the type's own field says (``teacher-K``

@@ -20,6 +20,7 @@ from tests.lerobot_tiny import PI_SKIP, TRANSFORMERS, randomise_target_time
 
 class TestSmolVLAAdapter(LeRobotAdapterContract):
     policy_type = "smolvla"
+    capabilities = frozenset({"HostSyncFree"})
     # before transformers 5, SmolVLM sizes its patches' position ids by .item(), once per image: each breaks the graph
     deploy_graphs = 1 if TRANSFORMERS and TRANSFORMERS >= Version("5") else None
 
@@ -27,11 +28,13 @@ class TestSmolVLAAdapter(LeRobotAdapterContract):
 @PI_SKIP
 class TestPI0Adapter(LeRobotAdapterContract):
     policy_type = "pi0"
+    capabilities = frozenset({"VisionPrecision"})
 
 
 @PI_SKIP
 class TestPI05Adapter(LeRobotAdapterContract):
     policy_type = "pi05"
+    capabilities = frozenset({"VisionPrecision"})  # pi0's adapter's, inherited
 
 
 @PI_SKIP

@@ -16,7 +16,7 @@ from torch import Tensor
 from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
 from snapflow.flow.path import euler_step
-from snapflow.protocol import FlowPolicy
+from snapflow.protocol import FlowPolicy, FusedOneStep
 
 VelocityFn = Callable[[Tensor, Tensor, Tensor], Tensor]
 """``velocity(x_t, t, s)`` with the context already bound."""
@@ -45,9 +45,8 @@ def sample_actions(policy: FlowPolicy, observation: Any, noise: Tensor, mode: Sa
     """Encode ``observation`` once, then denoise ``noise`` into an action chunk with ``mode``. SnapFlow 1-NFE runs
     the policy's ``one_step_chunk(observation, noise)`` where a fast path fused the prefix and the jump into one
     graph (:func:`snapflow.inference.compile.fuse_one_step`)."""
-    fused = getattr(policy, "one_step_chunk", None)
-    if fused is not None and mode == SNAPFLOW_1:
-        return fused(observation, noise)
+    if isinstance(policy, FusedOneStep) and mode == SNAPFLOW_1:
+        return policy.one_step_chunk(observation, noise)
     context = policy.encode(observation)
     return euler_sample(lambda x, t, s: policy.velocity(x, t, s, context), noise, mode)
 

@@ -38,7 +38,9 @@ def compile_policy(policy: nn.Module, mode: CompileMode = "default") -> nn.Modul
         raise InvalidInputError(f"unknown compile mode {mode!r}; choose one of {', '.join(COMPILE_MODES)}")
     import torch  # here, not at import: the CLI lists the modes before torch loads
 
-    methods = getattr(policy, "compiled_methods", DEFAULT_METHODS)
+    from snapflow.protocol import CompiledParts
+
+    methods = policy.compiled_methods if isinstance(policy, CompiledParts) else DEFAULT_METHODS
     if not methods:  # already a compiled graph (an ONNX export)
         return policy
     prefix, velocity = methods
@@ -76,8 +78,9 @@ def fuse_one_step(policy: nn.Module, mode: CompileMode = "reduce-overhead") -> n
 
     from snapflow.flow.modes import SNAPFLOW_1
     from snapflow.flow.solver import euler_sample
+    from snapflow.protocol import CompiledParts
 
-    methods = getattr(policy, "compiled_methods", DEFAULT_METHODS)
+    methods = policy.compiled_methods if isinstance(policy, CompiledParts) else DEFAULT_METHODS
     if not methods:  # already one graph (an ONNX export)
         return policy
 

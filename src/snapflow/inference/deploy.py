@@ -37,21 +37,19 @@ def deploy(policy: nn.Module) -> nn.Module:
     import torch
 
     from snapflow.inference.compile import compile_policy, fuse_one_step
+    from snapflow.protocol import HostSyncFree, PromptPaddingTrim, VisionPrecision
 
-    run_vision_in = getattr(policy, "run_vision_in", None)
-    if callable(run_vision_in):
-        run_vision_in(torch.bfloat16)
-    without_host_syncs = getattr(policy, "without_host_syncs", None)
-    if callable(without_host_syncs):
-        without_host_syncs()
+    if isinstance(policy, VisionPrecision):
+        policy.run_vision_in(torch.bfloat16)
+    if isinstance(policy, HostSyncFree):
+        policy.without_host_syncs()
     if any(parameter.is_cuda for parameter in policy.parameters()):
         torch.backends.cuda.matmul.allow_tf32 = torch.backends.cudnn.allow_tf32 = True
         torch.set_float32_matmul_precision("high")
     compile_policy(policy, "reduce-overhead")
     fuse_one_step(policy, "reduce-overhead")
-    trim = getattr(policy, "without_prompt_padding", None)
-    if callable(trim):  # outside the graphs: the cut is decided by the data
-        encode, chunk = policy.encode, policy.one_step_chunk
+    if isinstance(policy, PromptPaddingTrim):  # outside the graphs: the cut is decided by the data
+        trim, encode, chunk = policy.without_prompt_padding, policy.encode, policy.one_step_chunk
         policy.encode = lambda batch: encode(trim(batch))
         policy.one_step_chunk = lambda observation, noise: chunk(trim(observation), noise)
     return policy
