@@ -84,6 +84,7 @@ def test_a_lerobot_policy_type_is_an_adapter_and_one_declaration(declared, vlm_d
     assert NAME in architectures()
     commands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices
     assert NAME in next(a for a in commands["bench"]._actions if a.dest == "architecture").choices
+    assert NAME in next(a for a in commands["distill"]._actions if a.dest == "policy").help, "no hand-written list"
 
     tiny = build_tiny_smolvla(vlm_directory)
     policy = ThrowawayPolicy(ThrowawayConfig(**{key: value for key, value in asdict(tiny.config).items()}))

@@ -1,8 +1,8 @@
 """What ``snapflow bench`` times: a policy under the FlowPolicy protocol with one batch-1 observation and noise.
 
-Either a trained policy (a built-in checkpoint, a distilled LeRobot folder, or any LeRobot pi0 / pi0.5 /
-SmolVLA hub id or folder) or an architecture built at its real size with random weights: timing does not
-depend on the values, so a user can time pi0.5 or SmolVLA before downloading or training anything.
+Either a trained policy (a built-in checkpoint, a distilled LeRobot folder, or any LeRobot hub id or folder of a
+declared type) or an architecture built at its real size with random weights: timing does not depend on the values,
+so a user can time pi0.5 or GR00T N1.7 before downloading or training anything.
 """
 
 from __future__ import annotations
@@ -166,10 +166,11 @@ def lerobot_subject(
 
 
 def lerobot_architecture(policy_type: str, device: torch.device, vlm: str | None = None) -> nn.Module:
-    """LeRobot's pi0, pi0.5 or SmolVLA at full size with random weights, in the paper's LIBERO setting.
+    """LeRobot's policy of the declared type ``policy_type`` at full size with random weights, in the paper's LIBERO
+    setting (two 224-pixel cameras, 8-D state, 7-D actions).
 
-    SmolVLA reads its VLM's config and processor from ``vlm`` (default: LeRobot's, a hub id); with
-    ``load_vlm_weights=False`` no weights are downloaded.
+    A type that reads a VLM's config and processor (its declaration's ``vlm_options``) reads them from ``vlm``
+    (default: LeRobot's, a hub id); no weights are downloaded.
     """
     from huggingface_hub.constants import CONFIG_NAME
     from lerobot.configs.types import FeatureType, PolicyFeature

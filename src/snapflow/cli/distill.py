@@ -1,5 +1,6 @@
 """``snapflow distill``: a teacher SnapFlow-distilled into a one-step student, a built-in policy on demonstrations or
-a LeRobot pi0, pi0.5 or SmolVLA on a LeRobotDataset, from a named recipe that each flag given overrides."""
+a LeRobot policy of a declared type (``adapters/lerobot_types.py``) on a LeRobotDataset, from a named recipe that each
+flag given overrides."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
+from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES
 from snapflow.cli.common import (
     POSITIVE,
     RECIPE_SUMMARIES,
@@ -42,7 +44,10 @@ def add_parser(subparsers: Any) -> None:
         + f" (default: {DEFAULT_RECIPE} for a built-in teacher, {LEROBOT_RECIPE} for a LeRobot policy)",
     )
     parser.add_argument("--teacher", help="teacher run or checkpoint directory (built-in policy)")
-    parser.add_argument("--policy", help="LeRobot pi0, pi0.5 or SmolVLA: hub id or local pretrained directory")
+    parser.add_argument(
+        "--policy",
+        help=f"LeRobot policy ({', '.join(LEROBOT_POLICY_TYPES)}): hub id or local pretrained directory",
+    )
     parser.add_argument("--dataset", help="LeRobotDataset: root directory on disk, or repo id")
     parser.add_argument("--repo-id", help="repo id of a dataset given as a directory (default: local/<folder name>)")
     parser.add_argument(

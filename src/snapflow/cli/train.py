@@ -1,5 +1,5 @@
-"""``snapflow train``: a flow-matching teacher, a built-in policy on demonstrations or LeRobot's SmolVLA from scratch
-on a LeRobotDataset."""
+"""``snapflow train``: a flow-matching teacher, a built-in policy on demonstrations or, from scratch on a
+LeRobotDataset, a LeRobot type declared ``trains_from_scratch`` (SmolVLA, X-VLA)."""
 
 from __future__ import annotations
 
@@ -47,7 +47,12 @@ class _DeprecatedPolicyFlag(argparse.Action):
 
 def add_parser(subparsers: Any) -> None:
     parser = add_command(
-        subparsers, "train", "train a built-in flow-matching teacher on demonstrations", run, training_interrupted
+        subparsers,
+        "train",
+        "train a flow-matching teacher: a built-in one on demonstrations, or a LeRobot "
+        f"{' / '.join(lerobot_teachers())} from scratch on a LeRobotDataset",
+        run,
+        training_interrupted,
     )
     add_training_options(parser, TEACHER_TRAINING, data_required=False)
     policy_types = [*POLICIES, *lerobot_teachers()]

@@ -116,7 +116,7 @@ def distill_lerobot(
     val_fraction: float | None = None,
     keep_progress: str | Path | None = None,
 ) -> dict[str, Any]:
-    """Distill a LeRobot pi0, pi0.5 or SmolVLA (hub id or local pretrained directory) on the LeRobotDataset
+    """Distill a LeRobot policy of a declared type (hub id or local pretrained directory) on the LeRobotDataset
     ``repo_id`` at ``dataset_root`` (None: LeRobot's cache, fetched from the hub if missing);
     ``preprocessor_overrides`` reach LeRobot's processor loader (e.g. a local tokenizer). ``val_fraction`` of each
     task's episodes is held out (default: what a teacher snapflow trained held out, else none). ``keep_progress``: as

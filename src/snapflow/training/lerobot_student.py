@@ -52,7 +52,7 @@ def write_student(
     settings: DistillSettings | None = None,
     preprocessor_overrides: dict[str, Any] | None = None,
 ) -> Path:
-    """The LeRobot pi0, pi0.5 or SmolVLA at ``policy_path`` (hub id or folder) written to ``output`` as its SnapFlow
+    """The LeRobot policy of a declared type at ``policy_path`` (hub id or folder) written to ``output`` as its SnapFlow
     student, ready for ``lerobot-train --policy.path=output``: its weights with phi_s at zero (bit for bit the
     teacher), its config typed ``snapflow_<type>`` with ``distilled`` false (it refuses ``snapflow-N`` until trained)
     and ``settings`` (default: the paper's) as its ``distill_*`` fields, and the teacher's own processors (built

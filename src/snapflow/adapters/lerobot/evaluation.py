@@ -209,8 +209,8 @@ class LoadedLeRobotPolicy(OpenedPolicy):
 
 
 def load_lerobot_policy(source: str | Path) -> LoadedLeRobotPolicy:
-    """A distilled LeRobot policy (phi_s loaded strictly), an export of one, or any LeRobot SmolVLA / pi0 / pi0.5
-    folder or hub id, on the CPU."""
+    """A distilled LeRobot policy (phi_s loaded strictly), an export of one, or any LeRobot folder or hub id of a
+    declared type, on the CPU."""
     path = Path(source)
     marker = read_marker(path) or {}
     exported = export_record(marker)
