@@ -1,8 +1,10 @@
 """Screenshots of the documentation site as a reader sees it, at desktop and at phone width, by headless Chromium
-(Debian's ``chromium``): the home page, a tutorial, the Python API reference and the results' overview (a wide
-table). The site is built with ``mkdocs build --strict`` and served on the loopback for the shots.
+(Debian's ``chromium``): the home page, a tutorial, the Python API reference, the command-line reference, the
+install page, a policy type's page, the cost page and the LIBERO results page (its headline table, and wide generated tables below it). The site is built with ``mkdocs build
+--strict`` and served on the loopback for the shots.
 
-    python scripts/docs_screenshots.py docs/screenshots
+    python scripts/docs_screenshots.py docs/screenshots             # every page
+    python scripts/docs_screenshots.py docs/screenshots api cli     # only these
 """
 
 from __future__ import annotations
@@ -20,7 +22,16 @@ from collections.abc import Iterator
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PAGES = {"home": "", "tutorial": "tutorials/distil-lerobot/", "api": "reference/api/", "results": "RESULTS/"}
+PAGES = {
+    "home": "",
+    "tutorial": "tutorials/distil-lerobot/",
+    "api": "reference/api/",
+    "cli": "reference/cli/",
+    "results": "results/libero/",
+    "install": "install/",
+    "type": "types/pi05/",
+    "costs": "guides/distillation-cost/",
+}
 #: a desktop browser window and a phone's viewport (CSS pixels)
 WIDTHS = {"desktop": (1280, 900), "phone": (390, 844)}
 
@@ -60,7 +71,13 @@ def screenshot(browser: str, url: str, size: tuple[int, int], output: Path) -> N
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("output", type=Path, help="folder for the PNGs (<page>-<width>.png)")
+    parser.add_argument(
+        "pages", nargs="*", metavar="PAGE", help=f"the pages to shoot, of {', '.join(PAGES)} (default: all)"
+    )
     args = parser.parse_args()
+    unknown = sorted(set(args.pages) - set(PAGES))
+    if unknown:
+        parser.error(f"no page named {', '.join(unknown)}; the pages are {', '.join(PAGES)}")
     browser = shutil.which("chromium") or shutil.which("chromium-browser")
     if browser is None:
         print("headless Chromium is needed: apt-get install chromium", file=sys.stderr)
@@ -73,6 +90,8 @@ def main() -> int:
         )
         with served(site) as base:
             for page, path in PAGES.items():
+                if args.pages and page not in args.pages:
+                    continue
                 for name, size in WIDTHS.items():
                     screenshot(browser, base + path, size, args.output / f"{page}-{name}.png")
                     print(f"{page} at {name} width: {args.output / f'{page}-{name}.png'}")

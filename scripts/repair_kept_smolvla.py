@@ -40,7 +40,7 @@ from snapflow.training.checkpoint import KEPT, TRAINING_WEIGHTS
 RECORDS = Path("docs/results/sweeps/smolvla-libero-spatial-dart/records")
 SEEDS = (0, 1, 2)
 VAL_FRACTION = 0.1  # the sweep's held-out share, in every run's record
-STUDENT_FIELDS = ("sampling_mode", "distilled")  # and the distill_* settings
+STUDENT_FIELDS = ("sampling_mode", "distilled", "distill", "steps_distilled")  # and every distill_* key
 PROCESSOR_FILES = (
     "policy_preprocessor.json",
     "policy_postprocessor.json",

@@ -198,6 +198,22 @@ def model_inputs(policy, batch: dict[str, torch.Tensor]) -> tuple:
     if policy_type == "groot":  # GR00T's get_action: the backbone's inputs and the action head's
         inputs = policy._filter_groot_inputs(batch, include_action=False)
         return tuple(dict(part) for part in policy._groot_model.prepare_input(inputs))
+    if policy_type == "evo1":  # predict_action_chunk's: tasks, cameras, state, embodiments, the action width's mask
+        states, _ = policy._prepare_state(batch)
+        size = states.shape[0]
+        embodiment = policy._get_embodiment_ids(batch, size)
+        mask = policy._prepare_inference_action_mask(size)
+        return policy._normalize_task_batch(batch), *policy._collect_image_batches(batch), states, embodiment, mask
+    if policy_type == "eo1":  # sample_actions': the prompt's tokens, the images, the padded state, placeholder ids
+        keys = ("input_ids", "attention_mask", "mm_token_type_ids", "pixel_values", "image_grid_thw")
+        state = policy.prepare_state(batch["observation.state"])
+        return *(batch[key] for key in keys), state, batch["state_token_id"], batch["action_token_id"]
+    if policy_type == "vla_jepa":  # predict_action_chunk's: each sample's cameras, the tasks, the state, (B, 1, D)
+        inputs = policy._prepare_model_inputs(batch, training=False)
+        cameras = [torch.stack(views) for views in zip(*inputs["images"], strict=True)]
+        return cameras, inputs["instructions"], inputs.get("state")
+    if policy_type == "molmoact2":  # predict_action_chunk's: the model's inputs and the action width's padding
+        return policy._model_inputs(batch), batch.get("action_dim_is_pad")
     language = batch["observation.language.tokens"], batch["observation.language.attention_mask"]
     if policy_type == "multi_task_dit":  # one observation step: the frame gets its steps axis
         frames = {key: batch[key][:, None] for key in ("observation.state", *policy.config.image_features)}

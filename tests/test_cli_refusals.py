@@ -58,6 +58,20 @@ ARGUMENT_MISTAKES = {
     "negative lambda": (["distill", "--teacher", "t", "--data", "d", "--lambda", "-1"], "--lambda", "at least 0"),
     "alpha above 1": (["distill", "--teacher", "t", "--data", "d", "--alpha", "1.5"], "--alpha", "at most 1"),
     "infinite learning rate": (["train", "--data", "d", "--learning-rate", "inf"], "--learning-rate", "finite"),
+    "unknown time distribution": (
+        ["train", "--data", "d", "--time-distribution", "gamma:2"],
+        "--time-distribution",
+        "unknown time distribution 'gamma:2'; choose one of uniform, beta:A, shift:S",
+    ),
+    "negative beta of the teacher's times": (
+        ["train", "--data", "d", "--time-distribution", "beta:-1.5"],
+        "--time-distribution",
+        "positive",
+    ),
+    "time distribution of a LeRobot teacher": (
+        ["train", "--policy-type", "smolvla", "--dataset", "d", "--time-distribution", "beta:1.5"],
+        "--time-distribution: a LeRobot teacher trains on its own type's flow-matching times",
+    ),
     "no timed calls": (["bench", "--architecture", "mlp", "--repeats", "0"], "--repeats"),
     "no workers": (["sweep", "config.toml", "--workers", "0"], "--workers"),
     "mistyped mode": (["eval", "--policy", "run", "--modes", "snapflow-x"], "unknown sampling mode 'snapflow-x'"),
@@ -73,6 +87,10 @@ ARGUMENT_MISTAKES = {
     "mistyped task": (["collect", "--tasks", "reach-v9"], "unknown metaworld task(s) ['reach-v9']"),
     "unknown camera": (["collect", "--image-size", "32", "--extra-cameras", "wrist"], "has no camera(s) ['wrist']"),
     "mistyped target": (["toy-compare", "--targets", "euler"], "TARGET:STEPS"),
+    "a LeRobot student written for lerobot-train, sharded": (
+        ["distill", "--policy", "lerobot/pi05_base", "--lerobot-train", "--shard"],
+        "--lerobot-train writes no training run, so it shards none",
+    ),
     "objective option without a value": (
         ["distill", "--teacher", "t", "--data", "d", "--objective-option", "adaptive_power"],
         "--objective-option",

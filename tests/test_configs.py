@@ -30,7 +30,7 @@ def test_the_four_suite_sweep_collects_all_of_liberos_forty_tasks_at_the_size_th
     config = load_sweep(Path(__file__).resolve().parents[1] / "configs" / "sweeps" / "smolvla-libero-four-suites.toml")
     assert config.data.image_size == 64
     assert config.data.video is not None and config.data.video.codec == "libsvtav1"
-    assert {run.lerobot.smolvlm for run in config.runs.values() if run.lerobot is not None} == {"small"}
+    assert {run.spec.smolvlm for run in config.runs.values() if run.spec is not None} == {"small"}
     assert config.runs["lerobot-train"].trainer == "lerobot-train"
     suites = ("libero_spatial", "libero_object", "libero_goal", "libero_10")
     assert sorted(config.data.tasks) == sorted(task for suite in suites for task in Libero().task_sets[suite])

@@ -35,7 +35,6 @@ NAMES_THE_REGISTERED_STRING = {
     "benchmark/subjects.py": "docstrings: what --architecture minivla times",
     "jobs/demo.py": 'the demo trains the policy registered as "minivla"',
     "jobs/sweep/__init__.py": 'the sweep schema in the docstring: policy = {type = "minivla" | "mlp", ...}',
-    "jobs/sweep/schema.py": 'DEFAULT_POLICY = "minivla", the policy type of a sweep that names none',
 }
 
 

@@ -1,11 +1,13 @@
 """docs/ARCHITECTURE.md's "Where to add", followed to the letter: a throw-away environment and a throw-away built-in
 policy, each added with the steps the document names and nothing else, run through the commands it says follow
-(collect, train, distill, eval, bench). (An export format: tests/inference/test_formats.py; a fast path:
+(collect, train, distill, eval, bench); and, from the history, that each LeRobot type added since issue 72 cost at most
+three files of src/. (An export format: tests/inference/test_formats.py; a fast path:
 tests/inference/test_fast_paths.py.)"""
 
 from __future__ import annotations
 
 import json
+import subprocess
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -191,3 +193,27 @@ def test_an_environment_and_a_built_in_policy_added_as_documented_run_every_comm
         )
         == 0
     )
+
+
+# Issue 72: a LeRobot type costs at most three files of src/ (its adapter, its registration and one more) from the
+# commit on that made the families one seam and the noise a declared capability; every type added since is held to it.
+THREE_FILES_SINCE = "69e536e"
+LEROBOT_ADAPTERS, LEROBOT_DECLARATIONS = "src/snapflow/adapters/lerobot/", "src/snapflow/adapters/lerobot_types.py"
+
+
+def _git(*arguments: str) -> list[str]:
+    root = Path(__file__).resolve().parents[1]
+    result = subprocess.run(["git", *arguments], cwd=root, capture_output=True, text=True, check=False)
+    if result.returncode != 0:
+        pytest.skip(f"no git history to read here: {result.stderr.strip()[:200]}")
+    return [line for line in result.stdout.splitlines() if line]
+
+
+def test_each_lerobot_type_added_since_the_seam_touches_at_most_three_src_files():
+    """A commit that adds a module to adapters/lerobot/ and declares a type in lerobot_types.py adds a type; its
+    src/ part is at most three files."""
+    for commit in _git("rev-list", f"{THREE_FILES_SINCE}..HEAD", "--", LEROBOT_DECLARATIONS):
+        added = _git("show", "--format=", "--diff-filter=A", "--name-only", commit, "--", LEROBOT_ADAPTERS)
+        if added:
+            touched = _git("show", "--format=", "--name-only", commit, "--", "src/")
+            assert len(touched) <= 3, f"{commit[:12]} adds a LeRobot type in {len(touched)} src files: {touched}"

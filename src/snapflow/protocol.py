@@ -72,6 +72,25 @@ class PaddedActions(Protocol):
 
 
 @runtime_checkable
+class OwnNoise(Protocol):
+    """A policy whose flow starts from another noise than a standard normal (EVO1's, uniform in [-1, 1]): its
+    training rows, its offline error and its samples start from it. The others start from a standard normal."""
+
+    def flow_noise(self, shape: tuple[int, ...], generator: Any = None, device: Any = None) -> Tensor:
+        """Noise of ``shape`` drawn from ``generator`` (torch's global one where None) on ``device``."""
+        ...
+
+
+def draw_flow_noise(policy: Any, shape: tuple[int, ...], generator: Any = None, device: Any = None) -> Tensor:
+    """The noise ``policy``'s flow starts from, of ``shape``: its own (:class:`OwnNoise`) or a standard normal."""
+    if isinstance(policy, OwnNoise):
+        return policy.flow_noise(tuple(shape), generator, device)
+    import torch
+
+    return torch.randn(tuple(shape), generator=generator, device=device)
+
+
+@runtime_checkable
 class CompiledParts(Protocol):
     """A policy that names the two methods a compiled fast path compiles (default: ``encode`` and ``velocity``):
     its prefix pass and its velocity; none where it is one compiled graph already (an ONNX export)."""
@@ -128,6 +147,8 @@ def index_batch(context: Context, index: slice | Tensor) -> Context:
 
 
 __all__ = [
+    "OwnNoise",
+    "draw_flow_noise",
     "CompiledParts",
     "Context",
     "FlowPolicy",

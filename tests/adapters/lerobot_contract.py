@@ -25,6 +25,10 @@ class LeRobotAdapterContract(FlowPolicyContract):
     policy_type: ClassVar[str]
     #: the fast paths' capabilities beyond those every adapter has (CompiledParts, PromptPaddingTrim)
     capabilities: ClassVar[frozenset[str]] = frozenset()
+    #: the width of the action ``select_action`` returns: the robot's 4 (EVO1's is padded; its post-processor cuts it)
+    selected_action_width: ClassVar[int] = 4
+    #: inductor's numerics are checked on SmolVLA (and the built-in policies); the other types' graph capture alone
+    compile_backend: ClassVar[str] = "aot_eager"
 
     @pytest.fixture(autouse=True)
     def _tiny_vlm(self, vlm_directory: Path) -> None:  # also skips the class where LeRobot is not installed
@@ -179,7 +183,7 @@ class LeRobotAdapterContract(FlowPolicyContract):
                 pairs = list(zip(ours, theirs, strict=True))
             else:
                 pairs = [(ours, theirs)]
-            assert all(torch.equal(a, b) for a, b in pairs)
+            assert all(torch.equal(a, b) if torch.is_tensor(a) else a == b for a, b in pairs)  # EVO1's task: text
 
     def test_the_adapters_own_state_dict_holds_each_tensor_once(self, policy):
         # safetensors refuses tensors saved under two names: the adapter adds no second name, to phi_s or anything
@@ -204,10 +208,8 @@ class LeRobotAdapterContract(FlowPolicyContract):
         noise = self.noise_like(actions)
         one_step = self.lerobot_chunk(reloaded.policy, observation, noise)
         assert torch.equal(one_step, sample_actions(policy, observation, noise, SNAPFLOW_1))
-        assert reloaded.policy.select_action(observation).shape == (
-            self.batch_size,
-            4,
-        )  # LeRobot's queue of n_action_steps actions
+        # LeRobot's queue of n_action_steps actions
+        assert reloaded.policy.select_action(observation).shape == (self.batch_size, self.selected_action_width)
         reloaded.use_sampling_mode(TEACHER_10)
         teacher = self.lerobot_chunk(reloaded.policy, observation, noise)
         assert torch.equal(teacher, sample_actions(policy, observation, noise, TEACHER_10))
@@ -221,7 +223,7 @@ class LeRobotAdapterContract(FlowPolicyContract):
 
         assert isinstance(policy, protocol.CompiledParts) and isinstance(policy, protocol.PromptPaddingTrim)
         assert all(callable(getattr(policy, name)) for name in policy.compiled_methods)
-        optional = ("VisionPrecision", "HostSyncFree", "FusedOneStep")
+        optional = ("VisionPrecision", "HostSyncFree", "FusedOneStep", "OwnNoise")
         assert {name for name in optional if isinstance(policy, getattr(protocol, name))} == self.capabilities
 
     def test_a_bare_teacher_samples_the_types_own_steps_set_by_its_own_field(self, policy, batch, tmp_path):

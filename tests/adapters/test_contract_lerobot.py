@@ -1,6 +1,6 @@
 """The adapter contract run by every LeRobot policy type snapflow distils: SmolVLA, pi0, pi0.5, X-VLA and
-multi-task DiT here, GR00T N1.7 in ``test_contract_groot.py``; a declared type without a class fails
-:func:`test_every_lerobot_adapter_runs_the_contract`."""
+multi-task DiT here, GR00T N1.7, EVO1 and VLA-JEPA in ``test_contract_<type>.py``; a declared type without a class
+fails :func:`test_every_lerobot_adapter_runs_the_contract`."""
 
 from __future__ import annotations
 
@@ -20,6 +20,7 @@ from tests.lerobot_tiny import PI_SKIP, TRANSFORMERS, randomise_target_time
 
 class TestSmolVLAAdapter(LeRobotAdapterContract):
     policy_type = "smolvla"
+    compile_backend = "inductor"  # the one LeRobot type whose compiled numerics are checked (inductor, C++ kernels)
     capabilities = frozenset({"HostSyncFree"})
     # before transformers 5, SmolVLM sizes its patches' position ids by .item(), once per image: each breaks the graph
     deploy_graphs = 1 if TRANSFORMERS and TRANSFORMERS >= Version("5") else None
@@ -180,7 +181,11 @@ class TestMultiTaskDiTAdapter(LeRobotAdapterContract):
 
 
 def test_every_lerobot_adapter_runs_the_contract():
-    import tests.adapters.test_contract_groot  # noqa: F401  (its class, however this module was collected)
+    import tests.adapters.test_contract_eo1  # noqa: F401  (their classes, however this module was collected)
+    import tests.adapters.test_contract_evo1  # noqa: F401
+    import tests.adapters.test_contract_groot  # noqa: F401
+    import tests.adapters.test_contract_molmoact2  # noqa: F401
+    import tests.adapters.test_contract_vla_jepa  # noqa: F401
     from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES
 
     assert sorted(cls.policy_type for cls in contract_classes(LeRobotAdapterContract)) == sorted(LEROBOT_POLICY_TYPES)

@@ -15,6 +15,7 @@ from packaging.version import Version  # noqa: E402
 
 from snapflow import SnapFlowObjective  # noqa: E402
 from snapflow.adapters.lerobot import wrap_policy  # noqa: E402
+from snapflow.adapters.lerobot.evaluation import LoadedLeRobotPolicy  # noqa: E402
 from snapflow.inference.deploy import DEPLOY_ACTION_BOUND  # noqa: E402
 from tests.lerobot_tiny import (  # noqa: E402
     LEROBOT,
@@ -32,7 +33,7 @@ def test_unsupported_policies_and_lerobot_versions_are_named():
     from snapflow.adapters.lerobot import PI05FlowPolicy
     from snapflow.adapters.lerobot.registry import adapter_class
 
-    with pytest.raises(ValueError, match="pi0, pi05, smolvla, xvla policies, not 'act': a transformer that regresses"):
+    with pytest.raises(ValueError, match="smolvla, vla_jepa, xvla policies, not 'act': a transformer that regresses"):
         adapter_class("act")
     if LEROBOT < Version(PI05FlowPolicy.minimum_lerobot):
         with pytest.raises(ValueError, match=f"pi05 adapter needs lerobot >= 0.5 .* lerobot {LEROBOT} is installed"):
@@ -153,12 +154,10 @@ def test_dataset_image_channels_are_read_from_either_layout_even_without_names()
 @pytest.mark.parametrize("policy_type", ["pi0", "pi05"])
 def test_the_vision_tower_runs_in_bfloat16_on_request_and_moves_the_actions_little(policy_type):
     from snapflow.benchmark.bench import one_step_actions
-    from snapflow.benchmark.subjects import lerobot_subject
 
     with tiny_pi_configs(policy_type):
-        subject = lerobot_subject(
-            randomise_target_time(wrap_policy(build_tiny_pi(policy_type))), "tiny", torch.device("cpu"), torch.float32
-        )
+        model = randomise_target_time(wrap_policy(build_tiny_pi(policy_type)))
+    subject = LoadedLeRobotPolicy.of_model(model, Path("<tiny>"), distilled=True).bench_subject("tiny")
     exact = one_step_actions(subject)
     for _ in range(2):  # a second call changes nothing more
         subject.policy.run_vision_in(torch.bfloat16)
@@ -188,9 +187,10 @@ def test_smolvlms_vision_embeddings_without_host_syncs_are_transformers_own(vlm_
 
 def test_a_bench_subject_may_time_a_prompt_of_fewer_real_tokens_than_its_padded_length(vlm_directory):
     from snapflow.adapters.lerobot.base import OBS_LANGUAGE_ATTENTION_MASK
-    from snapflow.benchmark.subjects import lerobot_subject, with_prompt_tokens
+    from snapflow.benchmark.subjects import with_prompt_tokens
 
-    subject = lerobot_subject(build_tiny_smolvla(vlm_directory), "tiny", torch.device("cpu"), torch.float32)
+    tiny = LoadedLeRobotPolicy.of_model(build_tiny_smolvla(vlm_directory), Path("<tiny>"), distilled=True)
+    subject = tiny.bench_subject("tiny")
     full = subject.observation[OBS_LANGUAGE_ATTENTION_MASK]
     assert bool(full.all()), "by default every token is real: the most a prefix costs"
     shorter = with_prompt_tokens(subject, 3)

@@ -111,6 +111,41 @@ def test_cli_distills_a_saved_smolvla_on_a_local_lerobot_dataset(vlm_directory, 
     assert not (tmp_path / "nan_run" / "checkpoints").exists()
 
 
+@pytest.mark.slow
+def test_cli_distills_a_smolvla_with_a_baseline_and_its_prefix_trained_as_lerobot_train_would(
+    vlm_directory, tmp_path, capsys
+):
+    """The settings lerobot-train takes, snapflow's own trainer takes too: MeanFlow with every parameter trained; the
+    exported student's config holds them (what lerobot-train on it goes on with). The no-phi_s ablation is refused
+    by both, before anything loads."""
+    import json
+
+    from snapflow.cli import main
+    from tests.lerobot_tiny import write_tiny_dataset
+
+    dataset = write_tiny_dataset(tmp_path / "dataset")
+    build_tiny_smolvla(vlm_directory).save_pretrained(tmp_path / "teacher")
+    arguments = _distill_arguments(tmp_path, dataset)
+    options = ["--method", "meanflow", "--objective-option", "adaptive_power=0.5", "--train-prefix"]
+    assert main(arguments + options) == 0
+    settings = json.loads((tmp_path / "run" / "lerobot_policy" / "config.json").read_text())["distill"]
+    assert (settings["method"], settings["objective_options"], settings["freeze_prefix"]) == (
+        "meanflow",
+        {"adaptive_power": 0.5},
+        False,
+    )
+    distilled, teacher = load_distilled(tmp_path / "run" / "lerobot_policy"), build_tiny_smolvla(vlm_directory)
+    vlm = distilled.policy.model.vlm_with_expert.vlm
+    assert any(
+        not torch.equal(parameter, vlm.get_parameter(name))
+        for name, parameter in teacher.model.vlm_with_expert.vlm.named_parameters()
+    ), "the prefix trained"
+
+    ablation = _replaced(arguments, {tmp_path / "run": tmp_path / "ablation"})
+    assert main(ablation + ["--no-target-time"]) == 2
+    assert "carries phi_s" in capsys.readouterr().err and not (tmp_path / "ablation").exists()
+
+
 def test_distilling_into_an_output_another_process_holds_is_refused_before_anything_loads(tmp_path):
     from snapflow.reporting.locks import RunLockedError
     from snapflow.training.lerobot import distill_lerobot

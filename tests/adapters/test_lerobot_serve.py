@@ -1,8 +1,9 @@
 """``snapflow serve``: LeRobot's own async-inference policy server serves a distilled student (SmolVLA, pi0, pi0.5,
-X-VLA, multi-task DiT, GR00T N1.7) to a client made of LeRobot's own gRPC types, one denoising pass a chunk (ten as
-its teacher), and refuses the student asked for under its teacher's type instead of dropping phi_s. LeRobot's server
-calls ``predict_action_chunk`` on its own, where a multi-task DiT reads observation queues only its ``select_action``
-fills (LeRobot 0.6.1, a teacher fails there): its student fills them from the observation it is given."""
+X-VLA, multi-task DiT, GR00T N1.7, EVO1, EO-1, VLA-JEPA, MolmoAct2) to a client made of LeRobot's own gRPC types,
+one denoising pass a chunk (ten as its teacher), and refuses the student asked for under its teacher's type instead
+of dropping phi_s. LeRobot's server calls ``predict_action_chunk`` on its own, where a multi-task DiT reads observation queues only its
+``select_action`` fills (LeRobot 0.6.1, a teacher fails there): its student fills them from the observation it is
+given."""
 
 from __future__ import annotations
 
@@ -38,8 +39,12 @@ from tests.lerobot_tiny import (  # noqa: E402
     save_tiny_student,
     tiny_pi_configs,
 )
+from tests.lerobot_tiny_eo1 import EO1_IMAGE_SIZE, save_tiny_eo1_student  # noqa: E402
+from tests.lerobot_tiny_evo1 import save_tiny_evo1_student  # noqa: E402
 from tests.lerobot_tiny_groot import GROOT_IMAGE_SIZE, save_tiny_groot_student  # noqa: E402
+from tests.lerobot_tiny_molmoact2 import save_tiny_molmoact2_student  # noqa: E402
 from tests.lerobot_tiny_multi_task_dit import save_tiny_multi_task_dit_student  # noqa: E402
+from tests.lerobot_tiny_vla_jepa import VLA_JEPA_IMAGE_SIZE, save_tiny_vla_jepa_student  # noqa: E402
 from tests.lerobot_tiny_xvla import save_tiny_xvla_student  # noqa: E402
 
 JOINTS = ("shoulder.pos", "elbow.pos", "wrist.pos", "wrist_roll.pos", "forearm.pos", "gripper.pos")
@@ -61,12 +66,31 @@ class Served:
         return hw_to_dataset_features(robot, "observation")
 
 
-@pytest.fixture(scope="module", params=["smolvla", "pi0", "pi05", "xvla", "multi_task_dit", "groot"])
+@pytest.fixture(
+    scope="module",
+    params=["smolvla", "pi0", "pi05", "xvla", "multi_task_dit", "groot", "evo1", "eo1", "vla_jepa", "molmoact2"],
+)
 def student(request, vlm_directory, tmp_path_factory):
     folder = tmp_path_factory.mktemp("serve") / request.param
     if request.param == "groot":  # a 6-D state, one top camera, its backbone a tiny Qwen3-VL
         save_tiny_groot_student(request.getfixturevalue("groot_checkpoint"), folder)
         yield Served("groot", folder, JOINTS, "top", GROOT_IMAGE_SIZE)
+        return
+    if request.param == "evo1":  # a 6-D state, one 32-pixel top camera, its VLM a tiny InternVL3 with weights
+        save_tiny_evo1_student(request.getfixturevalue("evo1_vlm"), folder)
+        yield Served("evo1", folder, JOINTS, "top", 32)
+        return
+    if request.param == "eo1":  # a 6-D state, one 64-pixel top camera, its VLM a tiny Qwen2.5-VL with weights
+        save_tiny_eo1_student(request.getfixturevalue("eo1_vlm"), folder)
+        yield Served("eo1", folder, JOINTS, "top", EO1_IMAGE_SIZE)
+        return
+    if request.param == "vla_jepa":  # a 6-D state, one 32-pixel top camera, a tiny Qwen3-VL and V-JEPA 2 with weights
+        save_tiny_vla_jepa_student(request.getfixturevalue("vla_jepa_backbones"), folder)
+        yield Served("vla_jepa", folder, JOINTS, "top", VLA_JEPA_IMAGE_SIZE)
+        return
+    if request.param == "molmoact2":  # a 6-D state, one 32-pixel top camera, its checkpoint a tiny MolmoAct2
+        save_tiny_molmoact2_student(request.getfixturevalue("molmoact2_checkpoint"), folder)
+        yield Served("molmoact2", folder, JOINTS, "top", 32)
         return
     if request.param == "multi_task_dit":  # a 6-D state, one top camera, its encoders a tiny CLIP
         clip = request.getfixturevalue("clip_directory")

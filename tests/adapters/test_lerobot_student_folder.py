@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from dataclasses import fields
 from pathlib import Path
 
 import pytest
@@ -13,6 +14,7 @@ pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test
 
 from snapflow.adapters.lerobot import load_pretrained_policy, save_distilled, wrap_policy  # noqa: E402
 from snapflow.adapters.lerobot.checkpoint import SNAPFLOW_MARKER, save_teacher  # noqa: E402
+from snapflow.adapters.lerobot.plugin import SnapFlowSampling  # noqa: E402
 from snapflow.adapters.lerobot.student_folder import (  # noqa: E402
     StudentAsTeacherError,
     distilled_from,
@@ -33,8 +35,9 @@ def _retyped_as_teacher(student: Path, folder: Path, marker: bool) -> Path:
     plugin reads it; an export older than the student types looks the same), with or without snapflow's marker."""
     shutil.copytree(student, folder)
     config = json.loads((folder / "config.json").read_text())
-    for field in [name for name in config if name == "sampling_mode" or name.startswith("distill")]:
-        del config[field]  # the student's own fields: the teacher's config class reads none of them
+    own = {definition.name for definition in fields(SnapFlowSampling)}
+    for name in [name for name in config if name in own]:
+        del config[name]  # the student's own fields: the teacher's config class reads none of them
     (folder / "config.json").write_text(json.dumps({**config, "type": "smolvla"}))
     if not marker:
         (folder / SNAPFLOW_MARKER).unlink()

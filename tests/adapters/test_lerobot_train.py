@@ -1,12 +1,14 @@
 """``lerobot-train`` distils: a student type's ``forward`` is SnapFlow's objective (the VLM frozen, the settings in its
-config), its ``update`` records that the checkpoint was distilled, and a teacher written as its student is the
-teacher, refusing the jump by name, until it is."""
+config's ``distill``), its ``update`` counts the step and records that the checkpoint was distilled, and a teacher
+written as its student is the teacher, refusing the jump by name, until it is."""
 
 from __future__ import annotations
 
 import json
 import os
 import subprocess
+import sys
+from dataclasses import asdict, replace
 from importlib.metadata import version
 from pathlib import Path
 
@@ -19,9 +21,11 @@ pytest.importorskip("lerobot", reason="LeRobot is installed by the README's test
 from snapflow.adapters.lerobot.registry import lerobot_time_sampler  # noqa: E402
 from snapflow.adapters.lerobot.xvla import XVLAFlowPolicy  # noqa: E402
 from snapflow.adapters.lerobot_types import PLUGIN_LEROBOT, lerobot_loads_plugins  # noqa: E402
+from snapflow.errors import InvalidInputError  # noqa: E402
 from snapflow.flow.modes import SamplingMode  # noqa: E402
 from snapflow.flow.solver import sample_actions  # noqa: E402
-from tests.helpers import run_tiny_lerobot_train  # noqa: E402
+from snapflow.objective.settings import DistillSettings  # noqa: E402
+from tests.helpers import run_checked, run_tiny_lerobot_train  # noqa: E402
 from tests.lerobot_tiny import build_tiny_smolvla, lerobot_sample, tiny_batch  # noqa: E402
 
 PLUGINS = pytest.mark.skipif(
@@ -31,6 +35,7 @@ PLUGINS = pytest.mark.skipif(
 
 
 def _student(vlm_directory, **fields):
+    """The tiny SmolVLA as its student type (phi_s at zero), its config's ``fields`` set before the policy is built."""
     from snapflow.adapters.lerobot.plugin import student_config, student_policy
 
     teacher = build_tiny_smolvla(vlm_directory)
@@ -43,9 +48,7 @@ def _student(vlm_directory, **fields):
 
 
 def test_the_student_types_forward_is_snapflows_objective_on_the_same_batch_and_generator(vlm_directory):
-    from snapflow.training.lerobot_student import config_settings
-
-    student = _student(vlm_directory, distill_consistency_weight=3.0, distill_target_steps=4)
+    student = _student(vlm_directory, distill=DistillSettings(consistency_weight=3.0, target_steps=4))
     batch = tiny_batch(batch_size=6)
     loss, logs = student.forward(dict(batch), generator=torch.Generator().manual_seed(7))
     loss.backward()
@@ -54,7 +57,7 @@ def test_the_student_types_forward_is_snapflows_objective_on_the_same_batch_and_
     }
     student.zero_grad()
 
-    settings = config_settings(student.config)
+    settings = student.config.distill
     assert (settings.consistency_weight, settings.target_steps) == (3.0, 4)
     objective = settings.objective(lerobot_time_sampler(student.config))
     expected = objective(
@@ -82,16 +85,11 @@ def test_the_student_types_forward_is_snapflows_objective_on_the_same_batch_and_
 
 def test_the_high_noise_biased_fine_tuning_is_flow_matching_on_shifted_times(vlm_directory):
     """alpha 1 and time shift 4 (arXiv 2606.05737's recipe on the lerobot-train route): the loss is the policy's
-    flow-matching loss at its own times shifted toward noise, with no consistency row; the settings round-trip
-    through the config's fields."""
+    flow-matching loss at its own times shifted toward noise, with no consistency row."""
     from snapflow.flow.time_sampling import ShiftedTimeSampler
     from snapflow.objective.registry import make_objective
-    from snapflow.training.lerobot_student import config_settings, student_fields
-    from snapflow.training.recipes import DistillSettings
 
-    settings = DistillSettings(alpha=1.0, time_shift=4.0)
-    student = _student(vlm_directory, **student_fields(settings))
-    assert config_settings(student.config) == settings
+    student = _student(vlm_directory, distill=DistillSettings(alpha=1.0, time_shift=4.0))
     objective = student.distillation_objective()
     assert objective.time_sampler == ShiftedTimeSampler(lerobot_time_sampler(student.config), 4.0)
 
@@ -116,14 +114,14 @@ def test_update_labels_the_checkpoint_distilled_only_after_a_step_of_the_one_ste
         student.predict_action_chunk(dict(batch))
     student.forward(dict(batch))[0].backward()
     student.update()  # lerobot-train, after the optimiser step
-    assert student.config.distilled is True
+    assert (student.config.distilled, student.config.steps_distilled) == (True, 1)
     assert student.predict_action_chunk(dict(batch)).shape == (4, 4, 4)
 
     # flow matching alone (alpha 1) trains no jump, and phi_s drifts at s = t: the label goes
-    student.config.distill_alpha = 1.0
+    student.config.distill = replace(student.config.distill, alpha=1.0)
     student.forward(dict(batch))[0].backward()
     student.update()
-    assert student.config.distilled is False
+    assert (student.config.distilled, student.config.steps_distilled) == (False, 2)
 
 
 def _save_teacher(vlm_directory, directory: Path) -> Path:
@@ -145,8 +143,7 @@ def test_a_teacher_written_as_its_student_is_the_teacher_until_distilled(vlm_dir
     SnapFlowSmolVLAPolicy = student_policy("smolvla")  # noqa: N806
     from snapflow.adapters.lerobot.plugin.modeling_snapflow import NotDistilledError
     from snapflow.cli import main
-    from snapflow.training.lerobot_student import student_fields
-    from snapflow.training.recipes import DistillSettings
+    from snapflow.training.lerobot_student import write_student
 
     teacher = _save_teacher(vlm_directory, tmp_path / "teacher")
     student_folder = tmp_path / "student"
@@ -154,7 +151,7 @@ def test_a_teacher_written_as_its_student_is_the_teacher_until_distilled(vlm_dir
     assert main([*arguments, "--recipe", "snapflow"]) == 0
     saved = json.loads((student_folder / "config.json").read_text())
     assert saved["type"] == "snapflow_smolvla" and saved["distilled"] is False
-    assert saved["distill_consistency_weight"] == 3.0, "snapflow's recipe: lambda 3"
+    assert saved["distill"]["consistency_weight"] == 3.0, "snapflow's recipe: lambda 3"
     assert (student_folder / "policy_preprocessor.json").is_file()
 
     student = SnapFlowSmolVLAPolicy.from_pretrained(student_folder)
@@ -176,10 +173,61 @@ def test_a_teacher_written_as_its_student_is_the_teacher_until_distilled(vlm_dir
     (tmp_path / "distilled" / "config.json").write_text(json.dumps(older))
     assert SnapFlowSmolVLAPolicy.from_pretrained(tmp_path / "distilled").config.mode.jump
 
-    with pytest.raises(ValueError, match="only alpha, consistency_weight"):
-        student_fields(DistillSettings(target="bootstrap"))
+    with pytest.raises(InvalidInputError, match=r"carries phi_s .* \(target_time false\)"):
+        write_student(str(teacher), tmp_path / "ablation", DistillSettings(target_time=False))
+    assert not (tmp_path / "ablation").exists(), "refused before anything is written"
     assert main([*arguments, "--steps", "10"]) == 2
     assert "give steps to lerobot-train" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+@PLUGINS
+def test_lerobot_train_takes_every_distillation_setting_as_a_flag_and_refuses_a_bad_one(vlm_directory, tmp_path):
+    """``--policy.distill.<field>`` of ``lerobot-train`` itself: the settings its checkpoint's config holds, its step
+    count, the prefix trained where ``freeze_prefix`` is false; a bad setting stops it before any step, named."""
+    from safetensors.torch import load_file
+
+    from snapflow.training.lerobot_student import write_student
+    from tests.lerobot_tiny import write_tiny_dataset
+
+    data = write_tiny_dataset(tmp_path / "data", episodes=2, frames=8)
+    student = write_student(str(_save_teacher(vlm_directory, tmp_path / "teacher")), tmp_path / "student")
+    flags = ["--log_freq=1", "--policy.distill.target_steps=[2,4]", "--policy.distill_steps=2"]
+    flags += ["--policy.distill.freeze_prefix=false"]
+    flags += ["--policy.distill.intermediate_jumps=0.5", "--policy.distill.teacher_velocity=conditional"]
+    flags += ["--policy.distill.teacher_velocity_clamp=3", "--policy.distill.time_shift=2"]
+    checkpoint = run_tiny_lerobot_train(student, data, tmp_path / "run", 2, 4, *flags)
+    saved = json.loads((checkpoint / "config.json").read_text())
+    expected = DistillSettings(
+        target_steps=(2, 4),
+        freeze_prefix=False,
+        intermediate_jumps=0.5,
+        teacher_velocity="conditional",
+        teacher_velocity_clamp=3.0,
+        time_shift=2.0,
+    )
+    assert saved["distill"] == json.loads(json.dumps(asdict(expected)))
+    assert (saved["distill_steps"], saved["steps_distilled"], saved["distilled"]) == (2, 2, True)
+    before, after = load_file(student / "model.safetensors"), load_file(checkpoint / "model.safetensors")
+    vlm = [name for name in before if ".vlm." in name and not torch.equal(before[name], after[name])]
+    assert vlm, "the prefix trained"
+    # a resumed run goes on counting from its checkpoint's config (where a schedule's stage is read)
+    lerobot_train = str(Path(sys.executable).with_name("lerobot-train"))
+    resumed = [f"--config_path={checkpoint / 'train_config.json'}", "--resume=true", "--steps=3", "--save_freq=3"]
+    run_checked([lerobot_train, *resumed], {"HF_HUB_OFFLINE": "1"})
+    last = tmp_path / "run" / "checkpoints" / "last" / "pretrained_model"
+    assert json.loads((last / "config.json").read_text())["steps_distilled"] == 3
+
+    refused = subprocess.run(
+        [lerobot_train, f"--policy.path={student}", "--dataset.repo_id=local/tiny", f"--dataset.root={data}"]
+        + [f"--output_dir={tmp_path / 'refused'}", "--policy.distill.alpha=2"],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "HF_HUB_OFFLINE": "1"},
+        timeout=600,
+    )
+    assert refused.returncode != 0 and "alpha must be in [0, 1], got 2.0" in refused.stderr, refused.stderr[-2000:]
+    assert not (tmp_path / "refused" / "checkpoints").exists()
 
 
 def _held_out_distances(root: Path, checkpoint: Path) -> dict[str, float]:

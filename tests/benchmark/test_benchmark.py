@@ -15,8 +15,8 @@ import torch
 from snapflow.benchmark.architectures import architectures
 from snapflow.benchmark.bench import run_bench
 from snapflow.benchmark.latency import LatencyReport, LatencyRow, Timing, measure_latency, time_round_robin
-from snapflow.benchmark.subjects import builtin_subject, random_builtin_policy
 from snapflow.cli import main
+from snapflow.families import family_of
 from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, SamplingMode
 from snapflow.flow.solver import sample_actions
 from snapflow.inference import compile_policy
@@ -163,8 +163,11 @@ def test_bench_cli_times_a_built_in_architecture_and_writes_every_result_file(ar
     assert (
         report["machine"]["torch"] == torch.__version__ and report["fast_path"] is None and "first_chunk" not in report
     )
-    assert report["subject"] == f"{architecture} (random weights)" and report["details"]["policy_type"] == architecture
-    expected = random_builtin_policy(architecture)
+    assert (
+        report["subject"] == f"{architecture} (full size, random weights)"
+        and report["details"]["policy_type"] == architecture
+    )
+    expected = family_of(architecture).random_policy(architecture, "cpu")
     assert report["details"]["parameters"] == sum(parameter.numel() for parameter in expected.policy.parameters())
     assert report["details"]["config"] == expected.processor.config.to_dict()
     assert report["dtype"] == {
@@ -217,10 +220,10 @@ def test_compiled_one_pass_expert_computes_what_the_eager_one_does(student, obse
 
 def test_a_teacher_checkpoint_is_timed_at_its_naive_one_step_not_under_snapflows_name(tmp_path):
     """A teacher (no phi_s) has no jump to time: its 1-NFE row is the naive step, named so; a student's is SnapFlow's."""
-    student = random_builtin_policy("mlp")
+    student = family_of("mlp").random_policy("mlp", "cpu")
     teacher = replace(student, policy=SnapFlowPolicy(student.policy.model, target_time=False))
-    assert builtin_subject(student, "student").one_step == SNAPFLOW_1
-    subject = builtin_subject(teacher, "teacher")
+    assert student.bench_subject("student").one_step == SNAPFLOW_1
+    subject = teacher.bench_subject("teacher")
     assert subject.one_step == NAIVE_1
     report = run_bench(subject, warmup=0, repeats=1, profile=False)
     assert list(report.latency.modes) == ["teacher-10", "teacher-5", "teacher-2", "naive-1"]
@@ -229,7 +232,7 @@ def test_a_teacher_checkpoint_is_timed_at_its_naive_one_step_not_under_snapflows
 def test_a_policy_whose_own_sampler_takes_other_steps_is_timed_at_them_first():
     """Multi-task DiT integrates 100 steps by default: its own count is the reference row, the usual teacher modes
     beside it; a count among them is not timed twice."""
-    subject = builtin_subject(random_builtin_policy("mlp"), "student")
+    subject = family_of("mlp").random_policy("mlp", "cpu").bench_subject("student")
     report = run_bench(replace(subject, own_steps=20), warmup=0, repeats=1, profile=False)
     assert list(report.latency.modes) == ["teacher-20", "teacher-10", "teacher-5", "teacher-2", "snapflow-1"]
     report = run_bench(replace(subject, own_steps=10), warmup=0, repeats=1, profile=False)

@@ -161,11 +161,13 @@ def test_demo_chains_every_stage_into_one_report_and_resumes(tmp_path):
         tasks=(TASK,),
         episodes_per_task=3,
         policy=TINY,
-        teacher=train_config(4),
+        teacher=train_config(4, time_distribution="beta:1.5"),
         student=train_config(2),
         eval_episodes=1,
     )
     report = run_demo(preset, tmp_path, progress=False)
+    # the preset's teacher times: in the teacher's checkpoint, its student's, and the report's preset
+    assert [load_policy(tmp_path / run).time_distribution for run in ("teacher", "snapflow")] == ["beta:1.5"] * 2
     assert isinstance(report, EvaluationReport)
     assert list(report.rows) == ["teacher 10-NFE", "naive 1-NFE", "SnapFlow 1-NFE"]
     assert [row.nfe for row in report.rows.values()] == [10, 1, 1]
@@ -181,6 +183,7 @@ def test_demo_chains_every_stage_into_one_report_and_resumes(tmp_path):
     written = json.loads((tmp_path / "report.json").read_text())
     assert written == json.loads(json.dumps(report.to_dict()))
     assert written["preset"]["policy"] == TINY.to_dict() and written["preset"]["tasks"] == [TASK]
+    assert written["preset"]["teacher"]["time_distribution"] == "beta:1.5"
     assert_figure(tmp_path / "success.png", (6, 4), {CYCLE[0]: 0.0003, CYCLE[1]: 0.0003, CYCLE[2]: 0.0003})
     assert_figure(tmp_path / "latency.png", (6, 3.5), {CYCLE[1]: 0.005})
     markdown = (tmp_path / "report.md").read_text()

@@ -9,6 +9,7 @@ from snapflow.flow import (
     NAIVE_1,
     SNAPFLOW_1,
     TEACHER_10,
+    Beta22TimeSampler,
     BetaTimeSampler,
     SamplingMode,
     ShiftedTimeSampler,
@@ -60,6 +61,26 @@ def test_beta_time_sampler_matches_pi0_distribution():
     assert torch.equal(draws[0], draws[1])
     with pytest.raises(ValueError, match="concentration"):
         BetaTimeSampler(concentration=0)
+
+
+def test_beta22_time_sampler_is_evo1s_clamped_beta_two_two():
+    """EVO1's Beta(2, 2) times clamped into [0.02, 0.98]: the CDF 3x^2 - 2x^3 inside, the clamped tails' mass
+    F(0.02) = 0.001184 at each bound, and the median of three uniforms drawn from the caller's generator."""
+    sampler = Beta22TimeSampler()
+    t = sampler(400_000, generator=torch.Generator().manual_seed(0))
+    assert t.min() == 0.02 and t.max() == 0.98
+    grid = torch.linspace(0.05, 0.95, 19).double()
+    empirical = (t[None, :] <= grid[:, None].float()).double().mean(dim=1)
+    assert (empirical - (3 * grid**2 - 2 * grid**3)).abs().max() < 0.004
+    tail = 3 * 0.02**2 - 2 * 0.02**3
+    assert (
+        abs((t == 0.02).double().mean().item() - tail) < 4e-4 and abs((t == 0.98).double().mean().item() - tail) < 4e-4
+    )
+    u = torch.rand(5, 3, generator=torch.Generator().manual_seed(3))  # by hand: the middle of each row's three
+    middle = u.sort(dim=1).values[:, 1].clamp(0.02, 0.98)
+    assert torch.equal(sampler(5, generator=torch.Generator().manual_seed(3)), middle)
+    with pytest.raises(ValueError, match="min_time < max_time"):
+        Beta22TimeSampler(0.5, 0.5)
 
 
 def test_uniform_time_sampler():

@@ -10,7 +10,6 @@ import pytest
 import torch
 
 from snapflow.benchmark.bench import run_bench
-from snapflow.benchmark.subjects import builtin_subject
 from snapflow.cli import main
 from snapflow.flow.modes import SNAPFLOW_1, TEACHER_10
 from snapflow.flow.solver import sample_actions
@@ -86,7 +85,7 @@ def test_the_onnx_student_gives_the_pytorch_students_actions_in_one_graph(name, 
         assert actions.shape == expected.shape
         torch.testing.assert_close(actions, expected, atol=1e-5, rtol=1e-5)
     # the benchmark times it at its one mode
-    report = run_bench(builtin_subject(exported, "onnx"), warmup=0, repeats=2, profile=False)
+    report = run_bench(exported.bench_subject("onnx"), warmup=0, repeats=2, profile=False)
     assert list(report.latency.modes) == ["snapflow-1"] and report.details["onnx"]["opset"] == 18
 
 

@@ -134,9 +134,9 @@ def test_job_settings_are_complete_and_keys_follow_the_dependencies(tmp_path):
     by_name = {next(iter(names([job]))): job for job in jobs(config)}
     teacher, student = by_name[("train", "teacher", 0)], by_name[("train", "snapflow", 1)]
     # every field, defaults included, but an option added later while it is off (see reporting.records)
-    assert set(teacher.settings()["train"]) == set(asdict(TEACHER_TRAINING)) - {"ema_decay"}
+    assert set(teacher.settings()["train"]) == set(asdict(TEACHER_TRAINING)) - {"ema_decay", "time_distribution"}
     assert teacher.settings()["train"] == {**as_record(TEACHER_TRAINING), **teacher.settings()["train"]}
-    assert teacher.settings()["policy"] == {"type": "minivla", **config.runs["teacher"].policy.to_dict()}
+    assert teacher.settings()["policy"] == {"type": "minivla", **config.runs["teacher"].spec.to_dict()}
     assert student.settings()["train"]["learning_rate"] == RECIPES[DEFAULT_RECIPE].train.learning_rate
     assert student.settings()["distill"]["target_steps"] == (2, 4) and student.settings()["train"]["seed"] == 1
     assert student.teacher == by_name[("train", "teacher", 1)] and student.teacher.data == by_name[("data",)]
@@ -212,10 +212,10 @@ def test_a_table_may_evaluate_a_subset_of_the_tasks_without_touching_the_other_t
 
 
 def test_a_teacher_policy_table_picks_a_built_in_policy_sized_for_the_data(tmp_path):
-    mlp = load_sweep(write_config(tmp_path, teacher_policy='{ type = "mlp", hidden_dim = 64 }')).runs["teacher"].policy
+    mlp = load_sweep(write_config(tmp_path, teacher_policy='{ type = "mlp", hidden_dim = 64 }')).runs["teacher"].spec
     assert mlp == MLPPolicyConfig(observation_dim=39 + 2, action_dim=4, chunk_length=8, hidden_dim=64)
     camera = (
-        load_sweep(write_config(tmp_path, teacher_policy="{ use_image = true, state_dim = 4 }")).runs["teacher"].policy
+        load_sweep(write_config(tmp_path, teacher_policy="{ use_image = true, state_dim = 4 }")).runs["teacher"].spec
     )
     assert camera == MiniVLAConfig(state_dim=4, action_dim=4, use_image=True)
 

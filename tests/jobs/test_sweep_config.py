@@ -13,8 +13,9 @@ from snapflow.cli import main
 from snapflow.jobs.sweep import EvalJob, TrainJob, jobs, load_sweep, plan, replace_block
 from snapflow.jobs.sweep.aggregate import TableResult
 from snapflow.jobs.sweep.markdown import markdown_blocks, tables_markdown
+from snapflow.jobs.sweep.planning import train_job
 from snapflow.jobs.sweep.results import write_results
-from tests.jobs.tiny_sweep import ROOT
+from tests.jobs.tiny_sweep import ROOT, TINY_TRAIN, write_config
 
 
 @pytest.mark.parametrize(
@@ -101,6 +102,19 @@ def test_rebuilding_some_tables_keeps_the_others_results_as_they_are(tmp_path, m
             "a time shift must be positive, got -1",
         ),
         (
+            '[runs.teacher]\ntrain = { time_distribution = "beta:0" }\n',
+            "[runs.teacher] train: TrainConfig.time_distribution: beta:A takes a positive, finite A, got 'beta:0'",
+        ),
+        (
+            '[runs.teacher]\n[runs.student]\nteacher = "teacher"\ntrain = { time_distribution = "beta:1.5" }\n',
+            "[runs.student] train: time_distribution 'beta:1.5' is a teacher's setting: a student's flow-matching rows "
+            "draw its teacher's times",
+        ),
+        (
+            '[runs.teacher]\nlerobot = { policy_type = "smolvla" }\ntrain = { time_distribution = "shift:4" }\n',
+            "[runs.teacher] train: a LeRobot teacher trains on its own type's flow-matching times",
+        ),
+        (
             '[runs.teacher]\n[[tables]]\nname = "t"\nrows = [{ label = "x", run = "ghost", mode = "naive" }]\n',
             "unknown run 'ghost'",
         ),
@@ -149,6 +163,24 @@ def test_a_bad_sweep_config_is_refused_with_its_section_named(tmp_path, capsys, 
     assert main(["sweep", str(path), "--report-only", "--no-progress"]) == 2
     error = capsys.readouterr().err
     assert message in error and "Traceback" not in error
+
+
+def test_a_teacher_runs_train_table_names_its_time_distribution_and_its_job_records_it(tmp_path):
+    """The teacher's flow-matching times are part of its job's settings (another key, so another run) only where they
+    are not the old uniform: a sweep that names none keeps the records and keys it had; its students follow it."""
+    for name in ("uniform", "biased"):
+        (tmp_path / name).mkdir()
+    uniform = load_sweep(write_config(tmp_path / "uniform"))
+    biased = load_sweep(
+        write_config(tmp_path / "biased", teacher_train=TINY_TRAIN[:-1] + ', time_distribution = "shift:4.0" }')
+    )
+    assert uniform.runs["teacher"].train.time_distribution == "uniform"
+    assert biased.runs["teacher"].train.time_distribution == "shift:4"
+    assert "time_distribution" not in train_job(uniform, "teacher", 0).settings()["train"]
+    assert train_job(biased, "teacher", 0).settings()["train"]["time_distribution"] == "shift:4"
+    for run in ("teacher", "snapflow"):  # a student's key holds its teacher's
+        assert train_job(uniform, run, 0).key != train_job(biased, run, 0).key
+    assert train_job(uniform, "snapflow", 0).settings() == train_job(biased, "snapflow", 0).settings()
 
 
 def _reader(directory: Path, rows: str, data: str = 'env = "libero"\ntasks = "libero_object"\n') -> Path:

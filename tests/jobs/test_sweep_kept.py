@@ -87,6 +87,6 @@ def test_a_fresh_machine_evaluates_a_kept_policy_and_continues_a_kept_unfinished
     history = json.loads((teacher.directory / "history.json").read_text())
     assert history["step"] == 13 and json.loads((kept / "kept.json").read_text())["finished"]
     never_interrupted = tmp_path / "never-interrupted"
-    train_teacher(teacher.data.directory, never_interrupted, teacher.policy, teacher.train, progress=False)
+    train_teacher(teacher.data.directory, never_interrupted, teacher.spec, teacher.train, progress=False)
     last = "checkpoints/step_0000013/policy.safetensors"
     assert (teacher.directory / last).read_bytes() == (never_interrupted / last).read_bytes()

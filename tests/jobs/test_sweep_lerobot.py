@@ -100,7 +100,7 @@ def test_a_finished_lerobot_runs_policy_folder_is_kept_and_put_back_on_a_fresh_m
     for name, text in files.items():
         (job.policy_path / name).write_text(text)
     assert not job.restore_outputs(), "nothing kept yet"
-    job.keep_lerobot_policy()
+    job.keep_policy()
     shutil.rmtree(job.directory)  # a fresh machine: the ledger and what it keeps, no run folder
     assert job.restore_outputs()
     assert {file.name: file.read_text() for file in job.policy_path.iterdir()} == files
@@ -113,12 +113,12 @@ def test_a_finished_lerobot_runs_policy_folder_is_kept_and_put_back_on_a_fresh_m
         ('[runs.other]\nlerobot = { smolvlm = "huge" }\n', "[runs.other] lerobot: smolvlm must be one of"),
         ('[runs.other]\nlerobot = { policy_type = "pi0" }\n', "policy_type must be one LeRobot trains from scratch"),
         ("[runs.other]\nlerobot = { chunk_size = 0 }\n", "chunk_size must be an integer of at least 1, got 0"),
-        ('[runs.other]\nlerobot = {}\npolicy = { type = "mlp" }\n', "give 'policy' (a built-in policy) or 'lerobot'"),
+        ('[runs.other]\nlerobot = {}\npolicy = { type = "mlp" }\n', "give 'policy' or 'lerobot', not both"),
         ('[runs.other]\ntrainer = "lerobot-train"\n', "'trainer' need a 'teacher' to distill from"),
         ('[runs.other]\nteacher = "teacher"\ntrainer = "accelerate"\n', "trainer must be one of"),
         (
             '[runs.built-in]\n[runs.other]\nteacher = "built-in"\ntrainer = "lerobot-train"\n',
-            "trainer 'lerobot-train' distils a LeRobot teacher; 'built-in' is built in",
+            "trainer 'lerobot-train' does not distil 'built-in', a built-in policy; its trainers: ['snapflow']",
         ),
     ],
 )
@@ -153,13 +153,14 @@ def test_a_tiny_smolvla_sweep_trains_distils_by_both_trainers_and_evaluates_ever
     fine_tuned = json.loads(
         (runs / "biased/seed-0/lerobot-train/checkpoints/last/pretrained_model/config.json").read_text()
     )
-    assert (fine_tuned["distilled"], fine_tuned["distill_alpha"], fine_tuned["distill_time_shift"]) == (False, 1.0, 4.0)
+    biased_settings = fine_tuned["distill"]
+    assert (fine_tuned["distilled"], biased_settings["alpha"], biased_settings["time_shift"]) == (False, 1.0, 4.0)
     assert (runs / "lerobot" / "meta" / "info.json").is_file()
     student = json.loads(
         (runs / "lerobot-train/seed-0/lerobot-train/checkpoints/last/pretrained_model/config.json").read_text()
     )
     assert student["type"] == "snapflow_smolvla" and student["distilled"] is True
-    assert student["distill_consistency_weight"] == 3.0, "snapflow's recipe, as the sweep's default"
+    assert student["distill"]["consistency_weight"] == 3.0, "snapflow's recipe, as the sweep's default"
     trained_on = json.loads(
         (runs / "lerobot-train/seed-0/lerobot-train/checkpoints/last/pretrained_model/train_config.json").read_text()
     )

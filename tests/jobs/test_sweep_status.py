@@ -4,6 +4,7 @@ from the measured times of finished jobs of the same kind; run as a user runs it
 from __future__ import annotations
 
 import subprocess
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -71,3 +72,19 @@ def test_the_status_names_each_jobs_state_and_estimates_the_time_left_from_measu
     missing = len(plan(config)) - 2  # neither running job is missing
     assert counts.startswith("2 done, 1 kept, 2 running") and f"{missing - 1} missing" in counts
     assert "on 2 workers" in lines[-1] and "of kinds never measured here" in lines[-1], "no evaluation measured"
+
+
+def test_jobs_never_measured_are_counted_one_by_one_and_each_reads_as_its_own(tmp_path):
+    """The time-distribution sweep evaluates each policy twice, on variations 20-39 and 0-19 (its two tables): the
+    summary counts all 83 jobs (10 collections, the data, 18 runs, 54 evaluations), and each reads as its own."""
+    from snapflow.jobs.sweep.status import format_status, sweep_status
+
+    config = load_sweep(
+        Path(__file__).resolve().parents[2] / "configs" / "sweeps" / "mt10-state-time-distribution.toml"
+    )
+    config = replace(config, output_dir=tmp_path / "runs", results_dir=tmp_path / "results")  # nothing run yet
+    lines = format_status(config, sweep_status(config)).splitlines()
+    assert lines[0] == "mt10-state-time-distribution: 83 jobs: 0 done, 0 kept, 0 running, 83 missing"
+    assert lines[-1] == "machine time left: ~0.0 h for 0 jobs, and 83 of kinds never measured here"
+    assert len(set(lines[1:-1])) == 83, "two jobs read alike"
+    assert any("(teacher-10; n_act 4; from variation 20)" in line for line in lines)

@@ -12,8 +12,22 @@ import torch
 from snapflow.cli import main
 from snapflow.data.toy_mixture import ConditionalGaussianMixture
 from snapflow.jobs.toy import run_toy_experiment
-from snapflow.jobs.toy_config import ToyConfig
+from snapflow.jobs.toy_config import ToyConfig, toy_distill_settings
 from tests.evaluation.figures import CYCLE, assert_figure, tint_share
+
+
+def test_the_toys_record_holds_its_five_settings_in_place_and_another_only_off_the_toys_default():
+    """The toy's cache key stays what its committed runs recorded (their settings flat among its own, in order);
+    another distillation setting joins it where a run sets it."""
+    record = ToyConfig().record()
+    assert list(record) == [
+        *("seed", "num_modes", "mode_radius", "teacher_steps", "distill_steps", "batch_size", "teacher_lr"),
+        *("distill_lr", "alpha", "consistency_weight", "method", "target", "target_steps", "hidden_dim"),
+        *("eval_contexts", "samples_per_context"),
+    ]
+    assert (record["alpha"], record["consistency_weight"], record["target_steps"]) == (0.5, 3.0, 2)
+    frozen = ToyConfig(distill=toy_distill_settings(freeze_prefix=True, time_shift=2.0)).record()
+    assert frozen == {**record, "freeze_prefix": True, "time_shift": 2.0}
 
 
 def test_mixture_samples_follow_the_context_dependent_weights():
@@ -48,7 +62,7 @@ def test_cli_prints_the_table_and_writes_png_and_json(tmp_path, capsys):
     assert set(distances) == {"teacher-10", "naive-1", "snapflow-1"}
     assert all(math.isfinite(value) and value > 0 for value in distances.values())
     assert results["config"]["distill_steps"] == 30 and results["config"]["teacher_steps"] == 30
-    assert results["config"] == {**vars(ToyConfig()), "teacher_steps": 30, "distill_steps": 30}
+    assert results["config"] == {**ToyConfig().record(), "teacher_steps": 30, "distill_steps": 30}
     assert results["distill_step_s"] > 0 and results["wall_time_s"] > 0
     # the printed table shows the numbers of the JSON
     for label, key, nfe in (

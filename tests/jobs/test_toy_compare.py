@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 import shutil
-from dataclasses import asdict, replace
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -13,7 +13,7 @@ import pytest
 from snapflow.cli import main
 from snapflow.jobs.runner import is_done
 from snapflow.jobs.toy_compare import ToyJob, compare_targets
-from snapflow.jobs.toy_config import ToyConfig
+from snapflow.jobs.toy_config import RECORDED_SETTINGS, ToyConfig, toy_distill_settings
 from snapflow.reporting.machine import versions
 from snapflow.training.recipes import TargetOption
 
@@ -29,7 +29,9 @@ def committed(name: str) -> tuple[list[TargetOption], list[int], ToyConfig]:
         for row in summary["rows"]
     ]
     options = [TargetOption(row["target"], k) for row, k in zip(summary["rows"], steps, strict=True)]
-    base = ToyConfig(**{key: value for key, value in summary["config"].items() if value is not None})
+    given = {key: value for key, value in summary["config"].items() if value is not None}
+    settings = {name: given.pop(name) for name in RECORDED_SETTINGS if name in given}
+    base = ToyConfig(**given, distill=toy_distill_settings(**settings))
     return options, summary["seeds"], base
 
 
@@ -38,7 +40,7 @@ def test_the_committed_runs_are_done_for_their_settings_and_stale_for_others(nam
     options, seeds, base = committed(name)
     for option in options:
         for seed in seeds:
-            config = replace(base, seed=seed, target=option.target, target_steps=option.steps)
+            config = replace(base, seed=seed, distill=option.settings(base.distill))
             path = RESULTS / name / "runs" / option.name / f"seed-{seed}.json"
             assert is_done(ToyJob(option.name, config, path))
             assert not is_done(ToyJob(option.name, replace(config, distill_steps=config.distill_steps + 1), path))
@@ -75,7 +77,9 @@ def test_toy_compare_writes_a_table_per_target_reuses_finished_runs_and_reruns_s
     run = json.loads((tmp_path / "runs" / "euler-2-4" / "seed-1.json").read_text())
     assert list(run) == ["config", "energy_distance", "distill_step_s", "versions"]
     assert run["versions"] == versions(), "each run notes the versions it was made under"
-    assert run["config"] == json.loads(json.dumps(asdict(replace(base, seed=1, target_steps=(2, 4)))))
+    assert run["config"] == json.loads(
+        json.dumps(replace(base, seed=1, distill=options[1].settings(base.distill)).record())
+    )
     assert schedule["distance_per_seed"][1] == run["energy_distance"]["snapflow-1"]
     assert summary["teacher-10"]["per_seed"][1] == run["energy_distance"]["teacher-10"], (
         "one teacher per seed, whatever the target"
@@ -95,4 +99,4 @@ def test_toy_compare_writes_a_table_per_target_reuses_finished_runs_and_reruns_s
     stamps[stale] = stale.stat().st_mtime_ns
     compare_targets(options, [0, 1], base, tmp_path, progress=False)
     assert [path for path in runs if path.stat().st_mtime_ns != stamps[path]] == [stale], "only the stale run ran again"
-    assert json.loads(stale.read_text())["config"] == asdict(replace(base, seed=0))
+    assert json.loads(stale.read_text())["config"] == replace(base, seed=0).record()

@@ -9,7 +9,7 @@ import torch
 
 from snapflow.flow import UniformTimeSampler
 from snapflow.jobs.toy import run_toy_experiment
-from snapflow.jobs.toy_config import ToyConfig
+from snapflow.jobs.toy_config import ToyConfig, toy_distill_settings
 from snapflow.objective import ConsistencyDistillationObjective, MeanFlowObjective, SnapFlowObjective
 from snapflow.training.recipes import DistillSettings
 
@@ -100,7 +100,9 @@ def test_meanflow_target_is_the_mean_flow_identity(student, batch, power):
 @pytest.mark.slow
 def test_consistency_distillation_learns_a_one_step_jump_on_the_toy_mixture():
     """Learning test: its 1-NFE samples end far closer to the data than the naive one-step teacher's."""
-    result = run_toy_experiment(ToyConfig(method="consistency-distillation", distill_steps=1000), progress=False)
+    result = run_toy_experiment(
+        ToyConfig(distill_steps=1000, distill=toy_distill_settings(method="consistency-distillation")), progress=False
+    )
     print(
         f"energy distance: naive-1 {result.distances['naive-1']:.4f}, "
         f"consistency distillation 1-NFE {result.distances['snapflow-1']:.4f}"

@@ -8,7 +8,7 @@ import torch
 
 from snapflow.flow import SamplingMode, UniformTimeSampler, euler_sample
 from snapflow.jobs.toy import run_toy_experiment
-from snapflow.jobs.toy_config import ToyConfig
+from snapflow.jobs.toy_config import ToyConfig, toy_distill_settings
 from snapflow.objective import BootstrappedSnapFlowObjective, SnapFlowObjective, euler_shortcut_target
 from snapflow.objective.snapflow import stage_at
 from snapflow.training.recipes import DistillSettings
@@ -135,7 +135,8 @@ def test_more_euler_steps_in_the_target_bring_the_one_step_jump_closer_to_the_da
     beat the 2-step teacher it imitates."""
     distances = {
         steps: run_toy_experiment(
-            ToyConfig(distill_steps=1000, consistency_weight=1.0, target_steps=steps), progress=False
+            ToyConfig(distill_steps=1000, distill=toy_distill_settings(consistency_weight=1.0, target_steps=steps)),
+            progress=False,
         ).distances
         for steps in (2, 8)
     }

@@ -3,7 +3,7 @@ is imported, and without LeRobot installed."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 
 @dataclass(frozen=True)
@@ -91,4 +91,24 @@ class VideoEncoding:
 # a traceback of a hundred lines in every process
 VIDEO_BACKEND = "pyav"
 
-__all__ = ["SmolVLMSize", "SMOLVLM_SIZES", "VIDEO_CODECS", "VideoEncoding", "VIDEO_BACKEND"]
+
+@dataclass(frozen=True)
+class LeRobotSpec:
+    """A LeRobot policy trained from scratch on a sweep's demonstrations, written as a LeRobotDataset: ``snapflow
+    train --policy-type <policy_type>``'s settings (SmolVLA over a SmolVLM of size ``smolvlm``, X-VLA over a Florence-2
+    at that size's widths, reading the frames at ``image_size``, None: that size's own)."""
+
+    policy_type: str = "smolvla"
+    smolvlm: str = "small"
+    image_size: int | None = None
+    chunk_size: int = 8
+    n_action_steps: int = 4
+
+    @property
+    def size(self) -> SmolVLMSize:
+        """The VLM's widths, reading the frames at :attr:`image_size` where given."""
+        size = SMOLVLM_SIZES[self.smolvlm]
+        return size if self.image_size is None else replace(size, image_size=self.image_size)
+
+
+__all__ = ["LeRobotSpec", "SmolVLMSize", "SMOLVLM_SIZES", "VIDEO_CODECS", "VideoEncoding", "VIDEO_BACKEND"]

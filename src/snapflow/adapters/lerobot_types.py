@@ -79,10 +79,6 @@ NOT_DISTILLED: dict[str, str] = {
     "offline",
     "lingbot_va": "a video world model: its action chunk waits on its own video denoising steps (20 video + 50 "
     "action), which a jump of the action flow does not remove",
-    "evo1": "flow-matching (32 Euler steps by default, uniform noise in [-1, 1]), not adapted yet",
-    "molmoact2": "flow-matching (10 Euler steps over a per-layer key/value cache), not adapted yet",
-    "vla_jepa": "flow-matching (4 Euler steps of a DiT action head), not adapted yet",
-    "eo1": "flow-matching (10 Euler steps over a key/value cache, openpi's time convention), not adapted yet",
 }
 
 
@@ -211,6 +207,61 @@ register_lerobot_policy_type(
         "snapflow.adapters.lerobot.groot:GrootFlowPolicy",
         # GR00T builds only from a checkpoint folder, whose config names its Qwen3-VL backbone: bench --vlm gives it
         vlm_option="base_model_path",
+    )
+)
+register_lerobot_policy_type(
+    LeRobotPolicyType(
+        "evo1",
+        "Evo1",
+        "lerobot.policies.evo1.configuration_evo1:Evo1Config",
+        "lerobot.policies.evo1.modeling_evo1:Evo1Policy",
+        "snapflow.adapters.lerobot.evo1:Evo1FlowPolicy",
+        # EVO1 loads its InternVL3 with weights: bench --vlm gives a random one written locally (evo1_checkpoint)
+        vlm_option="vlm_model_name",
+    )
+)
+register_lerobot_policy_type(
+    LeRobotPolicyType(
+        "eo1",
+        "EO1",
+        "lerobot.policies.eo1.configuration_eo1:EO1Config",
+        "lerobot.policies.eo1.modeling_eo1:EO1Policy",
+        "snapflow.adapters.lerobot.eo1:EO1FlowPolicy",
+        # EO-1 loads its Qwen2.5-VL with weights and processor: bench --vlm gives a random one written locally
+        # (eo1_checkpoint)
+        vlm_option="vlm_base",
+    )
+)
+register_lerobot_policy_type(
+    LeRobotPolicyType(
+        "vla_jepa",
+        "VLAJEPA",
+        "lerobot.policies.vla_jepa.configuration_vla_jepa:VLAJEPAConfig",
+        "lerobot.policies.vla_jepa.modeling_vla_jepa:VLAJEPAPolicy",
+        "snapflow.adapters.lerobot.vla_jepa:VLAJEPAFlowPolicy",
+        # timing builds it without its world model (a V-JEPA 2 and a predictor: a training-time loss sampling never
+        # runs); it loads its Qwen3-VL with weights: bench --vlm gives a random one written locally
+        # (vla_jepa_checkpoint)
+        architecture_options={"enable_world_model": False},
+        vlm_option="qwen_model_name",
+    )
+)
+register_lerobot_policy_type(
+    LeRobotPolicyType(
+        "molmoact2",
+        "MolmoAct2",
+        "lerobot.policies.molmoact2.configuration_molmoact2:MolmoAct2Config",
+        "lerobot.policies.molmoact2.modeling_molmoact2:MolmoAct2Policy",
+        "snapflow.adapters.lerobot.molmoact2:MolmoAct2FlowPolicy",
+        # continuous actions only (its discrete head's FAST tokenizer is a hub download), in float32 as bench times
+        architecture_options={
+            "action_mode": "continuous",
+            "inference_action_mode": "continuous",
+            "model_dtype": "float32",
+        },
+        # MolmoAct2 loads its whole checkpoint with weights: bench --vlm gives a random one written locally
+        # (molmoact2_checkpoint)
+        vlm_option="checkpoint_path",
     )
 )
 

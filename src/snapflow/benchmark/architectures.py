@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES
-from snapflow.policies.factory import POLICIES
+from snapflow.families import FAMILIES
 
 
 def architectures() -> tuple[str, ...]:
-    """Every built-in policy, then every declared LeRobot type."""
-    return (*POLICIES, *LEROBOT_POLICY_TYPES)
+    """Every family's architectures, family by family: the built-in policies, then every declared LeRobot type."""
+    return tuple(name for family in FAMILIES for name in family.architectures())
 
 
 __all__ = ["architectures"]

@@ -15,7 +15,6 @@ import time
 
 import torch
 
-from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES
 from snapflow.benchmark.latency import Timing, measure_latency, time_round_robin
 from snapflow.benchmark.report import BenchReport, FirstChunk, OneStepProfile, Throughput
 from snapflow.benchmark.subjects import BenchSubject, parameter_dtypes, parameter_totals
@@ -146,8 +145,7 @@ def run_bench(
         if jump_ratio is not None
         else None
     )
-    declared = LEROBOT_POLICY_TYPES.get(subject.details.get("policy_type", ""))
-    paper = declared.paper_latency if declared else None  # the paper's A800 figures, end-to-end ms, batch 1
+    paper = subject.paper_latency  # the paper's A800 figures, end-to-end ms, batch 1
     return BenchReport(
         subject.name,
         subject.details,

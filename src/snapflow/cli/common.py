@@ -14,7 +14,6 @@ import sys
 import tempfile
 import tomllib
 from collections.abc import Callable
-from dataclasses import MISSING, fields
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -30,7 +29,7 @@ from snapflow.training.recipes import RECIPES, TargetOption, parse_target_steps
 # TrainConfig fields every training command takes, with their help
 TRAINING_OPTIONS = {
     "steps": "optimisation steps",
-    "batch_size": "training pairs per step",
+    "batch_size": "training pairs per step, over all the processes of an accelerate launch",
     "learning_rate": "peak learning rate (linear warm-up, then cosine decay)",
     "warmup_steps": "steps of linear warm-up to the peak learning rate",
     "seed": "seed of the initialisation, the batches and the noise",
@@ -44,6 +43,7 @@ EXTRAS = {
     "onnx": "onnx",
     "onnxruntime": "onnx",
     "onnxscript": "onnx",
+    "ray": "ray",
 }
 TASKS_HELP = (
     "comma-separated sets of the benchmark's tasks (metaworld: mt10, the default, or mt50; libero: libero_spatial, "
@@ -154,6 +154,14 @@ def given(values: dict[str, Any]) -> dict[str, Any]:
     return {name: value for name, value in values.items() if value is not None}
 
 
+def print_trained(message: str) -> None:
+    """A training command's last line, from the main process of an ``accelerate launch`` only (or the only one)."""
+    from accelerate import PartialState  # after training: the parser loads no torch
+
+    if PartialState().is_main_process:
+        print(message)
+
+
 def training_overrides(args: argparse.Namespace) -> dict[str, Any]:
     """The TrainConfig fields the training flags set (None: not given)."""
     return {name: getattr(args, name) for name in (*TRAINING_OPTIONS, "ema_decay")}
@@ -214,11 +222,6 @@ def add_training_options(parser: argparse.ArgumentParser, base: TrainConfig | No
     )
 
 
-def _default(cls: type, name: str) -> Any:
-    field = next(field for field in fields(cls) if field.name == name)
-    return field.default if field.default is not MISSING else field.default_factory()
-
-
 def _name_value(what: str, example: str) -> Callable[[str], tuple[str, Any]]:
     """The argument type of a repeatable ``NAME=VALUE`` flag (``--objective-option``, ``--policy-option``): the value
     read as in TOML (0.9, 10, true, ["image2"]), or else as text (conv)."""
@@ -252,28 +255,22 @@ def add_consistency_weight(parser: argparse.ArgumentParser, default: float | Non
     )
 
 
-def add_objective_options(parser: argparse.ArgumentParser, cls: type | None) -> None:
-    """``--method``, ``--lambda``, ``--target`` and ``--target-steps`` with the defaults of the dataclass ``cls``
-    (ToyConfig), or none (None: the distill recipe's)."""
-    recipe = "" if cls else " (default: the recipe's)"
+def add_objective_options(parser: argparse.ArgumentParser) -> None:
+    """``--method``, ``--lambda``, ``--target`` and ``--target-steps``, each None unless given (the recipe's stands)."""
+    recipe = " (default: the recipe's)"
     parser.add_argument(
-        "--method",
-        choices=methods(),
-        default=_default(cls, "method") if cls else None,
-        help="distillation objective (the others are baselines)" + recipe,
+        "--method", choices=methods(), help="distillation objective (the others are baselines)" + recipe
     )
-    add_consistency_weight(parser, _default(cls, "consistency_weight") if cls else None, recipe)
+    add_consistency_weight(parser, None, recipe)
     parser.add_argument(
         "--target",
         choices=targets(),
-        default=_default(cls, "target") if cls else None,
         help="SnapFlow's one-step target: the average of Euler velocities, or bootstrapped from the model's own half-jumps"
         + recipe,
     )
     parser.add_argument(
         "--target-steps",
         type=_target_steps,
-        default=_default(cls, "target_steps") if cls else None,
         help=f"Euler steps the target spans ({PAPER_TARGET_STEPS}: the paper); a schedule such as 2,4,8 splits training "
         "into equal stages" + recipe,
     )

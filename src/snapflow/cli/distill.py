@@ -20,14 +20,16 @@ from snapflow.cli.common import (
     add_training_options,
     check_writable,
     given,
+    print_trained,
     training_interrupted,
     training_overrides,
 )
 from snapflow.errors import InvalidInputError
+from snapflow.families import FAMILIES, PolicyFamily, Progress, StudentRun
 from snapflow.objective.options import TEACHER_VELOCITIES
 from snapflow.objective.registry import OBJECTIVES
 from snapflow.training.config import TrainConfig
-from snapflow.training.recipes import DEFAULT_RECIPE, LEROBOT_RECIPE, RECIPES, DistillSettings, student_settings
+from snapflow.training.recipes import DEFAULT_RECIPE, LEROBOT_RECIPE, RECIPES, DistillSettings
 
 
 def add_parser(subparsers: Any) -> None:
@@ -66,6 +68,13 @@ def add_parser(subparsers: Any) -> None:
     )
     parser.add_argument("--train-prefix", action="store_true", help="also train the prefix encoder (frozen by default)")
     parser.add_argument(
+        "--shard",
+        action="store_true",
+        help="split the student's weights, gradients and optimizer state over the processes of the launch (torch's "
+        "FSDP2), for a student that does not fit one device: accelerate launch --multi_gpu --num_processes N -m "
+        "snapflow.cli distill ... --shard (or torchrun); not with --ema-decay or consistency distillation",
+    )
+    parser.add_argument(
         "--teacher-velocity",
         choices=TEACHER_VELOCITIES,
         default=None,
@@ -87,7 +96,7 @@ def add_parser(subparsers: Any) -> None:
         "own); --alpha 1 --time-shift 4 fine-tunes without distilling, as arXiv 2606.05737 does (the result samples "
         "as naive or teacher-N)",
     )
-    add_objective_options(parser, None)
+    add_objective_options(parser)
     settings_fields = {field.name for field in fields(DistillSettings)}
     own_options = {
         entry.name: [option for option in entry.options if option not in settings_fields]
@@ -107,57 +116,30 @@ def add_parser(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.lerobot_train:
         return _write_student(args)
-    built_in = bool(args.teacher and args.data) and not (args.policy or args.dataset)
-    lerobot = bool(args.policy and args.dataset) and not (args.teacher or args.data)
-    if not (built_in or lerobot):
-        raise InvalidInputError(
-            "give either --teacher and --data (a built-in policy) or --policy and --dataset (LeRobot)"
-        )
+    family = _family_of_flags(args)
+    source = family.source(args.data, args.dataset, args.repo_id)  # a mistyped root is named before anything loads
     check_writable(args.output)
-    if lerobot:
-        return _distill_lerobot(args)
-    from snapflow.training.stages import distill
-
-    train, settings = _student_settings(args, lerobot=False)
-    state = distill(
-        args.teacher,
-        args.data,
-        args.output,
-        train,
-        settings,
-        resume=args.resume,
-        progress=not args.no_progress,
-        keep_progress=args.keep_progress,
-    )
-    print(
-        f"SnapFlow student trained to step {state['step']} in {state['wall_time_s']:.0f} s; checkpoints in {args.output}"
+    train, settings = _student_settings(args, family)
+    progress = Progress(args.resume, not args.no_progress, args.keep_progress)
+    teacher = getattr(args, family.teacher_flag)
+    run = StudentRun(teacher, source, Path(args.output), train, settings, progress=progress, shard=args.shard)
+    state = family.distill(run)
+    print_trained(
+        f"SnapFlow student trained to step {state['step']} in {state['wall_time_s']:.0f} s; its policy in "
+        f"{family.policy_path(Path(args.output))}"
     )
     return 0
 
 
-def _distill_lerobot(args: argparse.Namespace) -> int:
-    from snapflow.adapters.hub import dataset_source
-
-    dataset_root, repo_id = dataset_source(args.dataset, args.repo_id)  # a mistyped root is named before LeRobot loads
-    train, settings = _student_settings(args, lerobot=True)
-    from snapflow.sources import LEROBOT_EXPORT_DIRECTORY
-    from snapflow.training.lerobot import distill_lerobot
-
-    state = distill_lerobot(
-        args.policy,
-        dataset_root,
-        repo_id,
-        args.output,
-        train,
-        settings,
-        args.resume,
-        not args.no_progress,
-        keep_progress=args.keep_progress,
-    )
-    print(
-        f"SnapFlow student trained to step {state['step']}; LeRobot policy in {Path(args.output) / LEROBOT_EXPORT_DIRECTORY}"
-    )
-    return 0
+def _family_of_flags(args: argparse.Namespace) -> PolicyFamily:
+    """The family whose teacher and source flags were both given, and no other family's."""
+    for family in FAMILIES:
+        own = {family.teacher_flag, family.data_flag}
+        others = {flag for other in FAMILIES for flag in (other.teacher_flag, other.data_flag)} - own
+        if all(getattr(args, flag) for flag in own) and not any(getattr(args, flag) for flag in others):
+            return family
+    choices = [f"--{family.teacher_flag} and --{family.data_flag} (a {family.title} policy)" for family in FAMILIES]
+    raise InvalidInputError(f"give either {' or '.join(choices)}")
 
 
 def _write_student(args: argparse.Namespace) -> int:
@@ -167,13 +149,15 @@ def _write_student(args: argparse.Namespace) -> int:
         raise InvalidInputError(
             "--lerobot-train writes no training run, so it keeps no progress: lerobot-train checkpoints"
         )
+    if args.shard:
+        raise InvalidInputError("--lerobot-train writes no training run, so it shards none: lerobot-train trains it")
     if given(training_overrides(args)):
         raise InvalidInputError(
             f"--lerobot-train writes no training run: give {', '.join(given(training_overrides(args)))} to "
             "lerobot-train (--steps, --batch_size, --policy.optimizer_lr, ...)"
         )
     check_writable(args.output)
-    _, settings = _student_settings(args, lerobot=True)
+    _, settings = _student_settings(args, next(family for family in FAMILIES if "lerobot-train" in family.trainers))
     from snapflow.training.lerobot_student import write_student
 
     output = write_student(args.policy, args.output, settings)
@@ -185,7 +169,7 @@ def _write_student(args: argparse.Namespace) -> int:
     return 0
 
 
-def _student_settings(args: argparse.Namespace, lerobot: bool) -> tuple[TrainConfig, DistillSettings]:
+def _student_settings(args: argparse.Namespace, family: PolicyFamily) -> tuple[TrainConfig, DistillSettings]:
     """The student's recipe (``--recipe``, or its family's), each flag given overriding it."""
     overrides = {
         "alpha": args.alpha,
@@ -201,4 +185,4 @@ def _student_settings(args: argparse.Namespace, lerobot: bool) -> tuple[TrainCon
         "time_shift": args.time_shift,
         "objective_options": dict(args.objective_option) if args.objective_option else None,
     }
-    return student_settings(args.recipe, lerobot, given(training_overrides(args)), given(overrides))
+    return family.student_settings(args.recipe, given(training_overrides(args)), given(overrides))

@@ -5,7 +5,11 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from snapflow.cli.common import COUNT, add_command, runs_kept
+from snapflow.cli.common import COUNT, NON_NEGATIVE, POSITIVE, add_command, runs_kept
+from snapflow.errors import InvalidInputError
+from snapflow.jobs.backends import BACKENDS, open_backend
+
+RAY_OPTIONS = ("address", "gpus_per_job", "memory_per_job")  # --backend ray's own flags
 
 
 def add_parser(subparsers: Any) -> None:
@@ -31,6 +35,31 @@ def add_parser(subparsers: Any) -> None:
         "machine time left, estimated from the measured times of finished jobs of each kind (on --workers)",
     )
     parser.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default=BACKENDS[0],
+        help="where the jobs run: local, worker processes on this machine; ray, tasks on a Ray cluster (the ray "
+        "extra), whose nodes all see the sweep's folders and the folder it runs from at the same paths",
+    )
+    parser.add_argument(
+        "--address",
+        help="--backend ray: the cluster's head, HOST:PORT as `ray start --head` printed it (default: RAY_ADDRESS, "
+        "else a Ray started on this machine for the sweep)",
+    )
+    parser.add_argument(
+        "--gpus-per-job",
+        type=NON_NEGATIVE,
+        help="--backend ray: GPUs each training or evaluation job reserves (default: 1 where the cluster has GPUs, "
+        "else 0)",
+    )
+    parser.add_argument(
+        "--memory-per-job",
+        type=POSITIVE,
+        metavar="GIB",
+        help="--backend ray: GiB of memory each job reserves, so that a node takes no more jobs than it holds "
+        "(default: none reserved)",
+    )
+    parser.add_argument(
         "--tables",
         type=lambda text: text.split(","),
         help="comma-separated: run and rebuild only these tables; the others keep their results in results.json "
@@ -39,8 +68,15 @@ def add_parser(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    given = [f"--{name.replace('_', '-')}" for name in RAY_OPTIONS if getattr(args, name) is not None]
+    if args.backend != "ray" and given:
+        raise InvalidInputError(f"{', '.join(given)}: only for --backend ray")
     from snapflow.jobs.sweep import load_sweep, run_sweeps, write_results
 
+    backend = None
+    if not (args.status or args.report_only):  # Ray imported here: where it is missing, its extra is named
+        memory = None if args.memory_per_job is None else int(args.memory_per_job * 2**30)
+        backend = open_backend(args.backend, args.address, args.gpus_per_job, memory)
     configs = [load_sweep(path) for path in args.configs]
     for config in configs:
         config.table_names(args.tables)  # a mistyped table is refused before anything runs
@@ -51,7 +87,8 @@ def run(args: argparse.Namespace) -> int:
             print(format_status(config, sweep_status(config.only(args.tables)), args.workers))
         return 0
     if not args.report_only:
-        run_sweeps([config.only(args.tables) for config in configs], args.workers, not args.no_progress, args.threads)
+        only = [config.only(args.tables) for config in configs]
+        run_sweeps(only, args.workers, not args.no_progress, args.threads, backend)
     for config in configs:
         write_results(config, args.document, args.tables)
         print(f"{config.name}: wrote results.json, tables.md and PNG plots to {config.results_dir}")

@@ -14,9 +14,10 @@ from snapflow.cli.common import (
     add_objective_options,
     add_output,
     check_writable,
+    given,
     nothing_written,
 )
-from snapflow.jobs.toy_config import ToyConfig
+from snapflow.jobs.toy_config import ToyConfig, toy_distill_settings
 from snapflow.reporting.files import write_json
 
 
@@ -32,7 +33,7 @@ def add_parser(subparsers: Any) -> None:
         "--seed", type=NON_NEGATIVE_COUNT, default=ToyConfig.seed, help="seed of data, models and noise"
     )
     add_step_options(parser)
-    add_objective_options(parser, ToyConfig)
+    add_objective_options(parser)
     add_output(parser, "outputs/toy", "where the PNG and JSON go")
 
 
@@ -48,14 +49,10 @@ def run(args: argparse.Namespace) -> int:
     check_writable(args.output)
     from snapflow.jobs.toy import markdown_toy, plot_toy_result, run_toy_experiment
 
+    objective = {"method": args.method, "consistency_weight": args.consistency_weight, "target": args.target}
+    settings = toy_distill_settings(**given({**objective, "target_steps": args.target_steps}))
     config = ToyConfig(
-        seed=args.seed,
-        teacher_steps=args.teacher_steps,
-        distill_steps=args.distill_steps,
-        method=args.method,
-        consistency_weight=args.consistency_weight,
-        target=args.target,
-        target_steps=args.target_steps,
+        seed=args.seed, teacher_steps=args.teacher_steps, distill_steps=args.distill_steps, distill=settings
     )
     started = time.perf_counter()
     result = run_toy_experiment(config, progress=not args.no_progress)

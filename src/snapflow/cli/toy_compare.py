@@ -14,10 +14,11 @@ from snapflow.cli.common import (
     add_output,
     add_target_options,
     check_writable,
+    given,
     runs_kept,
 )
 from snapflow.cli.toy import add_step_options
-from snapflow.jobs.toy_config import ToyConfig
+from snapflow.jobs.toy_config import ToyConfig, toy_distill_settings
 
 
 def add_parser(subparsers: Any) -> None:
@@ -27,7 +28,7 @@ def add_parser(subparsers: Any) -> None:
     add_target_options(parser, ("euler:2", "euler:4", "euler:8"))
     parser.add_argument("--seeds", nargs="+", type=NON_NEGATIVE_COUNT, default=[0, 1, 2], help="seeds of every run")
     add_step_options(parser)
-    add_consistency_weight(parser, ToyConfig.consistency_weight)
+    add_consistency_weight(parser, None, " (default: the recipe's)")
     parser.add_argument(
         "--workers",
         type=COUNT,
@@ -41,9 +42,8 @@ def run(args: argparse.Namespace) -> int:
     check_writable(args.output)
     from snapflow.jobs.toy_compare import compare_targets, markdown_comparison
 
-    base = ToyConfig(
-        teacher_steps=args.teacher_steps, distill_steps=args.distill_steps, consistency_weight=args.consistency_weight
-    )
+    settings = toy_distill_settings(**given({"consistency_weight": args.consistency_weight}))
+    base = ToyConfig(teacher_steps=args.teacher_steps, distill_steps=args.distill_steps, distill=settings)
     started = time.perf_counter()
     summary = compare_targets(
         args.targets, args.seeds, base, args.output, args.workers, not args.no_progress, args.threads

@@ -9,7 +9,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from snapflow.adapters.lerobot_config import SMOLVLM_SIZES
+from snapflow.adapters.lerobot_config import SMOLVLM_SIZES, LeRobotSpec
 from snapflow.adapters.lerobot_types import lerobot_teachers
 from snapflow.cli.common import (
     COUNT,
@@ -17,14 +17,16 @@ from snapflow.cli.common import (
     add_command,
     add_name_value_option,
     add_training_options,
+    argument_type,
     check_writable,
     given,
+    print_trained,
     training_interrupted,
     training_overrides,
 )
-from snapflow.errors import InvalidInputError
-from snapflow.policies.factory import POLICIES
-from snapflow.training.config import TEACHER_TRAINING, VAL_FRACTION, TrainConfig
+from snapflow.families import Progress, TeacherOptions, TeacherRun, family_of, teacher_types
+from snapflow.flow.time_distribution import canonical_time_distribution, time_distribution_help
+from snapflow.training.config import TEACHER_TRAINING, VAL_FRACTION
 
 
 def _validation_share(text: str) -> float:
@@ -55,11 +57,11 @@ def add_parser(subparsers: Any) -> None:
         training_interrupted,
     )
     add_training_options(parser, TEACHER_TRAINING, data_required=False)
-    policy_types = [*POLICIES, *lerobot_teachers()]
+    policy_types = teacher_types()
     parser.add_argument(
         "--policy-type",
         choices=policy_types,
-        default=next(iter(POLICIES)),
+        default=policy_types[0],  # the first built-in policy: the families list theirs first
         help=f"built-in policy (with --data), or a LeRobot type ({', '.join(lerobot_teachers())}): LeRobot's policy from "
         "scratch (with --dataset)",
     )
@@ -71,14 +73,18 @@ def add_parser(subparsers: Any) -> None:
     parser.add_argument(
         "--smolvlm",
         choices=list(SMOLVLM_SIZES),
-        default="small",
-        help="a LeRobot type: the size of its VLM (SmolVLA's SmolVLM; X-VLA's Florence-2 at the same widths)",
+        help="a LeRobot type: the size of its VLM (SmolVLA's SmolVLM; X-VLA's Florence-2 at the same widths; "
+        f"default: {LeRobotSpec.smolvlm})",
     )
     parser.add_argument(
-        "--n-action-steps", type=COUNT, default=4, help="a LeRobot type: actions LeRobot's select_action runs per chunk"
+        "--n-action-steps",
+        type=COUNT,
+        help=f"a LeRobot type: actions LeRobot's select_action runs per chunk (default: {LeRobotSpec.n_action_steps})",
     )
     parser.add_argument(
-        "--chunk-length", type=COUNT, help="actions per predicted chunk (default: the policy's; a LeRobot type 8)"
+        "--chunk-length",
+        type=COUNT,
+        help=f"actions per predicted chunk (default: the policy's; a LeRobot type {LeRobotSpec.chunk_size})",
     )
     parser.add_argument("--use-image", action="store_true", help="minivla: read the demonstrations' camera images")
     parser.add_argument("--image-size", type=COUNT, help="minivla with --use-image, a LeRobot type: the images' size")
@@ -94,6 +100,14 @@ def add_parser(subparsers: Any) -> None:
         '(minivla: image_encoder=conv, extra_cameras=["image2"], image_downsample=2, ...: the fields of its config)',
     )
     parser.add_argument(
+        "--time-distribution",
+        type=argument_type(canonical_time_distribution),
+        default=TEACHER_TRAINING.time_distribution,
+        metavar="NAME[:VALUE]",
+        help="a built-in teacher: the distribution of its flow-matching times, recorded in its checkpoint, whose "
+        f"students' flow-matching rows draw it too: {time_distribution_help()} (default: %(default)s)",
+    )
+    parser.add_argument(
         "--val-fraction",
         type=_validation_share,
         default=VAL_FRACTION,
@@ -102,66 +116,25 @@ def add_parser(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if (args.policy_type in lerobot_teachers()) != bool(args.dataset) or bool(args.data) == bool(args.dataset):
-        raise InvalidInputError(
-            f"give --data with a built-in policy ({', '.join(POLICIES)}) or --dataset with --policy-type "
-            f"{' / '.join(lerobot_teachers())} (a LeRobotDataset)"
-        )
-    if args.dataset and args.policy_option:
-        raise InvalidInputError(
-            "--policy-option sets a built-in policy's configuration; it does not apply to --dataset"
-        )
+    family = family_of(args.policy_type)  # the family's own flag names its source: --data or --dataset
+    config = replace(TEACHER_TRAINING, **given(training_overrides(args)), time_distribution=args.time_distribution)
+    family.check_teacher_training("--time-distribution", config)
+    source = family.source(args.data, args.dataset, args.repo_id)
     check_writable(args.output)
-    config = replace(TEACHER_TRAINING, **given(training_overrides(args)))
-    if args.dataset:
-        return _train_lerobot(args, config)
-    from snapflow.data.demonstrations import Demonstrations
-    from snapflow.training.stages import policy_config_for, train_teacher
-
-    overrides = dict(args.policy_option or ()) | given(
-        {"chunk_length": args.chunk_length, "image_size": args.image_size, "use_image": args.use_image or None}
+    options = TeacherOptions(
+        args.chunk_length,
+        args.image_size,
+        args.state_dim,
+        args.use_image or None,
+        args.smolvlm,
+        args.n_action_steps,
+        dict(args.policy_option) if args.policy_option else None,
     )
-    policy = policy_config_for(args.policy_type, Demonstrations.load(args.data), args.state_dim, **overrides)
-    state = train_teacher(
-        args.data,
-        args.output,
-        policy,
-        config,
-        args.val_fraction,
-        args.resume,
-        not args.no_progress,
-        keep_progress=args.keep_progress,
-    )
-    print(f"teacher trained to step {state['step']} in {state['wall_time_s']:.0f} s; checkpoints in {args.output}")
-    return 0
-
-
-def _train_lerobot(args: argparse.Namespace, config: TrainConfig) -> int:
-    from snapflow.adapters.hub import dataset_source
-
-    dataset_root, repo_id = dataset_source(args.dataset, args.repo_id)  # a mistyped root is named before LeRobot loads
-    from snapflow.sources import LEROBOT_EXPORT_DIRECTORY
-    from snapflow.training.lerobot import train_lerobot_teacher
-
-    size = SMOLVLM_SIZES[args.smolvlm]
-    if args.image_size:
-        size = replace(size, image_size=args.image_size)
-    state = train_lerobot_teacher(
-        args.policy_type,
-        dataset_root,
-        repo_id,
-        args.output,
-        config,
-        size,
-        n_action_steps=args.n_action_steps,
-        val_fraction=args.val_fraction,
-        resume=args.resume,
-        progress=not args.no_progress,
-        keep_progress=args.keep_progress,
-        **given({"chunk_size": args.chunk_length}),
-    )
-    print(
-        f"{args.policy_type} teacher trained to step {state['step']} in {state['wall_time_s']:.0f} s; "
-        f"LeRobot policy in {Path(args.output) / LEROBOT_EXPORT_DIRECTORY}"
+    spec = family.teacher_spec_for(args.policy_type, source, options)
+    progress = Progress(args.resume, not args.no_progress, args.keep_progress)
+    state = family.train_teacher(TeacherRun(spec, source, Path(args.output), config, args.val_fraction, progress))
+    print_trained(
+        f"{args.policy_type} teacher trained to step {state['step']} in {state['wall_time_s']:.0f} s; its policy in "
+        f"{family.policy_path(Path(args.output))}"
     )
     return 0

@@ -9,7 +9,7 @@ from snapflow.evaluation.config import OFFLINE_SAMPLES
 from snapflow.evaluation.results import OfflineMetrics
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.solver import sample_actions
-from snapflow.protocol import FlowPolicy
+from snapflow.protocol import FlowPolicy, draw_flow_noise
 
 
 @torch.no_grad()
@@ -26,7 +26,7 @@ def offline_metrics(
     ``seed``, so every mode and checkpoint is scored on identical inputs."""
     generator = torch.Generator().manual_seed(seed)
     indices = torch.randperm(len(data), generator=generator)[:max_samples]
-    noise = torch.randn((len(indices), *data.actions.shape[1:]), generator=generator)
+    noise = draw_flow_noise(policy, (len(indices), *data.actions.shape[1:]), generator)
     policy.eval()
     errors, cosines = [], []
     for start in range(0, len(indices), batch_size):

@@ -13,7 +13,6 @@ from pathlib import Path
 import torch
 
 from snapflow.benchmark.latency import LatencyRow, add_speedups, measure_latency
-from snapflow.benchmark.subjects import opened_subject
 from snapflow.data.chunks import ChunkData
 from snapflow.data.demonstrations import Demonstrations
 from snapflow.envs.base import Benchmark
@@ -189,7 +188,7 @@ def checkpoint_latency(runs: list[Run], warmup: int = 10, repeats: int = 50) -> 
     """Batch-1 timing of each (label, policy, mode), each row with its own policy's prefix; speedups over the first."""
     rows: dict[str, LatencyRow] = {}
     for label, loaded, mode in runs:
-        subject = opened_subject(loaded, label)
+        subject = loaded.bench_subject(label)
         measured = measure_latency(subject.policy, subject.observation, subject.noise, [mode], warmup, repeats)
         rows[label] = measured.modes[mode.name]
         rows[label].prefix = measured.prefix

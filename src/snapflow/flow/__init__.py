@@ -12,8 +12,11 @@ __getattr__, __dir__, __all__ = lazy_exports(
             "TimeSampler",
             "UniformTimeSampler",
             "BetaTimeSampler",
+            "Beta22TimeSampler",
             "ShiftedTimeSampler",
             "shifted",
+            "time_sampler_for",
         ],
+        "snapflow.flow.time_distribution": ["TIME_DISTRIBUTIONS", "UNIFORM", "canonical_time_distribution"],
     },
 )

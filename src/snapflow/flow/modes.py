@@ -69,7 +69,20 @@ class SamplingMode:
     @classmethod
     def parse(cls, name: str) -> SamplingMode:
         """Read ``teacher-N``, ``snapflow-N``, ``naive`` / ``naive-1``; bare ``teacher`` is the policy's own number of
-        steps, bare ``snapflow`` one jump."""
+        steps, bare ``snapflow`` one jump.
+
+        Raises:
+            InvalidInputError: an unknown name, ``naive`` with more than one step, or no step at all.
+
+        Examples:
+            >>> from snapflow import SamplingMode
+            >>> SamplingMode.parse("teacher-10")
+            SamplingMode(num_steps=10, jump=False)
+            >>> SamplingMode.parse("snapflow").name
+            'snapflow-1'
+            >>> SamplingMode.parse("teacher").with_own_steps(5).name  # a policy's own
+            'teacher-5'
+        """
         match = re.fullmatch(r"(teacher|snapflow|naive)(?:-(\d+))?", name.strip().lower())
         if match is None:
             raise InvalidInputError(

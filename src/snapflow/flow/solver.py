@@ -44,7 +44,32 @@ def euler_sample(velocity: VelocityFn, noise: Tensor, mode: SamplingMode) -> Ten
 def sample_actions(policy: FlowPolicy, observation: Any, noise: Tensor, mode: SamplingMode) -> Tensor:
     """Encode ``observation`` once, then denoise ``noise`` into an action chunk with ``mode``. SnapFlow 1-NFE runs
     the policy's ``one_step_chunk(observation, noise)`` where a fast path fused the prefix and the jump into one
-    graph (:func:`snapflow.inference.compile.fuse_one_step`)."""
+    graph (:func:`snapflow.inference.compile.fuse_one_step`).
+
+    Args:
+        policy: any :class:`~snapflow.protocol.FlowPolicy`.
+        observation: one batch of what the policy's ``encode`` reads.
+        noise: the starting point x_1, shaped as the action chunks (B, chunk length, action width).
+        mode: how many Euler steps, each with or without the jump (:meth:`SamplingMode.parse`).
+
+    Returns:
+        The action chunks, shaped as ``noise``.
+
+    Examples:
+        >>> import torch
+        >>> from snapflow import SamplingMode, SnapFlowPolicy, sample_actions
+        >>> from snapflow.policies.mlp import MLPFlowModel, MLPPolicyConfig
+        >>> config = MLPPolicyConfig(
+        ...     observation_dim=4, action_dim=2, chunk_length=3, hidden_dim=32
+        ... )
+        >>> policy = SnapFlowPolicy(MLPFlowModel(config))
+        >>> observation, noise = torch.randn(5, 4), torch.randn(5, 3, 2)
+        >>> with torch.no_grad():
+        ...     mode = SamplingMode.parse("teacher-10")
+        ...     chunk = sample_actions(policy, observation, noise, mode)
+        >>> chunk.shape
+        torch.Size([5, 3, 2])
+    """
     if isinstance(policy, FusedOneStep) and mode == SNAPFLOW_1:
         return policy.one_step_chunk(observation, noise)
     context = policy.encode(observation)

@@ -5,13 +5,15 @@ A time sampler is a callable ``(batch_size, *, device, generator) -> Tensor`` re
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import torch
 from torch import Tensor
 
 from snapflow.errors import InvalidInputError
+from snapflow.flow.time_distribution import parse_time_distribution
 
 
 class TimeSampler(Protocol):
@@ -57,6 +59,29 @@ class BetaTimeSampler:
 
 
 @dataclass(frozen=True)
+class Beta22TimeSampler:
+    """t ~ Beta(2, 2) clamped into [min_time, max_time]: EVO1's training times, (0.02, 0.98) by default.
+
+    Beta(2, 2) is the median of three independent uniforms (the second of three order statistics), so it is drawn
+    from the caller's generator, reproducibly. It is symmetric about 1/2, so EVO1's times (t = 0 noise) read in this
+    library's direction (t = 1 noise) are the same distribution.
+    """
+
+    min_time: float = 0.02
+    max_time: float = 0.98
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.min_time < self.max_time <= 1:
+            raise InvalidInputError(f"need 0 <= min_time < max_time <= 1, got {self.min_time}, {self.max_time}")
+
+    def __call__(
+        self, batch_size: int, *, device: torch.device | str = "cpu", generator: torch.Generator | None = None
+    ) -> Tensor:
+        u = torch.rand(batch_size, 3, device=device, generator=generator)
+        return u.median(dim=1).values.clamp(self.min_time, self.max_time)
+
+
+@dataclass(frozen=True)
 class ShiftedTimeSampler:
     """``base``'s times pushed toward the noisy end t = 1: t -> s t / (1 + (s - 1) t), with s = ``shift``.
 
@@ -86,4 +111,34 @@ def shifted(sampler: TimeSampler, shift: float) -> TimeSampler:
     return sampler if shift == 1 else ShiftedTimeSampler(sampler, shift)
 
 
-__all__ = ["TimeSampler", "UniformTimeSampler", "BetaTimeSampler", "ShiftedTimeSampler", "shifted"]
+# each named distribution's sampler, from its number (:mod:`snapflow.flow.time_distribution` declares them; a test
+# holds the two to the same names)
+_SAMPLERS: dict[str, Callable[[Any], TimeSampler]] = {
+    "uniform": lambda _: UniformTimeSampler(),
+    "beta": lambda concentration: BetaTimeSampler(concentration),
+    "shift": lambda shift: ShiftedTimeSampler(BetaTimeSampler(), shift),
+}
+
+
+def time_sampler_for(distribution: str) -> TimeSampler:
+    """The sampler of a named time distribution (``uniform``, ``beta:1.5``, ``shift:4``: see
+    :data:`snapflow.flow.time_distribution.TIME_DISTRIBUTIONS`); a mistake in its name an ``InvalidInputError``.
+
+    Examples:
+        >>> from snapflow.flow.time_sampling import time_sampler_for
+        >>> time_sampler_for("uniform"), time_sampler_for("beta:1.5")
+        (UniformTimeSampler(), BetaTimeSampler(concentration=1.5, min_time=0.001))
+    """
+    name, number = parse_time_distribution(distribution)
+    return _SAMPLERS[name](number)
+
+
+__all__ = [
+    "TimeSampler",
+    "UniformTimeSampler",
+    "BetaTimeSampler",
+    "Beta22TimeSampler",
+    "ShiftedTimeSampler",
+    "shifted",
+    "time_sampler_for",
+]

@@ -28,7 +28,9 @@ EVAL_EPISODES = 20  # evaluation episodes per task
 
 @dataclass(frozen=True)
 class DemoPreset:
-    """Everything the demo runs; ``fast`` is the README default, ``full`` the stronger, longer run."""
+    """Everything the demo runs; ``fast`` is the README default, ``full`` the stronger, longer run. The teacher's
+    flow-matching times are ``teacher.time_distribution`` (:class:`~snapflow.training.config.TrainConfig`), recorded
+    in its checkpoint and in the report's preset; its student's flow-matching rows draw the same."""
 
     env: str = DEFAULT_BENCHMARK
     tasks: tuple[str, ...] = MT10_TASKS

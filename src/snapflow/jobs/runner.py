@@ -1,4 +1,5 @@
-"""One job runner for the sweeps and the toy comparison: typed jobs, one cache rule, one process pool.
+"""One job runner for the sweeps and the toy comparison: typed jobs, one cache rule, one loop over a backend
+(:mod:`snapflow.jobs.backends`: processes on this machine, or tasks on a Ray cluster).
 
 A job is a frozen dataclass. Its ``settings()`` are every value its result depends on (defaults included), its
 ``key`` hashes its kind, settings and dependencies' keys, so a key changes whenever anything upstream changes.
@@ -24,21 +25,17 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import shutil
-import time
 from abc import ABC, abstractmethod
 from collections.abc import Iterable
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
-from multiprocessing import get_context
+from concurrent.futures import FIRST_COMPLETED, Future, wait
 from pathlib import Path
 from typing import Any, ClassVar
 
-import torch
 from tqdm.auto import tqdm
 
 from snapflow.errors import InvalidInputError, SnapflowError
+from snapflow.jobs.backends import Backend, LocalBackend, WorkerDied
 from snapflow.reporting.files import write_json
 from snapflow.reporting.machine import versions
 
@@ -47,6 +44,9 @@ class Job(ABC):
     """A unit of work with cached output; subclasses are frozen dataclasses (hashable, picklable to workers)."""
 
     kind: ClassVar[str]
+    #: whether the job runs a policy (trains or evaluates one), which a GPU speeds up: a backend that reserves
+    #: resources for each job (Ray) gives GPUs to these only
+    uses_gpu: ClassVar[bool] = False
 
     @abstractmethod
     def settings(self) -> dict[str, Any]:
@@ -200,14 +200,6 @@ def _finish(job: Job, results: dict[str, Any]) -> None:
     _pending_path(job).unlink(missing_ok=True)
 
 
-def _work(job: Job, threads: int) -> tuple[dict[str, Any], float]:
-    """Worker entry point (a fresh process): run one job; returns its results and wall time."""
-    torch.set_num_threads(threads)
-    started = time.perf_counter()
-    results = job.run()
-    return results, time.perf_counter() - started
-
-
 def _copy_to_ledger(job: Job) -> None:
     """Give a job done here its ledger copy if it lacks one (it finished before its kind kept one)."""
     if job.ledger_path is not None and not holds_record_of(job.ledger_path, job):
@@ -257,10 +249,14 @@ def run_jobs(
     progress: bool = True,
     description: str = "jobs",
     threads: int | None = None,
+    backend: Backend | None = None,
+    shared: Iterable[Path] = (),
 ) -> dict[str, float]:
-    """Run the jobs of :func:`to_run` on ``workers`` spawned processes, each on ``threads`` torch threads (default:
-    cores / workers; fewer where other programs share the cores), a job once its dependencies have finished; returns
-    each job's wall time (s) by description, in the order they finished.
+    """Run the jobs of :func:`to_run` on ``backend`` (default: spawned processes on this machine), ``workers`` side by
+    side, each on ``threads`` torch threads (default: the backend's cores / workers; fewer where other programs share
+    the cores), a job once its dependencies have finished; returns each job's wall time (s) by description, in the
+    order they finished. ``shared`` are the folders that every worker must see as this process does (the backend
+    refuses to start where one would not).
 
     Of the jobs ready when a worker frees, one that no other job needs (an evaluation) goes first, whatever its
     depth, then :func:`to_run`'s order: a worker freed by a student evaluates it before starting a teacher of hours,
@@ -277,17 +273,12 @@ def run_jobs(
         return {}
     unfinished = set(waiting)
     awaited = _awaited(waiting)
-    if threads is None:
-        threads = max(1, (os.cpu_count() or 1) // workers)
     times: dict[str, float] = {}
     running: dict[Future, Job] = {}
     bar = tqdm(total=len(waiting), desc=description, disable=not progress, dynamic_ncols=True)
-    # spawn: each worker imports torch afresh, with its own thread count and no inherited locks; one job per process:
-    # the memory a job frees is not all handed back to the system (glibc keeps MuJoCo's), so a worker that went on to
-    # a second 500-episode evaluation reached 12.6 GB and was killed for memory
-    context = get_context("spawn")
     failure: BaseException | None = None  # the first job's error: no job starts after it, those running finish
-    with ProcessPoolExecutor(max_workers=workers, mp_context=context, max_tasks_per_child=1) as pool:
+    backend = backend or LocalBackend()
+    with backend.session(workers, threads, shared) as threads_each:
         while (waiting and failure is None) or running:
             ready = sorted(
                 (job for job in waiting if not unfinished.intersection(job.dependencies)),
@@ -296,7 +287,7 @@ def run_jobs(
             for job in ready[: workers - len(running)] if failure is None else ():
                 waiting.remove(job)
                 _start(job)
-                running[pool.submit(_work, job, threads)] = job
+                running[backend.submit(job, threads_each)] = job
                 bar.write(f"started: {job.describe()}")
             finished, _ = wait(running, return_when=FIRST_COMPLETED)
             for future in finished:
@@ -321,7 +312,7 @@ def run_jobs(
 
 def _failure(job: Job, error: Exception) -> Exception:
     """What stops the run for ``job``'s ``error``: its own error, or, where its worker died, one that says so."""
-    if isinstance(error, BrokenProcessPool):
+    if isinstance(error, WorkerDied):
         return SnapflowError(
             f"the worker running {job.describe()} died (killed, or out of memory); what finished is kept, and its "
             "checkpoints: run the same command again to go on"

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import copy
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
@@ -28,7 +28,6 @@ from snapflow.policies.mlp import MLPFlowModel, MLPPolicyConfig
 from snapflow.reporting.figures import pyplot, save_figure
 from snapflow.reporting.tables import markdown_table
 from snapflow.training.config import TrainConfig
-from snapflow.training.recipes import DistillSettings
 from snapflow.training.trainer import ObjectiveModule, train_step
 
 
@@ -45,11 +44,16 @@ class ToyResult:
     model_samples: dict[str, Tensor] = field(repr=False)
 
     def to_dict(self) -> dict:
-        return {"config": asdict(self.config), "energy_distance": self.distances, "distill_step_s": self.distill_step_s}
+        return {
+            "config": self.config.record(),
+            "energy_distance": self.distances,
+            "distill_step_s": self.distill_step_s,
+        }
 
 
 def _fit(
     policy: SnapFlowPolicy,
+    trainable: list[torch.nn.Parameter],
     objective: TwoBranchObjective,
     mixture: ConditionalGaussianMixture,
     config: TrainConfig,
@@ -57,10 +61,10 @@ def _fit(
     description: str,
     progress: bool,
 ) -> float:
-    """The trainer's step (AdamW, cosine-decayed learning rate) on fresh exact samples at every step; returns seconds
-    per step."""
+    """The trainer's step (AdamW on ``trainable``, cosine-decayed learning rate) on fresh exact samples at every step;
+    returns seconds per step."""
     module = ObjectiveModule(policy, objective)
-    optimizer = torch.optim.AdamW(policy.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
+    optimizer = torch.optim.AdamW(trainable, lr=config.learning_rate, weight_decay=config.weight_decay)
     bar = tqdm(range(config.steps), desc=description, disable=not progress, leave=False)
     started = time.perf_counter()
     for step in bar:
@@ -94,8 +98,9 @@ def _schedule(steps: int, learning_rate: float, batch_size: int) -> TrainConfig:
 
 
 def run_toy_experiment(config: ToyConfig | None = None, progress: bool = True) -> ToyResult:
-    """Train a teacher with flow matching, distill it (SnapFlow or ``config.method``), score every sampling mode;
-    the one-step jump of the distilled student is reported as ``snapflow-1`` whatever the method."""
+    """Train a teacher with flow matching, distill it with ``config.distill`` (SnapFlow or a baseline; the observation
+    encoder frozen where ``freeze_prefix``, no phi_s where not ``target_time``), score every sampling mode; the
+    one-step jump of the distilled student is reported as ``snapflow-1`` whatever the method."""
     config = config or ToyConfig()
     torch.manual_seed(config.seed)
     generator = torch.Generator().manual_seed(config.seed)
@@ -107,6 +112,7 @@ def run_toy_experiment(config: ToyConfig | None = None, progress: bool = True) -
     time_sampler = UniformTimeSampler()
     _fit(
         teacher,
+        list(teacher.parameters()),
         SnapFlowObjective(alpha=1.0, time_sampler=time_sampler),
         mixture,
         _schedule(config.teacher_steps, config.teacher_lr, config.batch_size),
@@ -115,21 +121,16 @@ def run_toy_experiment(config: ToyConfig | None = None, progress: bool = True) -
         progress,
     )
 
-    student = SnapFlowPolicy(copy.deepcopy(model), target_time=True)
-    settings = DistillSettings(
-        config.alpha,
-        config.consistency_weight,
-        method=config.method,
-        target=config.target,
-        target_steps=config.target_steps,
-    )
+    settings = config.distill
+    student = SnapFlowPolicy(copy.deepcopy(model), target_time=settings.target_time)
     step_s = _fit(
         student,
+        student.expert_parameters() if settings.freeze_prefix else list(student.parameters()),
         settings.objective(time_sampler),
         mixture,
         _schedule(config.distill_steps, config.distill_lr, config.batch_size),
         generator,
-        f"{config.method} distillation",
+        f"{settings.method} distillation",
         progress,
     )
 
@@ -155,7 +156,8 @@ def markdown_toy(result: ToyResult) -> str:
     """What the toy measured, then each sampler's energy distance, also relative to the naive one step."""
     config = result.config
     naive = result.distances[NAIVE_1.name]
-    student = "SnapFlow 1-NFE" if config.method == "snapflow" else f"{config.method} 1-NFE"
+    method = config.distill.method
+    student = "SnapFlow 1-NFE" if method == "snapflow" else f"{method} 1-NFE"
     rows = [("teacher 10-NFE", TEACHER_10.name, 10), ("naive 1-NFE", NAIVE_1.name, 1), (student, SNAPFLOW_1.name, 1)]
     table = markdown_table(
         ["sampler", "NFE", "energy distance", "/ naive 1-NFE"],
@@ -173,7 +175,7 @@ def markdown_toy(result: ToyResult) -> str:
 def plot_toy_result(result: ToyResult, path: Path, num_contexts: int = 3) -> None:
     """PNG grid: one row per evaluation context, the exact data then each sampling mode."""
     plt = pyplot()
-    method = result.config.method
+    method = result.config.distill.method
 
     def label(name: str) -> str:  # the student's one-step jump, named after the objective that trained it
         return f"{method} 1-NFE" if name == SNAPFLOW_1.name and method != "snapflow" else name

@@ -22,7 +22,6 @@ from snapflow.jobs.toy import run_toy_experiment
 from snapflow.jobs.toy_config import ToyConfig
 from snapflow.reporting.figures import pyplot, save_figure
 from snapflow.reporting.files import write_json, write_text
-from snapflow.reporting.records import as_record
 from snapflow.reporting.statistics import mean_std
 from snapflow.reporting.tables import markdown_table
 from snapflow.training.recipes import TargetOption
@@ -38,7 +37,7 @@ class ToyJob(Job):
     path: Path
 
     def settings(self) -> dict[str, Any]:
-        return as_record(self.config)
+        return self.config.record()
 
     @property
     def record_path(self) -> Path:
@@ -69,7 +68,7 @@ def compare_targets(
     jobs = {
         (option, seed): ToyJob(
             option.name,
-            replace(base, seed=seed, target=option.target, target_steps=option.steps),
+            replace(base, seed=seed, distill=option.settings(base.distill)),
             output_dir / "runs" / option.name / f"seed-{seed}.json",
         )
         for option in options
@@ -104,7 +103,7 @@ def compare_targets(
             }
         )
     summary: dict[str, Any] = {
-        "config": {**as_record(base), "seed": None, "target": None, "target_steps": None},
+        "config": {**base.record(), "seed": None, "target": None, "target_steps": None},
         "seeds": seeds,
     }
     for name in (TEACHER_10.name, NAIVE_1.name):  # one teacher per seed, whatever the target

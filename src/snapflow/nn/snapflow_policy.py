@@ -16,6 +16,33 @@ class SnapFlowPolicy(nn.Module):
     The velocity is ``model.velocity_from_time_embedding(x_t, model.embed_time(t) + phi_s(s), context)``.
     With ``target_time=False`` there is no phi_s and s is ignored: that is the flow-matching teacher, and
     the "without phi_s" ablation of the paper.
+
+    Args:
+        model: the plain flow-matching policy: ``encode``, ``embed_time``, ``velocity_from_time_embedding`` and an
+            integer ``time_embedding_dim``.
+        target_time: add phi_s (zero at init, so the student starts bit-identical to its teacher); False: the
+            teacher, whose velocity ignores s.
+
+    Raises:
+        TypeError: ``model`` lacks a method or the integer ``time_embedding_dim`` of the protocol.
+
+    Examples:
+        A student and its teacher around one built-in MLP: at init, phi_s being zero, the student's jump is the
+        teacher's naive step.
+
+        >>> import torch
+        >>> from snapflow import NAIVE_1, SNAPFLOW_1, SnapFlowPolicy, sample_actions
+        >>> from snapflow.policies.mlp import MLPFlowModel, MLPPolicyConfig
+        >>> config = MLPPolicyConfig(
+        ...     observation_dim=4, action_dim=2, chunk_length=3, hidden_dim=32
+        ... )
+        >>> model = MLPFlowModel(config)
+        >>> student = SnapFlowPolicy(model)
+        >>> teacher = SnapFlowPolicy(model, target_time=False)
+        >>> observation, noise = torch.randn(5, 4), torch.randn(5, 3, 2)
+        >>> jump = sample_actions(student, observation, noise, SNAPFLOW_1)
+        >>> torch.equal(jump, sample_actions(teacher, observation, noise, NAIVE_1))
+        True
     """
 
     def __init__(self, model: nn.Module, target_time: bool = True) -> None:

@@ -10,6 +10,7 @@ __getattr__, __dir__, __all__ = lazy_exports(
         "snapflow.objective.base": ["LossOutput", "OneStepRows", "TwoBranchObjective"],
         "snapflow.objective.meanflow": ["MeanFlowObjective"],
         "snapflow.objective.registry": ["OBJECTIVES", "ObjectiveType", "make_objective", "register_objective"],
+        "snapflow.objective.settings": ["DistillSettings"],
         "snapflow.objective.snapflow": ["SnapFlowObjective", "euler_shortcut_target"],
     },
 )

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import torch
 from torch import Tensor
@@ -25,7 +25,7 @@ from torch import Tensor
 from snapflow.errors import InvalidInputError
 from snapflow.flow.path import conditional_velocity, interpolate
 from snapflow.flow.time_sampling import TimeSampler
-from snapflow.protocol import Context, FlowPolicy, PaddedActions, index_batch
+from snapflow.protocol import Context, FlowPolicy, PaddedActions, draw_flow_noise, index_batch
 
 
 def draw_device(generator: torch.Generator | None, device: torch.device) -> torch.device:
@@ -97,6 +97,8 @@ class TwoBranchObjective(ABC):
     alpha: float
     consistency_weight: float
     time_sampler: TimeSampler
+    #: whether it keeps a copy of the whole policy (an EMA target network), which a sharded student cannot split
+    copies_policy: ClassVar[bool] = False
 
     def _check_weights(self) -> None:
         if not 0.0 <= self.alpha <= 1.0:
@@ -154,9 +156,8 @@ class TwoBranchObjective(ABC):
         n_fm = self.num_flow_matching(batch)
         n_sc = batch - n_fm
         if noise is None:
-            noise = torch.randn(
-                actions.shape, generator=generator, device=draw_device(generator, actions.device), dtype=actions.dtype
-            ).to(actions.device)
+            draw_on = draw_device(generator, actions.device)
+            noise = draw_flow_noise(policy, actions.shape, generator, draw_on).to(actions.device, actions.dtype)
         elif noise.shape != actions.shape:
             raise ValueError(f"noise {tuple(noise.shape)} must match actions {tuple(actions.shape)}")
         if time is None:

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import torch
 from torch import Tensor, nn
@@ -49,6 +49,7 @@ class ConsistencyDistillationObjective(TwoBranchObjective):
     num_intervals: int = 10
     ema_decay: float = 0.95
     _target: nn.Module | None = field(default=None, init=False, repr=False, compare=False)
+    copies_policy: ClassVar[bool] = True  # its target network
 
     def __post_init__(self) -> None:
         self._check_weights()

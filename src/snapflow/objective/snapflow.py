@@ -98,6 +98,23 @@ class SnapFlowObjective(TwoBranchObjective):
         intermediate_jumps: share of the one-step rows that jump between two inner times instead of 1 -> 0:
             t ~ U(0, 1), s ~ U(0, t), from x_t on the path between the demonstration and its noise, onto the K-step
             Euler average of the teacher velocities from t to s (0: the paper, every row jumps from pure noise).
+
+    Examples:
+        One batch of a tiny MLP student: half its rows train flow matching, half the one-step jump.
+
+        >>> import torch
+        >>> from snapflow import SnapFlowObjective, SnapFlowPolicy, UniformTimeSampler
+        >>> from snapflow.policies.mlp import MLPFlowModel, MLPPolicyConfig
+        >>> config = MLPPolicyConfig(
+        ...     observation_dim=4, action_dim=2, chunk_length=3, hidden_dim=32
+        ... )
+        >>> student = SnapFlowPolicy(MLPFlowModel(config))
+        >>> objective = SnapFlowObjective(alpha=0.5, time_sampler=UniformTimeSampler())
+        >>> observation, actions = torch.randn(8, 4), torch.randn(8, 3, 2)  # 8 chunks
+        >>> output = objective(student, observation, actions)
+        >>> output.num_flow_matching, output.num_consistency
+        (4, 4)
+        >>> output.loss.backward()  # then an optimiser's step, as train() takes it
     """
 
     alpha: float = PAPER_ALPHA

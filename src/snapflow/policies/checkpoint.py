@@ -17,18 +17,20 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 from torch import nn
 
-from snapflow.flow.time_sampling import UniformTimeSampler
+from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1
+from snapflow.flow.time_distribution import UNIFORM, parse_time_distribution
+from snapflow.flow.time_sampling import TimeSampler, time_sampler_for
 from snapflow.inference.formats import ExportFormat, export_format, export_record
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
 from snapflow.policies.factory import make_model, make_processor, policy_type, policy_type_of
-from snapflow.policies.loaded import CheckpointError, OpenedPolicy
+from snapflow.policies.loaded import BenchSubject, CheckpointError, OpenedPolicy, parameter_count
 from snapflow.policies.normalization import NormalizationStats
 from snapflow.policies.processor import Processor
+from snapflow.protocol import map_tensors
 from snapflow.reporting.archive import archived_hint
 from snapflow.reporting.files import write_json
 
 POLICY_WEIGHTS, POLICY_CONFIG = "policy.safetensors", "policy.json"
-BUILTIN_TIME_SAMPLER = UniformTimeSampler()  # the built-in policies train on uniform times
 LATEST = "latest.json"
 FORMAT = "snapflow-policy"
 VERSION = 1
@@ -61,8 +63,15 @@ class LoadedPolicy(OpenedPolicy):
         return f"snapflow distill --teacher {self.path} ..."
 
     @property
-    def time_sampler(self) -> UniformTimeSampler:
-        return BUILTIN_TIME_SAMPLER
+    def time_distribution(self) -> str:
+        """The flow-matching time distribution its teacher trained on (a student: its teacher's), as
+        :mod:`snapflow.flow.time_distribution` names it; uniform where ``policy.json`` predates the record, as every
+        built-in teacher then trained."""
+        return self.metadata.get("time_distribution", UNIFORM)
+
+    @property
+    def time_sampler(self) -> TimeSampler:
+        return time_sampler_for(self.time_distribution)
 
     @property
     def training_data(self) -> dict[str, Any]:
@@ -72,6 +81,37 @@ class LoadedPolicy(OpenedPolicy):
     def val_fraction(self) -> float:
         """Share of each task's demonstration episodes the run held out (0.1 where the metadata predates it)."""
         return self.training_data.get("val_fraction", 0.1)
+
+    def bench_subject(
+        self, name: str, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32
+    ) -> BenchSubject:
+        """Its processor's example observation (a zero state, the first instruction it knows, a black image where it
+        reads one) and fixed noise; an export runs its one jump only."""
+        torch.manual_seed(0)
+        observation = map_tensors(
+            self.processor.example_observation(),
+            lambda tensor: tensor.to(device=device, dtype=dtype if tensor.is_floating_point() else tensor.dtype),
+        )
+        noise = torch.randn(1, self.processor.chunk_length, self.processor.action_dim).to(device=device, dtype=dtype)
+        policy = self.policy.to(device=device, dtype=dtype).eval()
+        details = {"parameters": parameter_count(policy), "policy_type": self.policy_type}
+        details["config"] = self.processor.config.to_dict()
+        if self.exported:
+            details[self.export["format"]] = self.export
+        # without phi_s (a teacher checkpoint) the one step is the naive one, timed and named as such
+        jumps = self.exported or self.policy.target_time_embedding is not None
+        only_modes = (SNAPFLOW_1,) if self.exported else None
+        return BenchSubject(
+            name,
+            policy,
+            observation,
+            noise,
+            self.time_sampler,
+            details,
+            SNAPFLOW_1 if jumps else NAIVE_1,
+            only_modes,
+            dtype,
+        )
 
     def export_to(self, output: str | Path, format: str) -> dict[str, Any]:
         """Export this student to ``output`` in ``format``: its one-step graph, and a ``policy.json`` with the
@@ -168,21 +208,29 @@ def load_state_strict(module: nn.Module, tensors: dict[str, torch.Tensor], sourc
     module.load_state_dict(tensors, strict=True)
 
 
-def untied_state(module: nn.Module) -> dict[str, torch.Tensor]:
-    """``module``'s tensors for a safetensors file, each once: a tensor the module ties under several names (a shared
+def untied_names(module: nn.Module) -> list[str]:
+    """The names of ``module``'s state, each tensor once: a tensor the module ties under several names (a shared
     embedding) under its first, as :func:`load_state_strict` reads it back."""
-    state: dict[str, torch.Tensor] = {}
-    seen: set[int] = set()
+    first = {}
     for name, tensor in module.state_dict(keep_vars=True).items():
-        if id(tensor) not in seen:
-            seen.add(id(tensor))
-            state[name] = tensor.detach().cpu().contiguous()
-    return state
+        first.setdefault(id(tensor), name)
+    return list(first.values())
+
+
+def untied_state(module: nn.Module) -> dict[str, torch.Tensor]:
+    """``module``'s tensors for a safetensors file, each once (:func:`untied_names`)."""
+    state = module.state_dict(keep_vars=True)
+    return {name: state[name].detach().cpu().contiguous() for name in untied_names(module)}
 
 
 def write_policy(directory: Path, policy: nn.Module, metadata: dict[str, Any]) -> None:
     """``policy.safetensors`` and ``policy.json`` into ``directory`` (callers make the folder appear atomically)."""
-    save_file(untied_state(policy), directory / POLICY_WEIGHTS)
+    write_weights(directory, untied_state(policy), metadata)
+
+
+def write_weights(directory: Path, weights: dict[str, torch.Tensor], metadata: dict[str, Any]) -> None:
+    """:func:`write_policy` of a policy's :func:`untied_state` (or a sharded one's, gathered)."""
+    save_file(weights, directory / POLICY_WEIGHTS)
     write_json(directory / POLICY_CONFIG, metadata)
 
 
@@ -225,6 +273,7 @@ def load_policy(path: str | Path, target_time: bool | None = None) -> LoadedPoli
     try:
         config = entry.config_class.from_dict(metadata["config"])
         processor = make_processor(config, NormalizationStats(**metadata["stats"]), metadata.get("instructions", ()))
+        parse_time_distribution(metadata.get("time_distribution", UNIFORM))
     except (TypeError, ValueError) as error:
         raise CheckpointError(f"{directory / POLICY_CONFIG}: invalid field: {error}") from None
     exported = export_record(metadata)
@@ -256,7 +305,6 @@ def load_export(entry: ExportFormat, path: Path) -> Any:
 
 
 __all__ = [
-    "BUILTIN_TIME_SAMPLER",
     "load_export",
     "is_builtin_checkpoint",
     "CheckpointError",
@@ -271,4 +319,6 @@ __all__ = [
     "read_tensors",
     "resolve_checkpoint",
     "write_policy",
+    "write_weights",
+    "untied_names",
 ]

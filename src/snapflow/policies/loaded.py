@@ -5,8 +5,12 @@ format, and so which sampling modes it runs; the others are refused by name befo
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import torch
+from torch import Tensor, nn
 
 from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SNAPFLOW_1, TEACHER_10, SamplingMode
@@ -16,6 +20,35 @@ from snapflow.inference.formats import export_record
 class CheckpointError(InvalidInputError):
     """A policy that is missing, corrupt, does not match what it is loaded into, or is asked for what it cannot
     honestly run (a jump mode of a teacher, another mode of an export): the reason and what to do instead."""
+
+
+@dataclass
+class BenchSubject:
+    """A policy with its batch-1 inputs, as ``snapflow bench`` times it; ``one_step`` is its 1-NFE mode: SnapFlow's
+    jump, or the naive step for a policy never distilled (no trained target-time embedding)."""
+
+    name: str
+    policy: nn.Module
+    observation: Any
+    noise: Tensor
+    #: the flow-matching times it trains on (the cost of a distillation step draws them)
+    time_sampler: Any
+    details: dict[str, Any] = field(default_factory=dict)
+    one_step: SamplingMode = SNAPFLOW_1
+    #: the only modes the policy runs (an ONNX export runs its one jump), or None for any
+    only_modes: tuple[SamplingMode, ...] | None = None
+    #: the dtype it was asked to run in (what runs, as timed, is in the report's ``dtype``: a policy may keep layers
+    #: in float32, and a fast path may change them)
+    dtype: torch.dtype = torch.float32
+    #: the number of steps its own sampler takes (a LeRobot policy's, as configured), timed beside the teacher modes
+    own_steps: int | None = None
+    #: the paper's figures for its type (A800, end to end, batch 1, ms), where the paper gives them
+    paper_latency: dict[str, float] | None = None
+
+
+def parameter_count(module: nn.Module) -> int:
+    """How many parameters ``module`` holds."""
+    return sum(parameter.numel() for parameter in module.parameters())
 
 
 class OpenedPolicy(ABC):
@@ -65,6 +98,13 @@ class OpenedPolicy(ABC):
         """The flow-matching times it trains on (a :class:`~snapflow.flow.time_sampling.TimeSampler`): what its
         distillation and the cost of its training step use."""
 
+    @abstractmethod
+    def bench_subject(
+        self, name: str, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32
+    ) -> BenchSubject:
+        """This policy on ``device`` in ``dtype`` with an example batch-1 observation (made by its own processor: the
+        values do not change the timing) and fixed noise, named ``name``: what ``snapflow bench`` times."""
+
     @property
     def training_data(self) -> dict[str, Any]:
         """What its training recorded of its demonstrations (``env``, ``path``, ``val_fraction``), where it did."""
@@ -103,4 +143,4 @@ class OpenedPolicy(ABC):
             )
 
 
-__all__ = ["OpenedPolicy", "CheckpointError"]
+__all__ = ["BenchSubject", "OpenedPolicy", "CheckpointError", "parameter_count"]

@@ -122,7 +122,47 @@ register_source_kind(
 def open_policy(source: str | Path) -> OpenedPolicy:
     """The policy at ``source`` (a local folder, or a Hugging Face Hub id), opened by the first registered kind that
     recognises it; anything else is a :class:`CheckpointError` listing what a source may be. A mistyped local path
-    is named as such, never looked up on the hub."""
+    is named as such, never looked up on the hub.
+
+    Args:
+        source: a built-in checkpoint or run folder, a LeRobot policy folder or hub id (``owner/name``), or an
+            export of either.
+
+    Returns:
+        The policy with its processor, whether it was distilled, its export record if it is one, its flow-matching
+        times and :meth:`~snapflow.policies.loaded.OpenedPolicy.check_mode`.
+
+    Raises:
+        CheckpointError: nothing snapflow can open is at ``source``, or its kind's extra is not installed.
+
+    Examples:
+        A built-in MLP teacher written to a folder, opened again; a jump mode is refused by name, since it was never
+        distilled:
+
+        >>> import tempfile
+        >>> from pathlib import Path
+        >>> from snapflow import SamplingMode, SnapFlowPolicy
+        >>> from snapflow.policies.checkpoint import policy_metadata, write_policy
+        >>> from snapflow.policies.factory import default_config, make_model, make_processor
+        >>> from snapflow.policies.normalization import NormalizationStats
+        >>> from snapflow.sources import open_policy
+        >>> tasks = ["reach"]
+        >>> config = default_config("mlp", 3, 2, tasks, hidden_dim=32)  # 3 states, 2 actions
+        >>> stats = NormalizationStats([0.0] * 3, [1.0] * 3, [0.0] * 2, [1.0] * 2)
+        >>> teacher = SnapFlowPolicy(make_model(config), target_time=False)
+        >>> processor = make_processor(config, stats, tasks)
+        >>> folder = tempfile.TemporaryDirectory()
+        >>> write_policy(Path(folder.name), teacher, policy_metadata(teacher, processor))
+        >>> opened = open_policy(folder.name)
+        >>> opened.policy_type, opened.distilled
+        ('mlp', False)
+        >>> opened.resolve_mode(SamplingMode.parse("teacher")).name
+        'teacher-10'
+        >>> opened.check_mode(SamplingMode.parse("snapflow-1"))  # doctest: +IGNORE_EXCEPTION_DETAIL
+        Traceback (most recent call last):
+        CheckpointError: ... is not SnapFlow-distilled (a flow-matching teacher) ...
+        >>> folder.cleanup()
+    """
     text = str(source)
     try:
         folder = local_folder(text)

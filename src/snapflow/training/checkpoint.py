@@ -28,7 +28,7 @@ from snapflow.policies.checkpoint import (
     read_json,
     read_tensors,
     resolve_checkpoint,
-    write_policy,
+    write_weights,
 )
 from snapflow.reporting.archive import archived_hint
 from snapflow.reporting.files import write_json
@@ -38,9 +38,8 @@ TRAINING_WEIGHTS = "training_weights.safetensors"
 KEPT = "kept.json"  # beside a kept checkpoint: its name and what its keeper noted of it
 
 
-def optimizer_tensors(optimizer: torch.optim.Optimizer) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
-    """Split an optimizer state into tensors (for safetensors) and JSON-able metadata."""
-    state = optimizer.state_dict()
+def optimizer_tensors(state: dict[str, Any]) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    """Split an optimizer's ``state_dict()`` into tensors (for safetensors) and JSON-able metadata."""
     tensors = {
         f"{index}.{key}": value.contiguous()
         for index, entry in state["state"].items()
@@ -56,32 +55,39 @@ def optimizer_tensors(optimizer: torch.optim.Optimizer) -> tuple[dict[str, torch
     return tensors, {"param_groups": state["param_groups"], "scalars": scalars}
 
 
-def restore_optimizer(optimizer: torch.optim.Optimizer, directory: Path) -> None:
+def read_optimizer_state(directory: Path) -> dict[str, Any]:
+    """The optimizer ``state_dict()`` a checkpoint saved (:func:`optimizer_tensors`), its parameters by position."""
     tensors = read_tensors(directory / OPTIMIZER_STATE)
     meta = read_json(directory / TRAINER_STATE)["optimizer"]
     state: dict[int, dict[str, Any]] = {}
     for name, value in list(tensors.items()) + list(meta["scalars"].items()):
         index, key = name.split(".", 1)
         state.setdefault(int(index), {})[key] = value
+    return {"state": state, "param_groups": meta["param_groups"]}
+
+
+def restore_optimizer(directory: Path, load: Callable[[dict[str, Any]], Any]) -> None:
+    """Hand the optimizer state a checkpoint saved to ``load`` (an optimizer's ``load_state_dict``, or a sharded
+    one's loader), naming a mismatch with the trainable parameters as the checkpoint's."""
     try:
-        optimizer.load_state_dict({"state": state, "param_groups": meta["param_groups"]})
-    except (ValueError, KeyError) as error:
+        load(read_optimizer_state(directory))
+    except (ValueError, KeyError, IndexError) as error:
         raise CheckpointError(
             f"{directory}: optimizer state does not match the trainable parameters ({error})"
         ) from None
 
 
-def restore_training(
-    run_directory: Path, policy: nn.Module, optimizer: torch.optim.Optimizer
-) -> tuple[dict[str, Any], dict[str, torch.Tensor] | None]:
-    """Load the latest checkpoint of a run into ``policy`` and ``optimizer`` (the raw trained weights where it
-    saved an average as the policy); return its trainer state and that average by parameter name (None if none)."""
+def restore_weights(
+    run_directory: Path, policy: nn.Module
+) -> tuple[Path, dict[str, Any], dict[str, torch.Tensor] | None]:
+    """Load the latest checkpoint of a run into ``policy`` (the raw trained weights where it saved an average as the
+    policy); return the checkpoint, its trainer state and that average by parameter name (None if none). Its
+    optimizer state is :func:`restore_optimizer`'s, once the optimizer is made."""
     checkpoint = resolve_checkpoint(run_directory)
     load_state_strict(policy, read_tensors(checkpoint / POLICY_WEIGHTS), checkpoint / POLICY_WEIGHTS)
-    restore_optimizer(optimizer, checkpoint)
     state = {key: value for key, value in read_json(checkpoint / TRAINER_STATE).items() if key != "optimizer"}
     if not (checkpoint / TRAINING_WEIGHTS).is_file():
-        return state, None
+        return checkpoint, state, None
     raw = read_tensors(checkpoint / TRAINING_WEIGHTS)
     parameters = dict(policy.named_parameters())
     unknown = sorted(set(raw) - set(parameters))
@@ -91,24 +97,25 @@ def restore_training(
     with torch.no_grad():
         for name, value in raw.items():
             parameters[name].copy_(value)
-    return state, average
+    return checkpoint, state, average
 
 
 def save_checkpoint(
     directory: Path,
-    policy: nn.Module,
+    weights: dict[str, torch.Tensor],
     metadata: dict[str, Any],
-    optimizer: torch.optim.Optimizer | None = None,
+    optimizer_state: dict[str, Any] | None = None,
     trainer_state: dict[str, Any] | None = None,
     training_weights: dict[str, torch.Tensor] | None = None,
 ) -> Path:
-    """Write a checkpoint directory atomically (temporary sibling, then rename); ``training_weights``: the raw
-    trained weights by parameter name, where ``policy`` holds their average."""
+    """Write a checkpoint directory atomically (temporary sibling, then rename): the policy's ``weights``
+    (:func:`~snapflow.policies.checkpoint.untied_state`), an optimizer's ``state_dict()``; ``training_weights``: the
+    raw trained weights by parameter name, where ``weights`` are their average."""
     directory = Path(directory)
     temporary = _temporary_sibling(directory)
-    write_policy(temporary, policy, metadata)
-    if optimizer is not None:
-        tensors, optimizer_meta = optimizer_tensors(optimizer)
+    write_weights(temporary, weights, metadata)
+    if optimizer_state is not None:
+        tensors, optimizer_meta = optimizer_tensors(optimizer_state)
         save_file({k: v.cpu() for k, v in tensors.items()}, temporary / OPTIMIZER_STATE)
         write_json(temporary / TRAINER_STATE, {**(trainer_state or {}), "optimizer": optimizer_meta})
     if training_weights is not None:
@@ -215,5 +222,6 @@ __all__ = [
     "read_kept",
     "install_checkpoint",
     "mark_latest",
-    "restore_training",
+    "restore_optimizer",
+    "restore_weights",
 ]

@@ -11,12 +11,11 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from accelerate import PartialState
 
 from snapflow._lazy import resolve
 from snapflow.adapters.hub import check_source, fetch_hub_file
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
-from snapflow.adapters.lerobot.checkpoint import PREPROCESSOR_FILE, save_distilled, save_teacher
+from snapflow.adapters.lerobot.checkpoint import PREPROCESSOR_FILE, rebuilt_on_cpu, save_distilled, save_teacher
 from snapflow.adapters.lerobot.data import ActionChunks, LeRobotChunkData
 from snapflow.adapters.lerobot.dataset import policy_features
 from snapflow.adapters.lerobot.local_vlm import bundle_vlm, saved_processors
@@ -27,6 +26,7 @@ from snapflow.adapters.lerobot_types import lerobot_policy_type, lerobot_teacher
 from snapflow.data.demonstrations import split_episodes
 from snapflow.errors import InvalidInputError
 from snapflow.objective.base import TwoBranchObjective
+from snapflow.objective.settings import DistillSettings
 from snapflow.objective.snapflow import SnapFlowObjective
 from snapflow.policies.checkpoint import POLICY_WEIGHTS, load_state_strict, read_tensors, resolve_checkpoint
 from snapflow.policies.loaded import CheckpointError
@@ -34,8 +34,7 @@ from snapflow.reporting.locks import hold_run_lock
 from snapflow.reporting.records import as_record
 from snapflow.sources import LEROBOT_EXPORT_DIRECTORY, LEROBOT_RUN_FORMAT, open_policy
 from snapflow.training.config import VAL_FRACTION, TrainConfig, paper_training
-from snapflow.training.recipes import DistillSettings
-from snapflow.training.trainer import train
+from snapflow.training.trainer import launch_state, train
 
 SMOLVLM_DIRECTORY = "smolvlm"  # the teacher's SmolVLM config and tokenizer, which its exported config points at
 DATASET_INFO = "meta/info.json"  # LeRobot's INFO_PATH: the first file of a LeRobotDataset it reads
@@ -115,28 +114,27 @@ def distill_lerobot(
     preprocessor_overrides: dict[str, Any] | None = None,
     val_fraction: float | None = None,
     keep_progress: str | Path | None = None,
+    shard: bool = False,
 ) -> dict[str, Any]:
     """Distill a LeRobot policy of a declared type (hub id or local pretrained directory) on the LeRobotDataset
     ``repo_id`` at ``dataset_root`` (None: LeRobot's cache, fetched from the hub if missing);
     ``preprocessor_overrides`` reach LeRobot's processor loader (e.g. a local tokenizer). ``val_fraction`` of each
-    task's episodes is held out (default: what a teacher snapflow trained held out, else none). ``keep_progress``: as
-    :func:`~snapflow.training.trainer.train`'s.
+    task's episodes is held out (default: what a teacher snapflow trained held out, else none). ``keep_progress`` and
+    ``shard``: as :func:`~snapflow.training.trainer.train`'s. ``settings`` are those ``lerobot-train`` takes in a
+    student's config (:func:`~snapflow.adapters.lerobot.plugin.configuration_snapflow.check_student_settings` refuses
+    the rest), which the exported student's config holds.
 
     ``output`` is held from loading to export: another process writing it is refused at once with
     :class:`~snapflow.reporting.locks.RunLockedError`."""
+    from snapflow.adapters.lerobot.plugin.configuration_snapflow import check_student_settings
+
     settings = settings or DistillSettings()
     config = config or paper_training()
-    if not settings.freeze_prefix:
-        raise InvalidInputError("LeRobot policies are distilled with their VLM frozen, as in the paper")
-    if settings.method != "snapflow" or not settings.target_time:
-        raise InvalidInputError(
-            "LeRobot policies are distilled with SnapFlow and its target-time embedding; "
-            "the baselines and the no-phi_s ablation run on the built-in policies (snapflow train --policy-type ...)"
-        )
+    check_student_settings(settings)  # what lerobot-train refuses too
     check_dataset(dataset_root, repo_id)
     # held here, not only by `train`, so that the export is inside the hold and a refusal comes before the loading;
     # only the main process of a launch writes, so only it holds the folder (`train` nests inside this hold)
-    with hold_run_lock(output, DISTILL_HOLDER) if PartialState().is_main_process else nullcontext():
+    with hold_run_lock(output, DISTILL_HOLDER) if launch_state().is_main_process else nullcontext():
         return _distill_lerobot(
             policy_path,
             dataset_root,
@@ -149,6 +147,7 @@ def distill_lerobot(
             preprocessor_overrides,
             val_fraction,
             keep_progress,
+            shard,
         )
 
 
@@ -194,7 +193,7 @@ def train_lerobot_teacher(
         )
     adapter_type = adapter_class(policy_type)  # too old a LeRobot is named before the dataset is read
     check_dataset(dataset_root, repo_id)
-    with hold_run_lock(output, TEACHER_HOLDER) if PartialState().is_main_process else nullcontext():
+    with hold_run_lock(output, TEACHER_HOLDER) if launch_state().is_main_process else nullcontext():
         from lerobot.configs.types import FeatureType
         from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
         from lerobot.policies.factory import make_pre_post_processors
@@ -243,7 +242,7 @@ def train_lerobot_teacher(
             resume,
             progress,
             keep_progress,
-            lambda folder: save_teacher(adapter, folder, val_fraction),
+            lambda trained, folder: save_teacher(trained, folder, val_fraction),
         )
 
 
@@ -260,11 +259,13 @@ def _train_and_export(
     resume: bool,
     progress: bool,
     keep_progress: str | Path | None,
-    save: Callable[[Path], Path],
+    save: Callable[[LeRobotFlowPolicy, Path], Path],
+    shard: bool = False,
 ) -> dict[str, Any]:
     """The one trainer on LeRobot's pre-processed batches of ``dataset`` (``holder``: the command holding
-    ``output``), then ``save`` of the result into ``output/lerobot_policy`` with the processors beside it: the weight
-    average where the run keeps one (``config.ema_decay``), else the trained weights."""
+    ``output``), then ``save`` of the result into ``output/lerobot_policy`` with the processors beside it, by the main
+    process: the weight average where the run keeps one (``config.ema_decay``), else the trained weights (those of a
+    student trained sharded, whole in its last checkpoint, loaded into a copy of it rebuilt on the CPU)."""
     preprocessor, postprocessor = processors
     state = train(
         adapter,
@@ -279,11 +280,15 @@ def _train_and_export(
         progress=progress,
         holder=holder,
         keep_progress=keep_progress,
+        shard=shard,
     )
-    if config.ema_decay is not None:  # the weight average is the policy, as the run's checkpoints hold it
+    if not launch_state().is_main_process:
+        return state
+    trained = rebuilt_on_cpu(adapter) if shard else adapter
+    if shard or config.ema_decay is not None:  # the policy as the run's last checkpoint holds it
         checkpoint = resolve_checkpoint(output)
-        load_state_strict(adapter, read_tensors(checkpoint / POLICY_WEIGHTS), checkpoint / POLICY_WEIGHTS)
-    export = save(Path(output) / LEROBOT_EXPORT_DIRECTORY)
+        load_state_strict(trained, read_tensors(checkpoint / POLICY_WEIGHTS), checkpoint / POLICY_WEIGHTS)
+    export = save(trained, Path(output) / LEROBOT_EXPORT_DIRECTORY)
     preprocessor.save_pretrained(export)
     postprocessor.save_pretrained(export)
     bundle_vlm(export)  # a SmolVLM written locally travels inside the folder: it opens on any machine
@@ -302,6 +307,7 @@ def _distill_lerobot(
     preprocessor_overrides: dict[str, Any] | None,
     val_fraction: float | None,
     keep_progress: str | Path | None,
+    shard: bool,
 ) -> dict[str, Any]:
     """:func:`distill_lerobot` with the output held."""
     from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
@@ -319,6 +325,7 @@ def _distill_lerobot(
     check_finite(dataset.dataset, [key for key, feature in features.items() if feature.type.name != "VISUAL"])
     preprocessor, postprocessor = policy_processors(policy, policy_path, metadata.stats, preprocessor_overrides)
     objective = settings.objective(opened.time_sampler)
+    adapter.train_prefix = not settings.freeze_prefix
     run_metadata = {
         "format": LEROBOT_RUN_FORMAT,
         "policy": adapter.policy_type,
@@ -333,7 +340,7 @@ def _distill_lerobot(
         objective,
         dataset,
         (preprocessor, postprocessor),
-        adapter.expert_parameters(),
+        adapter.expert_parameters() if settings.freeze_prefix else list(adapter.parameters()),
         config,
         output,
         DISTILL_HOLDER,
@@ -341,7 +348,8 @@ def _distill_lerobot(
         resume,
         progress,
         keep_progress,
-        lambda folder: save_distilled(adapter, folder, val_fraction),
+        lambda trained, folder: save_distilled(trained, folder, val_fraction, settings),
+        shard,
     )
 
 

@@ -1,6 +1,6 @@
 """A LeRobot teacher made ready for ``lerobot-train`` to distil: the same weights typed as its SnapFlow student
-(``snapflow_<type>``, phi_s at zero, ``distilled`` false), the distillation settings in its config, the teacher's
-processors beside it. ``lerobot-train --policy.path=<that folder>`` then runs SnapFlow distillation with LeRobot's
+(``snapflow_<type>``, phi_s at zero, ``distilled`` false), the distillation settings in its config's ``distill``,
+the teacher's processors beside it. ``lerobot-train --policy.path=<that folder>`` then runs SnapFlow distillation with LeRobot's
 own trainer, optimiser, Accelerate, logging and hub push (the student type's ``forward`` is the objective,
 :mod:`snapflow.adapters.lerobot.plugin.modeling_snapflow`)."""
 
@@ -8,42 +8,18 @@ from __future__ import annotations
 
 import shutil
 import sys
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 from snapflow.adapters.lerobot.local_vlm import bundle_vlm
-from snapflow.adapters.lerobot.plugin.configuration_snapflow import DISTILL_OPTIONS, SnapFlowSampling
+from snapflow.adapters.lerobot.plugin.configuration_snapflow import SnapFlowSampling, check_student_settings
 from snapflow.adapters.lerobot_commands import run_lerobot_command
 from snapflow.adapters.lerobot_config import VIDEO_BACKEND
 from snapflow.errors import InvalidInputError
+from snapflow.objective.settings import DistillSettings
 from snapflow.policies.loaded import CheckpointError
 from snapflow.sources import open_policy
 from snapflow.training.config import TrainConfig
-from snapflow.training.recipes import DistillSettings
-
-# what lerobot-train runs beyond the settings a student's config holds: the paper's method as snapflow distils a
-# LeRobot policy itself (training.lerobot.distill_lerobot refuses the rest too)
-_FIXED = DistillSettings()
-
-
-def student_fields(settings: DistillSettings) -> dict[str, Any]:
-    """``settings`` as a student config's ``distill_*`` fields; a setting those fields cannot hold (another method
-    or target, the ablations, a schedule of target steps, a trained prefix) is refused by name."""
-    held = {name: getattr(settings, name) for name in DISTILL_OPTIONS}
-    if not isinstance(settings.target_steps, int):
-        raise InvalidInputError("a LeRobot student's config holds one number of target steps, not a schedule")
-    if replace(settings, **{name: getattr(_FIXED, name) for name in DISTILL_OPTIONS}) != _FIXED:
-        raise InvalidInputError(
-            "lerobot-train distils with SnapFlow's Euler target, phi_s, the model's marginal velocity and the VLM "
-            f"frozen; only {', '.join(DISTILL_OPTIONS)} may differ from the paper's settings"
-        )
-    return {f"distill_{name}": value for name, value in held.items()}
-
-
-def config_settings(config: SnapFlowSampling) -> DistillSettings:
-    """The distillation settings a student's config holds, as snapflow's own distillation reads them."""
-    return DistillSettings(**config.distill_options())
 
 
 def write_student(
@@ -55,18 +31,20 @@ def write_student(
     """The LeRobot policy of a declared type at ``policy_path`` (hub id or folder) written to ``output`` as its SnapFlow
     student, ready for ``lerobot-train --policy.path=output``: its weights with phi_s at zero (bit for bit the
     teacher), its config typed ``snapflow_<type>`` with ``distilled`` false (it refuses ``snapflow-N`` until trained)
-    and ``settings`` (default: the paper's) as its ``distill_*`` fields, and the teacher's own processors (built
+    and ``settings`` (default: the paper's) as its ``distill``, and the teacher's own processors (built
     from its config when its folder has none; ``lerobot-train`` gives them the dataset's statistics). A SmolVLM the
     teacher reads from a local folder is copied inside, its tokenizer carried by the pre-processor
     (:func:`~snapflow.adapters.lerobot.local_vlm.bundle_vlm`), so that LeRobot's tools take ``output`` from any
     working directory.
 
     A student given as ``policy_path`` keeps its phi_s and its ``distilled`` record: training it again continues
-    the distillation."""
+    the distillation, a run of its own (its count of steps, ``steps_distilled``, and the steps a schedule spreads
+    over, ``distill_steps``, start again)."""
     from snapflow.adapters.lerobot.plugin import student_config
     from snapflow.training.lerobot import policy_processors
 
-    fields = student_fields(settings or DistillSettings())
+    settings = settings or DistillSettings()
+    check_student_settings(settings)
     opened = open_policy(policy_path)
     if opened.exported:
         raise CheckpointError(f"{policy_path} is an {opened.export['format']} export: it runs, it does not train")
@@ -74,8 +52,7 @@ def write_student(
     config = student_config(policy.config)
     if not isinstance(policy.config, SnapFlowSampling):
         config.distilled = False
-    for name, value in fields.items():
-        setattr(config, name, value)
+    config.distill, config.distill_steps, config.steps_distilled = settings, None, 0
     output = Path(output)
     policy.save_pretrained(output)
     config._save_pretrained(output)
@@ -91,7 +68,8 @@ LAST_CHECKPOINT = Path("checkpoints") / "last" / "pretrained_model"
 
 def lerobot_train_arguments(config: TrainConfig, training_episodes: list[int] | None) -> list[str]:
     """``config`` as ``lerobot-train`` flags (its AdamW, warm-up and cosine decay to ``min_learning_rate_ratio`` of
-    the peak, clipping, checkpoints, logs; ``training_episodes``: the dataset's episodes it trains on, None for all).
+    the peak, clipping, checkpoints, logs; the steps a schedule of target steps spreads over, the student's
+    ``distill_steps``; ``training_episodes``: the dataset's episodes it trains on, None for all).
     What LeRobot's trainer has no flag for (a weight average, mixed precision from here) is refused by name."""
     if config.ema_decay is not None or config.mixed_precision != "no":
         raise InvalidInputError(
@@ -110,6 +88,7 @@ def lerobot_train_arguments(config: TrainConfig, training_episodes: list[int] | 
         f"--policy.scheduler_warmup_steps={config.warmup_steps}",
         f"--policy.scheduler_decay_steps={config.steps}",
         f"--policy.scheduler_decay_lr={config.learning_rate * config.min_learning_rate_ratio}",
+        f"--policy.distill_steps={config.steps}",
     ]
     if training_episodes is not None:
         arguments.append(f"--dataset.episodes=[{','.join(str(episode) for episode in training_episodes)}]")
@@ -165,9 +144,7 @@ def run_lerobot_train(
 
 __all__ = [
     "LAST_CHECKPOINT",
-    "config_settings",
     "lerobot_train_arguments",
     "run_lerobot_train",
-    "student_fields",
     "write_student",
 ]

@@ -15,17 +15,16 @@ import torch
 from snapflow.data.chunks import split_chunk_data
 from snapflow.data.demonstrations import Demonstrations
 from snapflow.errors import InvalidInputError
+from snapflow.flow.time_sampling import time_sampler_for
 from snapflow.nn.snapflow_policy import SnapFlowPolicy
 from snapflow.objective.snapflow import SnapFlowObjective
-from snapflow.policies.checkpoint import BUILTIN_TIME_SAMPLER, load_policy, policy_metadata
+from snapflow.policies.checkpoint import load_policy, policy_metadata
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.policies.factory import default_config, fit_processor, make_model
 from snapflow.reporting.records import as_record
 from snapflow.training.config import TEACHER_TRAINING, VAL_FRACTION, TrainConfig
 from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES, DistillSettings
 from snapflow.training.trainer import train
-
-# the built-in policies train on U(0, 1) flow-matching times
 
 
 def policy_config_for(
@@ -42,6 +41,12 @@ def policy_config_for(
     )
 
 
+def teacher_objective(config: TrainConfig) -> SnapFlowObjective:
+    """A built-in teacher's objective: plain flow matching (alpha = 1) at times drawn from ``config``'s
+    ``time_distribution``."""
+    return SnapFlowObjective(alpha=1.0, time_sampler=time_sampler_for(config.time_distribution))
+
+
 def train_teacher(
     data: str | Path,
     output: str | Path,
@@ -53,8 +58,9 @@ def train_teacher(
     on_checkpoint: Callable[[Path], None] | None = None,
     keep_progress: str | Path | None = None,
 ) -> dict[str, Any]:
-    """Plain flow matching (alpha = 1) of the registered policy ``policy_config`` configures, on the demonstrations;
-    normalisation from the training episodes. ``on_checkpoint``, ``keep_progress``: as :func:`~snapflow.training.trainer.train`'s."""
+    """Plain flow matching (alpha = 1) of the registered policy ``policy_config`` configures, on the demonstrations,
+    at times drawn from ``config.time_distribution`` (recorded in the checkpoint); normalisation from the training
+    episodes. ``on_checkpoint``, ``keep_progress``: as :func:`~snapflow.training.trainer.train`'s."""
     if not 0 <= val_fraction < 1:
         raise InvalidInputError(f"val_fraction must be in [0, 1), got {val_fraction}")
     demonstrations = Demonstrations.load(data)
@@ -68,11 +74,11 @@ def train_teacher(
         processor,
         stage="teacher",
         data={"path": str(data), "val_fraction": val_fraction, "env": demonstrations.env},
+        time_distribution=config.time_distribution,
     )
-    objective = SnapFlowObjective(alpha=1.0, time_sampler=BUILTIN_TIME_SAMPLER)
     return train(
         policy,
-        objective,
+        teacher_objective(config),
         train_data,
         val_data,
         config,
@@ -97,12 +103,16 @@ def distill(
     progress: bool = True,
     on_checkpoint: Callable[[Path], None] | None = None,
     keep_progress: str | Path | None = None,
+    shard: bool = False,
 ) -> dict[str, Any]:
     """SnapFlow (or a baseline, see ``DistillSettings``): the student starts as the teacher plus a zero-initialised
-    phi_s; prefix frozen by default. ``config`` and ``settings`` default to the default recipe's
-    (:data:`~snapflow.training.recipes.RECIPES`). ``on_checkpoint``, ``keep_progress``: as :func:`~snapflow.training.trainer.train`'s."""
+    phi_s; prefix frozen by default; its flow-matching rows draw the teacher's own times (its checkpoint's
+    ``time_distribution``, recorded in the student's too). ``config`` and ``settings`` default to the default recipe's
+    (:data:`~snapflow.training.recipes.RECIPES`). ``on_checkpoint``, ``keep_progress``, ``shard``: as
+    :func:`~snapflow.training.trainer.train`'s."""
     recipe = RECIPES[DEFAULT_RECIPE]
     config, settings = config or recipe.train, settings or recipe.distill
+    config.check_student("distill")
     loaded = load_policy(teacher, target_time=settings.target_time)
     demonstrations = Demonstrations.load(data)
     if val_fraction is None:
@@ -116,6 +126,7 @@ def distill(
         teacher=str(loaded.path),
         distill=as_record(settings),
         data={"path": str(data), "val_fraction": val_fraction, "env": demonstrations.env},
+        time_distribution=loaded.time_distribution,
     )
     trainable = policy.expert_parameters() if settings.freeze_prefix else None
     return train(
@@ -132,7 +143,8 @@ def distill(
         holder="snapflow distill",
         on_checkpoint=on_checkpoint,
         keep_progress=keep_progress,
+        shard=shard,
     )
 
 
-__all__ = ["policy_config_for", "train_teacher", "distill"]
+__all__ = ["policy_config_for", "teacher_objective", "train_teacher", "distill"]

@@ -26,7 +26,7 @@ from snapflow.adapters.lerobot.rtc import rtc_processor_in_force, sample_with_rt
 from snapflow.adapters.lerobot_config import SmolVLMSize
 from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SamplingMode
-from snapflow.flow.time_sampling import BetaTimeSampler
+from snapflow.flow.time_sampling import BetaTimeSampler, TimeSampler
 from snapflow.nn.time_embedding import TargetTimeEmbedding
 from snapflow.protocol import map_tensors
 
@@ -194,7 +194,7 @@ class LeRobotFlowPolicy(nn.Module, ABC):
         return make_env_pre_post_processors(env_config, config)
 
     @classmethod
-    def training_time_sampler(cls, config: Any) -> BetaTimeSampler:
+    def training_time_sampler(cls, config: Any) -> TimeSampler:
         """The flow-matching times a policy of ``config`` trains on, read from its config where LeRobot keeps
         them (pi0 / pi0.5: ``time_sampling_beta_alpha`` / ``_beta``); SmolVLA's code fixes Beta(1.5, 1). Every one
         shifts them into [0.001, 1]."""

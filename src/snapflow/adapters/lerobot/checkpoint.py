@@ -4,6 +4,7 @@ distilled, and the share of each task's episodes its training held out (for offl
 
 from __future__ import annotations
 
+import copy
 import json
 from pathlib import Path
 from typing import Any
@@ -15,6 +16,7 @@ from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
 from snapflow.adapters.lerobot.local_vlm import resolve_config
 from snapflow.adapters.lerobot.registry import adapter_class, base_policy_type, wrap_policy
 from snapflow.flow.modes import SNAPFLOW_1, SamplingMode
+from snapflow.objective.settings import DistillSettings
 from snapflow.policies.checkpoint import CheckpointError, load_state_strict, read_tensors
 from snapflow.reporting.files import write_json
 
@@ -64,15 +66,33 @@ def read_marker(directory: str | Path) -> dict | None:
     return content
 
 
-def save_distilled(adapter: LeRobotFlowPolicy, directory: str | Path, val_fraction: float = 0.0) -> Path:
+def save_distilled(
+    adapter: LeRobotFlowPolicy,
+    directory: str | Path,
+    val_fraction: float = 0.0,
+    settings: DistillSettings | None = None,
+) -> Path:
     """The distilled policy in LeRobot's layout, its config typed as its SnapFlow student (sampling one step), so
-    LeRobot's ``lerobot-eval --policy.path`` loads it through snapflow's plugin."""
+    LeRobot's ``lerobot-eval --policy.path`` loads it through snapflow's plugin.
+
+    Args:
+        adapter: the distilled adapter (:func:`wrap_policy` of a LeRobot policy, trained).
+        directory: the folder to write (``config.json``, ``model.safetensors`` and snapflow's marker).
+        val_fraction: the share of each task's episodes its training held out, recorded for evaluation.
+        settings: what it was distilled with, in its config's ``distill`` (what ``lerobot-train`` on it goes on
+            with); None: the config's own.
+
+    Returns:
+        ``directory``, which :func:`load_distilled` and ``lerobot-eval --policy.path`` open.
+    """
     from snapflow.adapters.lerobot.plugin import student_config
 
     directory = Path(directory)
     adapter.policy.save_pretrained(directory)
     config = student_config(adapter.policy.config)
     config.distilled = True
+    if settings is not None:
+        config.distill = settings
     config._save_pretrained(directory)
     _write_marker(directory, adapter.policy_type, True, val_fraction)
     return directory
@@ -94,10 +114,33 @@ def save_teacher(adapter: LeRobotFlowPolicy, directory: str | Path, val_fraction
     return directory
 
 
+def rebuilt_on_cpu(adapter: LeRobotFlowPolicy) -> LeRobotFlowPolicy:
+    """The adapter's policy built again from its config on the CPU, random weights and a fresh phi_s, for whole
+    weights to be loaded into (a student trained sharded over several devices, exported from one process). It keeps
+    the trained policy's config, the device it names included."""
+    config = copy.copy(adapter.policy.config)
+    config.device = "cpu"  # LeRobot's policies move themselves to their config's device as they are built
+    plain = type(adapter.policy)(config)
+    plain.config = adapter.policy.config
+    return wrap_policy(plain)
+
+
 def load_distilled(directory: str | Path, mode: SamplingMode = SNAPFLOW_1) -> LeRobotFlowPolicy:
     """Rebuild a saved SnapFlow policy as its student type, load every tensor strictly, and make LeRobot's own
-    action API sample with ``mode`` (SnapFlow 1-NFE by default), in eval mode. (LeRobot's ``from_pretrained`` loads a plain
-    SmolVLA non-strictly, so on its own it would silently drop phi_s and give back the teacher.)"""
+    action API sample with ``mode``, in eval mode. (LeRobot's ``from_pretrained`` loads a plain SmolVLA
+    non-strictly, so on its own it would silently drop phi_s and give back the teacher.)
+
+    Args:
+        directory: a folder :func:`save_distilled` wrote.
+        mode: how LeRobot's ``select_action`` / ``predict_action_chunk`` sample (SnapFlow 1-NFE by default).
+
+    Returns:
+        The student's adapter; ``adapter.policy`` is the LeRobot policy.
+
+    Raises:
+        CheckpointError: the folder is not a distilled policy (no marker, a teacher's, or a config of another
+            type than its marker's).
+    """
     from snapflow.adapters.lerobot.plugin import student_config, student_policy
 
     directory = Path(directory)
@@ -170,6 +213,7 @@ __all__ = [
     "read_marker",
     "save_distilled",
     "save_teacher",
+    "rebuilt_on_cpu",
     "load_distilled",
     "load_pretrained_policy",
 ]

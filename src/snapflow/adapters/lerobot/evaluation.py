@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch import Tensor
+from torch import Tensor, nn
 
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy, lerobot_observation
 from snapflow.adapters.lerobot.checkpoint import (
@@ -31,16 +31,19 @@ from snapflow.adapters.lerobot.checkpoint import (
 from snapflow.adapters.lerobot.dataset import IMAGE_PREFIX, STATE
 from snapflow.adapters.lerobot.local_vlm import bundled_vlm, saved_processors
 from snapflow.adapters.lerobot.registry import (
+    base_policy_type,
     lerobot_chunk_shape,
     lerobot_own_steps,
     lerobot_time_sampler,
     wrap_policy,
 )
+from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES
 from snapflow.errors import InvalidInputError
-from snapflow.flow.time_sampling import BetaTimeSampler
+from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1
+from snapflow.flow.time_sampling import TimeSampler
 from snapflow.inference.formats import export_format, export_record
 from snapflow.policies.checkpoint import load_export
-from snapflow.policies.loaded import CheckpointError, OpenedPolicy
+from snapflow.policies.loaded import BenchSubject, CheckpointError, OpenedPolicy, parameter_count
 from snapflow.reporting.files import atomic_write, write_json
 
 
@@ -139,6 +142,14 @@ class LoadedLeRobotPolicy(OpenedPolicy):
     path: Path
     marker: dict[str, Any]
 
+    @classmethod
+    def of_model(cls, model: nn.Module, path: Path, distilled: bool) -> LoadedLeRobotPolicy:
+        """LeRobot's policy ``model`` of a declared type, built in memory (random weights at full size, a test's tiny
+        one) under its adapter, phi_s included; ``distilled`` says whether its jump modes are SnapFlow's."""
+        adapter = model if isinstance(model, LeRobotFlowPolicy) else wrap_policy(model)
+        config = adapter.policy.config
+        return cls(adapter, config, path, marker_of(config.type, distilled, 0.0))
+
     @cached_property
     def processor(self) -> LeRobotProcessor:  # type: ignore[override]
         self.config.device = "cpu"
@@ -167,12 +178,53 @@ class LoadedLeRobotPolicy(OpenedPolicy):
         return lerobot_own_steps(self.config)
 
     @property
-    def time_sampler(self) -> BetaTimeSampler:
+    def time_sampler(self) -> TimeSampler:
         return lerobot_time_sampler(self.config)
 
     @property
     def val_fraction(self) -> float:  # type: ignore[override]
         return self.marker.get("val_fraction", 0.0)
+
+    def bench_subject(
+        self, name: str, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32
+    ) -> BenchSubject:
+        """The adapter's example observation (every camera, the prompt at its full length: the most a prefix costs)
+        and fixed noise; an export runs its one jump, on the CPU in float32 as it was traced."""
+        declared = LEROBOT_POLICY_TYPES.get(base_policy_type(self.config))
+        paper = declared.paper_latency if declared else None
+        if self.exported:
+            noise = torch.randn(1, *lerobot_chunk_shape(self.config))
+            observation = lerobot_observation(self.config, torch.device("cpu"))
+            details = {"policy_type": self.config.type, self.export["format"]: self.export}
+            only = (SNAPFLOW_1,)
+            return BenchSubject(name, self.policy, observation, noise, self.time_sampler, details, SNAPFLOW_1, only)
+        device, adapter, config = torch.device(device), self.policy, self.config
+        config.device = str(device)
+        adapter.to(device)
+        if dtype != torch.float32:
+            adapter.run_in(dtype)
+        adapter.eval()
+        details = {
+            "parameters": parameter_count(adapter),
+            "expert_parameters": parameter_count(nn.ModuleList(adapter.expert_modules())),
+            "policy_type": adapter.policy_type,
+            "chunk_size": adapter.action_shape[0],
+            "tokens": getattr(config, "tokenizer_max_length", None),  # GR00T's prompt has no fixed length
+            "cameras": list(config.image_features),
+        }
+        return BenchSubject(
+            name,
+            adapter,
+            adapter.example_observation(device),
+            torch.randn(1, *adapter.action_shape, device=device),
+            self.time_sampler,
+            details,
+            # never distilled (a teacher, or a student type whose config says so): its one step is the naive one
+            SNAPFLOW_1 if self.distilled else NAIVE_1,
+            dtype=dtype,
+            own_steps=type(adapter).own_steps(config),
+            paper_latency=paper,
+        )
 
     def export_to(self, output: str | Path, format: str) -> dict[str, Any]:
         """Export this distilled policy to ``output`` in ``format``: its one-step graph over the pre-processed batch,

@@ -13,7 +13,7 @@ from snapflow._lazy import resolve
 from snapflow.adapters.lerobot.base import LeRobotFlowPolicy
 from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES, lerobot_policy_type
 from snapflow.errors import InvalidInputError
-from snapflow.flow.time_sampling import BetaTimeSampler
+from snapflow.flow.time_sampling import TimeSampler
 
 
 def adapter_class(policy_type: str) -> type[LeRobotFlowPolicy]:
@@ -34,7 +34,7 @@ def base_policy_type(config: Any) -> str:
     return getattr(config, "base_type", config.type)
 
 
-def lerobot_time_sampler(config: Any) -> BetaTimeSampler:
+def lerobot_time_sampler(config: Any) -> TimeSampler:
     """The flow-matching times a LeRobot policy (or a student) of ``config`` trains on, as its adapter reads them."""
     return adapter_class(base_policy_type(config)).training_time_sampler(config)
 
@@ -61,7 +61,41 @@ def lerobot_env_processors(env_config: Any, config: Any) -> tuple[Any, Any]:
 
 def wrap_policy(policy: nn.Module) -> LeRobotFlowPolicy:
     """The SnapFlow adapter for a LeRobot policy of a declared type (phi_s added at zero), or for a SnapFlow
-    student of one (its phi_s kept)."""
+    student of one (its phi_s kept).
+
+    Args:
+        policy: a LeRobot policy (``SmolVLAPolicy``, ``PI0Policy``, ...) of a type
+            :mod:`snapflow.adapters.lerobot_types` declares, or a student of one.
+
+    Returns:
+        The policy as a :class:`~snapflow.protocol.FlowPolicy`; it holds ``policy``, edited in place (phi_s
+        attached, its time embedding's method replaced on the instance), never copied.
+
+    Raises:
+        InvalidInputError: its type is not one snapflow declares, or the installed LeRobot is older than the
+            type's adapter follows.
+
+    Examples:
+        Shown, not run: it needs LeRobot (``pip install "snapflow-vla[lerobot]"``) and the policy's weights from the
+        hub. ``batch`` is one batch of the policy's dataset after LeRobot's own pre-processor.
+
+        ```python
+        from snapflow import SNAPFLOW_1, SnapFlowObjective
+        from snapflow.adapters.lerobot import (
+            load_pretrained_policy,
+            save_distilled,
+            wrap_policy,
+        )
+
+        teacher = load_pretrained_policy("lerobot/smolvla_base")
+        student = wrap_policy(teacher)  # bit-identical to the teacher at init
+        actions = student.action_targets(batch)
+        loss = SnapFlowObjective()(student, batch, actions).loss
+        loss.backward()  # an optimiser's step over student.expert_parameters()
+        student.use_sampling_mode(SNAPFLOW_1)  # LeRobot's select_action: one jump
+        save_distilled(student, "smolvla-student")  # lerobot-eval loads it
+        ```
+    """
     return adapter_class(base_policy_type(policy.config))(policy)
 
 

@@ -29,6 +29,7 @@ class EvalJob(Job):
     the held-out demonstrations; its record, at ``path``, holds the evaluation row."""
 
     kind: ClassVar[str] = "eval"
+    uses_gpu: ClassVar[bool] = True
     policy: TrainJob
     mode: SamplingMode
     n_act: int
@@ -162,8 +163,11 @@ class EvalJob(Job):
     def describe(self) -> str:
         policy = self.policy
         by = f", by {self.evaluator}" if self.by_lerobot_eval else ""
+        # named only where it is not the first, so that the descriptions of every committed sweep read as they did
+        start = f"; from variation {self.first_variation}" if self.first_variation else ""
         return (
-            f"{policy.sweep}: evaluate {policy.run_name} seed {policy.seed} ({self.mode.name}; n_act {self.n_act}{by})"
+            f"{policy.sweep}: evaluate {policy.run_name} seed {policy.seed} "
+            f"({self.mode.name}; n_act {self.n_act}{start}{by})"
         )
 
 

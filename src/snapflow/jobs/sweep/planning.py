@@ -9,6 +9,8 @@ from __future__ import annotations
 from contextlib import ExitStack
 from dataclasses import replace
 
+from snapflow.families import family_of
+from snapflow.jobs.backends import Backend
 from snapflow.jobs.runner import Job, run_jobs, to_run
 from snapflow.jobs.sweep.data_jobs import RECORD, CollectJob, DataJob, LeRobotDatasetJob
 from snapflow.jobs.sweep.eval_jobs import EvalJob
@@ -29,8 +31,8 @@ def data_job(config: SweepConfig) -> DataJob:
 
 
 def train_job(config: SweepConfig, run: str, seed: int) -> TrainJob:
-    """Run ``run`` of the sweep on ``seed``, a student with its teacher's job of the same seed; a LeRobot run (a
-    LeRobot teacher or its student) reads the demonstrations as a LeRobotDataset."""
+    """Run ``run`` of the sweep on ``seed``, a student with its teacher's job of the same seed; a run of a family that
+    reads a LeRobotDataset (a LeRobot teacher or its student) reads the demonstrations written as one."""
     spec = config.runs[run]
     teacher = train_job(config, spec.teacher, seed) if spec.teacher is not None else None
     train = replace(spec.train, seed=seed)
@@ -38,20 +40,19 @@ def train_job(config: SweepConfig, run: str, seed: int) -> TrainJob:
     ledger = config.ledger_path(directory / RECORD)
     kept = ledger.parent / "checkpoint" if spec.commit_checkpoint else None
     data = data_job(config)
-    lerobot = spec.lerobot is not None or (teacher is not None and teacher.dataset is not None)
-    dataset = LeRobotDatasetJob(config.name, config.lerobot_dataset_dir, data) if lerobot else None
+    family = teacher.family if teacher is not None else family_of(spec.spec)
+    dataset = LeRobotDatasetJob(config.name, config.lerobot_dataset_dir, data) if family.reads_dataset else None
     return TrainJob(
         config.name,
         run,
         directory,
         data,
         train,
-        spec.policy,
+        spec.spec,
         teacher,
         spec.distill,
         ledger,
         kept,
-        spec.lerobot,
         spec.trainer,
         dataset,
     )
@@ -92,12 +93,17 @@ def plan(config: SweepConfig) -> list[Job]:
 
 
 def run_sweeps(
-    configs: list[SweepConfig], workers: int = 1, progress: bool = True, threads: int | None = None
+    configs: list[SweepConfig],
+    workers: int = 1,
+    progress: bool = True,
+    threads: int | None = None,
+    backend: Backend | None = None,
 ) -> dict[str, float]:
-    """Run every job of the sweeps that is not done on ``workers`` processes (each on ``threads`` torch threads,
-    by default cores / workers), a ready evaluation first, then earlier
-    pipeline stages first across the sweeps (their jobs are the longest and unblock the others); returns each job's
-    wall time (s).
+    """Run every job of the sweeps that is not done on ``backend`` (default: processes on this machine), ``workers``
+    side by side (each on ``threads`` torch threads, by default the backend's cores / workers), a ready evaluation
+    first, then earlier pipeline stages first across the sweeps (their jobs are the longest and unblock the others);
+    returns each job's wall time (s). Every worker must see each sweep's output_dir and results_dir (its ledger) as
+    this process does: the backend checks it before any job starts.
 
     Each sweep's output_dir is held from planning to the last job: a second sweep over the same folder is refused at
     once with :class:`~snapflow.reporting.locks.RunLockedError` (the workers hold their jobs' own folders).
@@ -109,9 +115,9 @@ def run_sweeps(
                     config.output_dir, "snapflow sweep", "wait for it to finish or give the sweep another output_dir"
                 )
             )
-        return run_jobs(
-            [job for config in configs for job in plan(config)], workers, progress, description="sweep", threads=threads
-        )
+        planned = [job for config in configs for job in plan(config)]
+        shared = [folder for config in configs for folder in (config.output_dir, config.results_dir)]
+        return run_jobs(planned, workers, progress, "sweep", threads, backend, shared)
 
 
 __all__ = ["data_job", "train_job", "eval_job", "jobs", "plan", "run_sweeps"]

@@ -5,59 +5,30 @@ from __future__ import annotations
 
 import re
 import tomllib
-from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
-from snapflow.adapters.lerobot_config import SMOLVLM_SIZES, VIDEO_CODECS, VideoEncoding
-from snapflow.adapters.lerobot_types import lerobot_teachers
+from snapflow.adapters.lerobot_config import VIDEO_CODECS, VideoEncoding
 from snapflow.data.demonstrations import check_action_noise
 from snapflow.envs.factory import DEFAULT_BENCHMARK, make_benchmark
 from snapflow.errors import InvalidInputError
 from snapflow.evaluation.config import N_ACT
+from snapflow.families import FAMILIES, family_of
 from snapflow.flow.modes import SamplingMode
 from snapflow.jobs.demo import EVAL_EPISODES
 from snapflow.jobs.sweep.specs import (
     EVALUATORS,
     TRAINERS,
     DataSpec,
-    LeRobotSpec,
     RowSpec,
     RunSpec,
     SweepConfig,
     TableSpec,
 )
 from snapflow.jobs.sweep.table_checks import check_lerobot_eval, first_variation, table_tasks
-from snapflow.policies.configuration import PolicyConfig
-from snapflow.policies.factory import default_config, policy_type
+from snapflow.reporting.settings_tables import checked_count, checked_table, dataclass_from, field_names
 from snapflow.training.config import TEACHER_TRAINING
 from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES, Recipe
-
-DEFAULT_POLICY = "minivla"
-
-
-def _checked(section: str, table: Any, allowed: set[str], required: frozenset[str] = frozenset()) -> dict[str, Any]:
-    if not isinstance(table, dict):
-        raise InvalidInputError(f"{section}: expected a table of keys, got {table!r}")
-    unknown = sorted(set(table) - allowed)
-    if unknown:
-        raise InvalidInputError(f"{section}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
-    missing = sorted(required - set(table))
-    if missing:
-        raise InvalidInputError(f"{section}: missing key(s) {missing}")
-    return table
-
-
-def _field_names(cls: type) -> set[str]:
-    return {field.name for field in fields(cls)}
-
-
-def _dataclass_from(section: str, base: Any, overrides: Any) -> Any:
-    _checked(section, overrides, _field_names(type(base)))
-    try:
-        return replace(base, **overrides)
-    except (TypeError, ValueError) as error:
-        raise InvalidInputError(f"{section}: {error}") from None
 
 
 def _seeds(section: str, value: Any) -> tuple[int, ...]:
@@ -70,15 +41,8 @@ def _seeds(section: str, value: Any) -> tuple[int, ...]:
     return tuple(value)
 
 
-def _count(section: str, name: str, value: Any) -> int:
-    """A count (episodes, actions per chunk, image size): an integer of at least 1, never a silent default."""
-    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-        raise InvalidInputError(f"{section}: {name} must be an integer of at least 1, got {value!r}")
-    return value
-
-
 def _data(raw: Any) -> DataSpec:
-    entry = dict(_checked("[data]", raw, _field_names(DataSpec)))
+    entry = dict(checked_table("[data]", raw, field_names(DataSpec)))
     try:
         benchmark = make_benchmark(entry.get("env", DEFAULT_BENCHMARK))
     except (TypeError, ValueError) as error:
@@ -89,7 +53,7 @@ def _data(raw: Any) -> DataSpec:
         raise InvalidInputError(f"[data] tasks: {error}") from None
     for name in ("episodes_per_task", "image_size"):
         if entry.get(name) is not None:
-            _count("[data]", name, entry[name])
+            checked_count("[data]", name, entry[name])
     if "extra_cameras" in entry:
         cameras = entry["extra_cameras"]
         if not isinstance(cameras, list) or not all(isinstance(name, str) for name in cameras):
@@ -104,47 +68,10 @@ def _data(raw: Any) -> DataSpec:
         except ValueError as error:
             raise InvalidInputError(f"[data] {error}") from None
     if "video" in entry:  # a table of VideoEncoding's settings ({} for its defaults), for frames of an image_size
-        entry["video"] = _dataclass_from("[data] video", VideoEncoding(), entry["video"])
+        entry["video"] = dataclass_from("[data] video", VideoEncoding(), entry["video"])
         if entry["video"].codec not in VIDEO_CODECS or entry.get("image_size") is None:
             raise InvalidInputError(f"[data] video: codec one of {list(VIDEO_CODECS)}, and an image_size, needed")
-    return _dataclass_from("[data]", DataSpec(), entry)
-
-
-def _policy(section: str, raw: Any, data: DataSpec) -> PolicyConfig:
-    """The built-in policy ``type`` (default minivla) sized for the data, with the table's other keys applied."""
-    name = raw.get("type", DEFAULT_POLICY) if isinstance(raw, dict) else DEFAULT_POLICY
-    try:
-        config_class = policy_type(name).config_class
-    except (TypeError, ValueError) as error:
-        raise InvalidInputError(f"{section}: {error}") from None
-    overrides = dict(_checked(section, raw, {"type"} | _field_names(config_class)))
-    overrides.pop("type", None)
-    benchmark = make_benchmark(data.env)
-    # a policy field that is also a parameter of default_config (a camera policy's state_dim) goes in its place
-    state_dim, action_dim = (
-        overrides.pop("state_dim", benchmark.state_dim),
-        overrides.pop("action_dim", benchmark.action_dim),
-    )
-    instructions = [benchmark.instruction(task) for task in data.tasks]
-    try:
-        return default_config(name, state_dim, action_dim, instructions, **overrides)
-    except (TypeError, ValueError) as error:
-        raise InvalidInputError(f"{section}: {error}") from None
-
-
-def _lerobot(section: str, raw: Any) -> LeRobotSpec:
-    """A LeRobot teacher's settings, its type one LeRobot trains from scratch here and its SmolVLM a known size."""
-    spec = _dataclass_from(section, LeRobotSpec(), raw)
-    if spec.policy_type not in lerobot_teachers():
-        raise InvalidInputError(
-            f"{section}: policy_type must be one LeRobot trains from scratch here, {list(lerobot_teachers())}; "
-            f"got {spec.policy_type!r}"
-        )
-    if spec.smolvlm not in SMOLVLM_SIZES:
-        raise InvalidInputError(f"{section}: smolvlm must be one of {list(SMOLVLM_SIZES)}, got {spec.smolvlm!r}")
-    for name in ("chunk_size", "n_action_steps", *(("image_size",) if spec.image_size is not None else ())):
-        _count(section, name, getattr(spec, name))
-    return spec
+    return dataclass_from("[data]", DataSpec(), entry)
 
 
 def _recipe(section: str, name: Any) -> Recipe:
@@ -159,28 +86,20 @@ def _runs(raw: Any, seeds: tuple[int, ...], data: DataSpec, recipe: str) -> dict
     runs: dict[str, RunSpec] = {}
     for name, entry in raw.items():
         section = f"[runs.{name}]"
-        allowed = {
-            "teacher",
-            "policy",
-            "lerobot",
-            "trainer",
-            "train",
-            "distill",
-            "seeds",
-            "recipe",
-            "commit_checkpoint",
-        }
-        _checked(section, entry, allowed)
+        allowed = {"teacher", "trainer", "train", "distill", "seeds", "recipe", "commit_checkpoint"}
+        allowed |= {family.run_key for family in FAMILIES}
+        checked_table(section, entry, allowed)
         run_seeds = _seeds(section, entry.get("seeds", list(seeds)))
         commit_checkpoint = entry.get("commit_checkpoint", False)
         if not isinstance(commit_checkpoint, bool):
             raise InvalidInputError(f"{section}: commit_checkpoint must be true or false, got {commit_checkpoint!r}")
         if "teacher" in entry:
-            if "policy" in entry or "lerobot" in entry:
-                raise InvalidInputError(f"{section}: a student takes its policy from its teacher; remove 'policy'")
+            if given := [family.run_key for family in FAMILIES if family.run_key in entry]:
+                raise InvalidInputError(f"{section}: a student takes its policy from its teacher; remove {given}")
             base = _recipe(section, entry.get("recipe", recipe))
-            train = _dataclass_from(f"{section} train", base.train, entry.get("train", {}))
-            settings = _dataclass_from(f"{section} distill", base.distill, entry.get("distill", {}))
+            train = dataclass_from(f"{section} train", base.train, entry.get("train", {}))
+            train.check_student(f"{section} train")
+            settings = dataclass_from(f"{section} distill", base.distill, entry.get("distill", {}))
             trainer = entry.get("trainer", TRAINERS[0])
             if trainer not in TRAINERS:
                 raise InvalidInputError(f"{section}: trainer must be one of {list(TRAINERS)}, got {trainer!r}")
@@ -198,17 +117,20 @@ def _runs(raw: Any, seeds: tuple[int, ...], data: DataSpec, recipe: str) -> dict
                 raise InvalidInputError(
                     f"{section}: 'distill', 'recipe' and 'trainer' need a 'teacher' to distill from"
                 )
-            train = _dataclass_from(f"{section} train", TEACHER_TRAINING, entry.get("train", {}))
-            if "lerobot" in entry:
-                if "policy" in entry:
-                    raise InvalidInputError(f"{section}: give 'policy' (a built-in policy) or 'lerobot', not both")
-                lerobot = _lerobot(f"{section} lerobot", entry["lerobot"])
-                runs[name] = RunSpec(name, run_seeds, train, commit_checkpoint=commit_checkpoint, lerobot=lerobot)
-                continue
-            if data.video is not None:  # its frames would be read from the demonstrations, which keep none then
-                raise InvalidInputError(f"{section}: a built-in policy cannot read [data] video frames; use 'lerobot'")
-            policy = _policy(f"{section} policy", entry.get("policy", {}), data)
-            runs[name] = RunSpec(name, run_seeds, train, policy, commit_checkpoint=commit_checkpoint)
+            train = dataclass_from(f"{section} train", TEACHER_TRAINING, entry.get("train", {}))
+            try:
+                family = family_of(entry)
+            except InvalidInputError as error:
+                raise InvalidInputError(f"{section}: {error}") from None
+            family.check_teacher_training(f"{section} train", train)
+            if data.video is not None and not family.reads_dataset:  # its frames come from the demonstrations then
+                raise InvalidInputError(
+                    f"{section}: a {family.title} policy cannot read [data] video frames; use 'lerobot'"
+                )
+            spec = family.teacher_spec(
+                f"{section} {family.run_key}", entry.get(family.run_key, {}), data.env, data.tasks
+            )
+            runs[name] = RunSpec(name, run_seeds, train, spec, commit_checkpoint=commit_checkpoint)
     for run in runs.values():
         if run.teacher is not None:
             teacher = runs.get(run.teacher)
@@ -218,9 +140,11 @@ def _runs(raw: Any, seeds: tuple[int, ...], data: DataSpec, recipe: str) -> dict
                 )
             if missing := sorted(set(run.seeds) - set(teacher.seeds)):
                 raise InvalidInputError(f"[runs.{run.name}]: seeds {missing} have no {run.teacher!r} teacher")
-            if run.trainer != TRAINERS[0] and teacher.lerobot is None:
+            family = family_of(teacher.spec)
+            if run.trainer not in family.trainers:
                 raise InvalidInputError(
-                    f"[runs.{run.name}]: trainer {run.trainer!r} distils a LeRobot teacher; {run.teacher!r} is built in"
+                    f"[runs.{run.name}]: trainer {run.trainer!r} does not distil {run.teacher!r}, a {family.title} "
+                    f"policy; its trainers: {list(family.trainers)}"
                 )
     return runs
 
@@ -256,13 +180,13 @@ def _tables(
     allowed |= {"x_label", "reference", "evaluator", "tasks", "per_set", "contrasts", "max_episode_steps"}
     for index, entry in enumerate(raw):
         section = f"[[tables]] #{index + 1}"
-        _checked(section, entry, allowed, frozenset({"name", "rows"}))
+        checked_table(section, entry, allowed, frozenset({"name", "rows"}))
         table_seeds = _seeds(section, entry.get("seeds", list(seeds)))
         if not isinstance(entry["rows"], list):
             raise InvalidInputError(f"{section}: rows must be a list of {{ label, run, mode }} entries")
         rows = []
         for row in entry["rows"]:
-            _checked(
+            checked_table(
                 f"{section} row",
                 row,
                 {"label", "run", "mode", "n_act", "series", "x", "sweep"},
@@ -295,7 +219,9 @@ def _tables(
                     f"{section}: row {row['label']!r}: run {run.name!r} trains no jump (alpha 1 or lambda 0): sample "
                     f"it as naive or teacher-N, not {mode}"
                 )
-            n_act = _count(f"{section}: row {row['label']!r}", "n_act", row.get("n_act", entry.get("n_act", N_ACT)))
+            n_act = checked_count(
+                f"{section}: row {row['label']!r}", "n_act", row.get("n_act", entry.get("n_act", N_ACT))
+            )
             rows.append(RowSpec(row["label"], row["run"], mode, n_act, row.get("series"), row.get("x"), other))
         labels = [row.label for row in rows]
         reference = entry.get("reference")
@@ -311,7 +237,7 @@ def _tables(
             entry.get("title", entry["name"]),
             tuple(rows),
             table_seeds,
-            _count(section, "episodes_per_task", entry.get("episodes_per_task", EVAL_EPISODES)),
+            checked_count(section, "episodes_per_task", entry.get("episodes_per_task", EVAL_EPISODES)),
             entry.get("per_task", False),
             entry.get("x_label"),
             reference,
@@ -320,7 +246,9 @@ def _tables(
             table_tasks(section, entry.get("tasks"), data),
             bool(entry.get("per_set", False)),
             tuple(tuple(pair) for pair in contrasts),
-            _count(section, "max_episode_steps", entry["max_episode_steps"]) if "max_episode_steps" in entry else None,
+            checked_count(section, "max_episode_steps", entry["max_episode_steps"])
+            if "max_episode_steps" in entry
+            else None,
         )
         if table.evaluator != EVALUATORS[0]:
             check_lerobot_eval(section, table, runs, data)
@@ -340,7 +268,7 @@ def load_sweep(path: str | Path, loading: tuple[Path, ...] = ()) -> SweepConfig:
     except tomllib.TOMLDecodeError as error:
         raise InvalidInputError(f"{path}: not valid TOML: {error}") from None
     allowed = {"name", "title", "seeds", "output_dir", "results_dir", "data", "runs", "tables", "recipe"}
-    _checked(str(path), raw, allowed, frozenset({"name", "runs", "tables"}))
+    checked_table(str(path), raw, allowed, frozenset({"name", "runs", "tables"}))
     name = raw["name"]
     if not isinstance(name, str) or not re.fullmatch(r"[a-z0-9][a-z0-9._-]*", name):
         raise InvalidInputError(f"{path}: name must be lower-case letters, digits, '.', '_' or '-', got {name!r}")
@@ -360,4 +288,4 @@ def load_sweep(path: str | Path, loading: tuple[Path, ...] = ()) -> SweepConfig:
     )
 
 
-__all__ = ["DEFAULT_POLICY", "load_sweep"]
+__all__ = ["load_sweep"]

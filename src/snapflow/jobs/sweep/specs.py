@@ -7,7 +7,7 @@ import hashlib
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from snapflow.adapters.lerobot_config import VideoEncoding
+from snapflow.adapters.lerobot_config import LeRobotSpec, VideoEncoding
 from snapflow.data.collect import EPISODES_PER_TASK
 from snapflow.envs.factory import DEFAULT_BENCHMARK
 from snapflow.errors import InvalidInputError
@@ -37,19 +37,6 @@ class DataSpec:
     video: VideoEncoding | None = added_option(None)
 
 
-@dataclass(frozen=True)
-class LeRobotSpec:
-    """A LeRobot policy trained from scratch on the sweep's demonstrations, written as a LeRobotDataset: ``snapflow
-    train --policy-type <policy_type>``'s settings (SmolVLA over a SmolVLM of size ``smolvlm``, X-VLA over a Florence-2
-    at that size's widths, reading the frames at ``image_size``, None: that size's own)."""
-
-    policy_type: str = "smolvla"
-    smolvlm: str = "small"
-    image_size: int | None = None
-    chunk_size: int = 8
-    n_action_steps: int = 4
-
-
 #: how a student of a LeRobot teacher is distilled: snapflow's trainer (``snapflow distill``) or LeRobot's own
 #: (``lerobot-train`` on the teacher written as its ``snapflow_<type>`` student)
 TRAINERS = ("snapflow", "lerobot-train")
@@ -60,20 +47,20 @@ EVALUATORS = ("snapflow", "lerobot-eval")
 
 @dataclass(frozen=True)
 class RunSpec:
-    """A teacher (``teacher is None``: flow matching on the data, ``policy`` resolved) or a student distilled from
+    """A teacher (``teacher is None``: flow matching on the data, ``spec`` resolved) or a student distilled from
     one; ``train.seed`` is replaced by each of ``seeds``."""
 
     name: str
     seeds: tuple[int, ...]
     train: TrainConfig
-    policy: PolicyConfig | None = None
+    # a teacher's policy as its family describes it (a built-in policy's config, a LeRobotSpec): its family's
+    spec: PolicyConfig | LeRobotSpec | None = None
     teacher: str | None = None
     distill: DistillSettings | None = None
     # its checkpoint kept beside its ledger record, to be committed: the latest while it trains, the policy once it
     # has finished, so a fresh machine continues the run, or distils and evaluates it, instead of training it again
     commit_checkpoint: bool = False
-    lerobot: LeRobotSpec | None = None  # a LeRobot teacher (``policy`` is then None); its students are LeRobot's too
-    trainer: str = TRAINERS[0]  # a LeRobot teacher's student: which trainer distils it
+    trainer: str = TRAINERS[0]  # a student: which of its teacher's family's trainers distils it
 
 
 @dataclass(frozen=True)
@@ -189,4 +176,4 @@ class SweepConfig:
         return self.results_dir / "records" / record.relative_to(self.output_dir)
 
 
-__all__ = ["DataSpec", "EVALUATORS", "LeRobotSpec", "RowSpec", "RunSpec", "SweepConfig", "TRAINERS", "TableSpec"]
+__all__ = ["DataSpec", "EVALUATORS", "RowSpec", "RunSpec", "SweepConfig", "TRAINERS", "TableSpec"]

@@ -103,7 +103,8 @@ def format_status(config: SweepConfig, statuses: list[JobStatus], workers: int =
         lines.append(f"  {status.state:8s} {status.job.describe().removeprefix(config.name + ': '):60s} {took}{note}")
     left = [status for status in statuses if status.state in ("running", "missing")]
     estimated = sum(status.seconds for status in left if status.seconds is not None)
-    unmeasured = sorted({status.job.describe() for status in left if status.seconds is None})
+    # counted job by job: two evaluations of one policy that differ only in their episodes read alike
+    unmeasured = [status for status in left if status.seconds is None]
     hours = estimated / 3600
     summary = f"machine time left: ~{hours:.1f} h for {len(left) - len(unmeasured)} jobs"
     if workers > 1:

@@ -8,6 +8,7 @@ from typing import Any
 from snapflow.envs.factory import make_benchmark
 from snapflow.envs.libero import Libero
 from snapflow.errors import InvalidInputError
+from snapflow.families import FAMILIES, family_of
 from snapflow.jobs.sweep.specs import EVALUATORS, DataSpec, RunSpec, TableSpec
 
 
@@ -30,9 +31,11 @@ def check_lerobot_eval(section: str, table: TableSpec, runs: dict[str, RunSpec],
     for row in table.rows:
         run = runs.get(row.run) if row.sweep is None else None
         teacher = runs[run.teacher] if run is not None and run.teacher is not None else run
-        if teacher is None or teacher.lerobot is None:
+        if teacher is None or table.evaluator not in family_of(teacher.spec).evaluators:
             raise InvalidInputError(
-                f"{section}: row {row.label!r}: lerobot-eval evaluates this sweep's LeRobot runs and their students"
+                f"{section}: row {row.label!r}: {table.evaluator} evaluates this sweep's "
+                f"{' and '.join(family.title for family in FAMILIES if table.evaluator in family.evaluators)} runs "
+                "and their students"
             )
         if row.mode.jump and run.teacher is None:
             raise InvalidInputError(f"{section}: row {row.label!r}: a LeRobot teacher has no jump to sample {row.mode}")

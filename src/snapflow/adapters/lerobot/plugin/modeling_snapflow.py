@@ -20,6 +20,8 @@ from snapflow.adapters.lerobot_types import installed_lerobot_types, lerobot_pol
 from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SamplingMode
 from snapflow.objective.base import TwoBranchObjective
+from snapflow.objective.options import target_stages
+from snapflow.objective.settings import DistillSettings
 
 
 class NotDistilledError(InvalidInputError):
@@ -29,11 +31,11 @@ class NotDistilledError(InvalidInputError):
 class SnapFlowStudent:
     """Mixed in before a LeRobot policy class.
 
-    Training (``lerobot-train``): ``forward`` is the SnapFlow objective of :mod:`snapflow.objective.snapflow` on
-    the batch (its consistency target from the model's own no-grad passes), with the ``distill_*`` settings of the
-    config; only the action expert and phi_s are trained (``get_optim_params``, and the rest does not require grad),
-    as snapflow's own distillation keeps the VLM frozen; ``update`` records in the config that the checkpoint was
-    distilled.
+    Training (``lerobot-train``): ``forward`` is the objective of the config's ``distill`` settings on the batch
+    (SnapFlow's consistency target from the model's own no-grad passes, or a baseline's), as ``snapflow distill``
+    computes it; what trains is what those settings say, as the policy is built: the action expert and phi_s
+    (``get_optim_params``, and the rest does not require grad), or every parameter where ``freeze_prefix`` is false;
+    ``update`` counts the step and records in the config whether the checkpoint was distilled.
     """
 
     def __init__(self, config: Any, **kwargs: Any) -> None:
@@ -42,10 +44,13 @@ class SnapFlowStudent:
         # a plain attribute, not a submodule: the adapter holds this policy, and a submodule cycle would recurse
         object.__setattr__(self, "snapflow", adapter)
         adapter.use_sampling_mode(self.requested_sampling_mode)
-        trainable = {id(parameter) for parameter in adapter.expert_parameters()}
+        adapter.train_prefix = not config.distill.freeze_prefix
+        trainable = {id(parameter) for parameter in self.trainable_parameters()}
         for parameter in self.parameters():
             parameter.requires_grad_(id(parameter) in trainable)
         self._distilled_by_last_forward = False
+        # built once: an objective may hold state across steps (consistency distillation's target network)
+        self._objective: tuple[DistillSettings, TwoBranchObjective] | None = None
 
     snapflow: LeRobotFlowPolicy
 
@@ -87,10 +92,17 @@ class SnapFlowStudent:
         chunk an observation: a multi-task DiT's observation queues are filled from it first)."""
         return super().predict_action_chunk(self.snapflow.lone_chunk_batch(batch), **kwargs)
 
+    def trainable_parameters(self) -> list[nn.Parameter]:
+        """What distillation trains: the action expert, its projections and phi_s (the VLM frozen), or every
+        parameter where the config's ``distill.freeze_prefix`` is false."""
+        if self.config.distill.freeze_prefix:
+            return self.snapflow.expert_parameters()
+        return list(self.parameters())
+
     def get_optim_params(self) -> list[nn.Parameter] | dict[str, nn.Parameter]:
-        """What distillation trains: the action expert, its projections and phi_s (the VLM stays frozen); by name
-        where the policy's own optimizer groups its parameters by name (X-VLA's)."""
-        trainable = self.snapflow.expert_parameters()
+        """:meth:`trainable_parameters`; by name where the policy's own optimizer groups its parameters by name
+        (X-VLA's)."""
+        trainable = self.trainable_parameters()
         own = super().get_optim_params()
         if isinstance(own, dict):
             ids = {id(parameter) for parameter in trainable}
@@ -98,9 +110,25 @@ class SnapFlowStudent:
         return trainable
 
     def distillation_objective(self) -> TwoBranchObjective:
-        """The SnapFlow objective with the config's ``distill_*`` settings and the policy's own training times (shifted
-        by ``distill_time_shift``)."""
-        return self.config.distillation_objective(lerobot_time_sampler(self.config))
+        """The objective of the config's ``distill`` settings with the policy's own training times (shifted by
+        ``distill.time_shift``), built again only when the settings change."""
+        settings = self.config.distill
+        if self._objective is None or self._objective[0] != settings:
+            self._objective = (settings, settings.objective(lerobot_time_sampler(self.config)))
+        return self._objective[1]
+
+    def progress(self) -> float:
+        """The fraction of the run done, which a schedule of target steps reads: the config's ``steps_distilled`` of
+        its ``distill_steps``; a schedule without them is refused (LeRobot gives a policy no step count)."""
+        config = self.config
+        if config.distill_steps is not None:
+            return config.steps_distilled / config.distill_steps
+        if len(target_stages(config.distill.target_steps)) > 1:
+            raise InvalidInputError(
+                f"a schedule of target steps ({config.distill.target_steps}) splits the run into equal stages: give "
+                "lerobot-train its steps as --policy.distill_steps too"
+            )
+        return 1.0
 
     def forward(
         self,
@@ -110,16 +138,19 @@ class SnapFlowStudent:
         reduction: str = "mean",
         generator: torch.Generator | None = None,
     ) -> tuple[Tensor, dict[str, float]]:
-        """SnapFlow's loss on a pre-processed batch, and its parts for LeRobot's logs.
+        """The distillation loss on a pre-processed batch, and its parts for LeRobot's logs.
 
         ``noise`` (B, chunk, max_action_dim) and ``time`` (the flow-matching rows' times) are the objective's;
-        drawn from ``generator`` (LeRobot's global seed when None) otherwise. SnapFlow's loss is a mean per branch:
-        per-sample losses (``reduction="none"``, LeRobot's sample weighting) are refused."""
+        drawn from ``generator`` (LeRobot's global seed when None) otherwise; a schedule's stage is the one in force
+        at :meth:`progress`. The loss is a mean per branch: per-sample losses (``reduction="none"``, LeRobot's sample
+        weighting) are refused."""
         if reduction != "mean":
             raise ValueError(f"a SnapFlow student's loss is a mean over its two branches; reduction={reduction!r}")
         objective = self.distillation_objective()
+        targets = self.snapflow.action_targets(batch)
+        progress = self.progress()
         output = objective(
-            self.snapflow, batch, self.snapflow.action_targets(batch), noise=noise, time=time, generator=generator
+            self.snapflow, batch, targets, noise=noise, time=time, generator=generator, progress=progress
         )
         self._distilled_by_last_forward = output.num_consistency > 0 and objective.consistency_weight > 0
         logs = {
@@ -129,9 +160,10 @@ class SnapFlowStudent:
         return output.loss, logs
 
     def update(self) -> None:
-        """Run by ``lerobot-train`` after each optimiser step: the step trained the one-step jump (the config, and
-        so every checkpoint from now on, says distilled), or, with alpha 1 or lambda 0, flow matching alone (says
-        not distilled: the jump was not trained and phi_s drifts)."""
+        """Run by ``lerobot-train`` after each optimiser step: counts it (``steps_distilled``), and records whether it
+        trained the one-step jump (the config, and so every checkpoint from now on, says distilled) or, with alpha 1
+        or lambda 0, flow matching alone (says not distilled: the jump was not trained and phi_s drifts)."""
+        self.config.steps_distilled += 1
         self.config.distilled = self._distilled_by_last_forward
 
 
