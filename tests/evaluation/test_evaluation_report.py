@@ -179,5 +179,7 @@ def test_evaluate_with_episode_logs_resumes_a_finished_row_without_running_an_ep
         assert again.rows[label].closed_loop_s >= logged > 0
     with pytest.raises(ValueError, match="differs in envs_per_task, episodes_per_task"):
         logged_evaluation(labelled, 1, resume=True)
-    with pytest.raises(ValueError, match="differs in policy, weights"):  # the same label, other weights
+    # the same label, other weights (the policies' folders share their last part, all a path outside the working
+    # directory is recorded by: the weights tell them apart)
+    with pytest.raises(ValueError, match="differs in weights"):
         logged_evaluation([("teacher 10-NFE", student, TEACHER_10)], 2, resume=True)

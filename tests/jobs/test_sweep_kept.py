@@ -34,6 +34,7 @@ def test_a_fresh_machine_evaluates_a_kept_policy_and_continues_a_kept_unfinished
     assert sorted(path.name for path in (kept / "step_0000012").iterdir()) == ["policy.json", "policy.safetensors"]
     assert [path.name for path in kept.glob("step_*")] == ["step_0000012"], "only the last checkpoint is kept"
     assert not (tmp_path / "results" / "records" / "snapflow" / "seed-0" / "checkpoint").exists(), "the teacher's alone"
+    _an_unrecorded_evaluation_reads_its_kept_waves_back(config, monkeypatch)
 
     shutil.rmtree(tmp_path / "runs")  # a fresh machine: the ledger and the kept checkpoints committed, nothing else
     extra = '\n  { label = "teacher 2-NFE", run = "teacher", mode = "teacher-2" },'
@@ -90,3 +91,29 @@ def test_a_fresh_machine_evaluates_a_kept_policy_and_continues_a_kept_unfinished
     train_teacher(teacher.data.directory, never_interrupted, teacher.spec, teacher.train, progress=False)
     last = "checkpoints/step_0000013/policy.safetensors"
     assert (teacher.directory / last).read_bytes() == (never_interrupted / last).read_bytes()
+
+
+def _an_unrecorded_evaluation_reads_its_kept_waves_back(config, monkeypatch) -> None:
+    """An evaluation keeps its episode log whole beside its ledger record, with the job it belongs to, as its waves
+    finish: a machine without the row's record and logs reads the kept waves back and runs no episode again."""
+    from snapflow.evaluation.closed_loop import ClosedLoopEvaluator
+    from snapflow.jobs.sweep import EvalJob, jobs
+    from snapflow.jobs.sweep.eval_jobs import KEPT_JOB
+
+    (job,) = [job for job in jobs(config) if isinstance(job, EvalJob) and job.mode.name == "teacher-10"]
+    kept = job.kept_progress
+    assert kept == job.ledger_path.with_suffix("")
+    assert sorted(path.name for path in kept.iterdir()) == ["00-teacher-10.jsonl", KEPT_JOB]
+    assert (kept / "00-teacher-10.jsonl").read_text() == (job.episodes_dir / "00-teacher-10.jsonl").read_text()
+    recorded = json.loads(job.ledger_path.read_text())["success"]
+    job.ledger_path.unlink()
+    job.record_path.unlink()
+    shutil.rmtree(job.episodes_dir)
+
+    def no_episode(*args, **kwargs):
+        raise AssertionError("a kept wave was run again")
+
+    with monkeypatch.context() as patched:
+        patched.setattr(ClosedLoopEvaluator, "_environments", no_episode)
+        assert set(run_jobs([job], progress=False)) == {job.describe()}
+    assert json.loads(job.ledger_path.read_text())["success"] == recorded, "the kept waves' episodes, as they were"

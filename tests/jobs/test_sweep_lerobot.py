@@ -270,7 +270,7 @@ def test_a_lerobot_eval_rows_finished_tasks_are_kept_and_go_on_from_the_next_on_
         if isinstance(job, EvalJob) and job.evaluator == "lerobot-eval" and job.mode.name == "snapflow-1"
     ]
     assert job.reads_outputs_of(job.policy) and not job.reads_outputs_of(job.policy.data)
-    kept = job.kept_tasks
+    kept = job.kept_progress
     assert kept == job.ledger_path.with_suffix("")
     task = "libero_spatial_0"
     eval_info = {"per_task": [{"task_group": "libero_spatial", "task_id": 0, "metrics": {"successes": [True, False]}}]}

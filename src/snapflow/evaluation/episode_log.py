@@ -4,7 +4,8 @@ One JSON line a wave, appended as the wave ends: its episodes, its wall time and
 it. A resumed run restores that state and starts at the next wave, so its results equal an uninterrupted run's. The
 first line is the run's identity (policy, mode, tasks, seed, ...) and the versions it started under; a file written by
 another run is refused, never mixed in, and one started under another simulator version is continued with a warning
-naming it. A line cut short by an interruption is dropped on reading."""
+naming it. A line cut short by an interruption is dropped on reading. A log may keep a whole copy of itself elsewhere
+after each wave (a sweep's, beside its committed records), from which another machine goes on."""
 
 from __future__ import annotations
 
@@ -44,16 +45,25 @@ class FinishedWave:
 class EpisodeLog:
     """The waves of one closed-loop run in ``path``. With ``resume``, the waves already there under the same
     ``identity`` are :attr:`finished` (a file of another identity is a ``ValueError`` naming what differs); without
-    it, the file is started anew."""
+    it, the file is started anew. With ``kept``, a whole copy of the file is written there (atomically) as it
+    starts and after each wave."""
 
-    def __init__(self, path: str | Path, identity: dict[str, Any], resume: bool) -> None:
+    def __init__(
+        self, path: str | Path, identity: dict[str, Any], resume: bool, kept: str | Path | None = None
+    ) -> None:
         self.path = Path(path)
+        self.kept = None if kept is None else Path(kept)
         self.identity = json.loads(json.dumps(identity))  # as read back: tuples become lists
         self.finished: list[FinishedWave] = []
         if resume and self.path.is_file():
             self.finished = self._read()
         else:
             write_text(self.path, json.dumps({"identity": self.identity, "versions": versions()}) + "\n")
+        self._keep()
+
+    def _keep(self) -> None:
+        if self.kept is not None:
+            write_text(self.kept, self.path.read_text())
 
     def _read(self) -> list[FinishedWave]:
         lines = self.path.read_text().splitlines()
@@ -92,6 +102,7 @@ class EpisodeLog:
             file.write(json.dumps(wave.to_dict()) + "\n")
             file.flush()
             os.fsync(file.fileno())
+        self._keep()
 
 
 __all__ = ["EpisodeLog", "FinishedWave"]

@@ -96,6 +96,7 @@ def evaluate(
     first_variation: int = 0,
     val_fraction: float | None = None,
     max_episode_steps: int | None = None,
+    kept_logs: str | Path | None = None,
 ) -> EvaluationReport:
     """Closed-loop success, offline metrics (when ``data`` is given) and, with ``timing``, batch-1 latency for each
     (label, policy, mode); latency speedups are relative to the first entry. A jump mode (``snapflow-N``) on a
@@ -104,7 +105,8 @@ def evaluate(
     logged by the same evaluation are read back, not run again. Each task's episodes start from its evaluation
     variations ``first_variation`` on (LIBERO's fixed initial states). The offline metrics read the share of each
     task's episodes a policy's training held out, or ``val_fraction`` where given (a trainer that records none).
-    ``max_episode_steps`` ends every episode there, short of the benchmark's own limit (a quick check)."""
+    ``max_episode_steps`` ends every episode there, short of the benchmark's own limit (a quick check). With
+    ``kept_logs``, a whole copy of each episode log is kept there after each wave (a sweep's committed progress)."""
     for _, loaded, mode in runs:
         loaded.check_mode(mode)
     evaluator = runs_evaluator(runs, benchmark, tasks, episodes_per_task, first_variation, max_episode_steps)
@@ -128,7 +130,7 @@ def evaluate(
                     digests[loaded.path] = weights_digest(loaded.policy)
                 identity = {  # what the run's episodes depend on: its log is resumed only by the same run
                     "label": label,
-                    "policy": str(loaded.path),
+                    "policy": recorded_path(loaded.path),  # as given where relative: a kept log is committed
                     "weights": digests[loaded.path],
                     "mode": mode.name,
                     "tasks": tasks,
@@ -140,7 +142,9 @@ def evaluate(
                     **({"first_variation": first_variation} if first_variation else {}),
                     **({"max_episode_steps": max_episode_steps} if max_episode_steps else {}),
                 }
-                log = EpisodeLog(Path(episode_logs) / _log_name(index, label), identity, resume)
+                name = _log_name(index, label)
+                kept = None if kept_logs is None else Path(kept_logs) / name
+                log = EpisodeLog(Path(episode_logs) / name, identity, resume, kept)
             earlier = sum(wave.seconds for wave in log.finished) if log is not None else 0.0
             started = time.perf_counter()
             episodes = evaluator.run(loaded.policy, loaded.processor, mode, n_act, seed, progress, log=log)

@@ -15,12 +15,12 @@ from snapflow.flow.modes import SamplingMode
 from snapflow.jobs.runner import Job, holds_record_of, record
 from snapflow.jobs.sweep.specs import EVALUATORS
 from snapflow.jobs.sweep.training_jobs import TrainJob
-from snapflow.reporting.files import write_json
+from snapflow.reporting.files import write_json, write_text
 from snapflow.reporting.records import as_record
 from snapflow.sources import open_policy
 from snapflow.training.config import VAL_FRACTION
 
-KEPT_JOB = "job.json"  # beside a lerobot-eval row's kept tasks: the record of the job they belong to
+KEPT_JOB = "job.json"  # beside a row's kept progress (tasks or episode log): the record of the job it belongs to
 
 
 @dataclass(frozen=True)
@@ -109,6 +109,7 @@ class EvalJob(Job):
             max_episode_steps=self.max_episode_steps,
             # lerobot-train records no held-out share: it trained on its teacher's split, every run's here
             val_fraction=VAL_FRACTION if self.policy.trainer == "lerobot-train" else None,
+            kept_logs=self._claim_kept_progress(),
         )
         return report.rows[self.mode.name].to_dict()
 
@@ -117,23 +118,36 @@ class EvalJob(Job):
         return not self.by_lerobot_eval or dependency != self.policy.data
 
     @property
-    def kept_tasks(self) -> Path | None:
-        """By lerobot-eval, beside the ledger's record: each finished task's ``eval_info.json`` and wall time, and the
-        job they belong to (``job.json``), so that another machine goes on from the next task."""
-        if self.ledger is None or not self.by_lerobot_eval:
-            return None
-        return self.ledger.with_suffix("")
+    def kept_progress(self) -> Path | None:
+        """Beside the ledger's record, what an unfinished row has finished, and the job it belongs to (``job.json``),
+        so that another machine goes on from there: by lerobot-eval each finished task's ``eval_info.json`` and wall
+        time, by snapflow's evaluator its episode log, whole after each wave (a LIBERO row of 400 episodes takes hours)."""
+        return None if self.ledger is None else self.ledger.with_suffix("")
 
     def _kept_by_this_job(self) -> bool:
-        kept = self.kept_tasks
+        kept = self.kept_progress
         return kept is not None and holds_record_of(kept / KEPT_JOB, self)
 
-    def restore_progress(self) -> bool:
-        from snapflow.evaluation.lerobot_eval import restore_kept_tasks
+    def _claim_kept_progress(self) -> Path | None:
+        """The folder of kept progress, emptied first where another job's settings kept it."""
+        kept = self.kept_progress
+        if kept is not None and not self._kept_by_this_job():
+            shutil.rmtree(kept, ignore_errors=True)
+            write_json(kept / KEPT_JOB, record(self))
+        return kept
 
+    def restore_progress(self) -> bool:
         if not self._kept_by_this_job():
             return False
-        return bool(restore_kept_tasks(self.kept_tasks, self.episodes_dir))
+        assert self.kept_progress is not None
+        if self.by_lerobot_eval:
+            from snapflow.evaluation.lerobot_eval import restore_kept_tasks
+
+            return bool(restore_kept_tasks(self.kept_progress, self.episodes_dir))
+        logs = sorted(self.kept_progress.glob("*.jsonl"))
+        for log in logs:
+            write_text(self.episodes_dir / log.name, log.read_text())
+        return bool(logs)
 
     def _run_lerobot_eval(self) -> dict[str, Any]:
         """LeRobot's ``lerobot-eval`` on each task, its ``eval_info.json`` files kept beside the ledger's record."""
@@ -142,10 +156,7 @@ class EvalJob(Job):
         from snapflow.evaluation.lerobot_eval import run_lerobot_eval
 
         data = self.policy.data.data
-        kept = self.kept_tasks
-        if kept is not None and not self._kept_by_this_job():  # tasks another job's settings kept are not this one's
-            shutil.rmtree(kept, ignore_errors=True)
-            write_json(kept / KEPT_JOB, record(self))
+        kept = self._claim_kept_progress()  # tasks another job's settings kept are not this one's
         row = run_lerobot_eval(
             self.policy.policy_path,
             self.task_names,
