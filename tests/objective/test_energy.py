@@ -30,7 +30,9 @@ def test_energy_score_by_hand():
     assert torch.allclose(score, torch.tensor([expected_first, 3.0]), atol=1e-5)
     # the second entry weighs nothing: |(a, b)|_w = |a| for the first row, and the second row's samples sit on y
     weights = torch.tensor([[1.0, 0.0], [1.0, 0.0]])
-    assert torch.allclose(energy_score(samples, reference, weights), torch.tensor([(1 + 2) / 2 - 3 / 2, 0.0]), atol=1e-5)
+    assert torch.allclose(
+        energy_score(samples, reference, weights), torch.tensor([(1 + 2) / 2 - 3 / 2, 0.0]), atol=1e-5
+    )
     # three samples: pairs (0, 1), (0, 2), (1, 2) at 1, 2, 1, each counted twice over M (M - 1) = 6
     line = torch.tensor([[[0.0], [1.0], [2.0]]])
     assert torch.allclose(energy_score(line, torch.tensor([[1.0]])), torch.tensor([2 / 3 - (8 / 6) / 2]), atol=1e-5)
@@ -102,14 +104,16 @@ def test_the_energy_term_alone_learns_two_modes_a_regression_would_average():
     )
     optimizer = torch.optim.Adam(student.parameters(), lr=3e-3)
     for _ in range(400):
-        actions = (torch.randint(0, 2, (64, 1, 1), generator=generator).float() * 2 - 1)
+        actions = torch.randint(0, 2, (64, 1, 1), generator=generator).float() * 2 - 1
         loss = objective(student, torch.zeros(64, 1), actions, generator=generator).loss
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
     with torch.no_grad():
         noise = torch.randn(2000, 1, 1, generator=generator)
-        samples = (noise - student.velocity(noise, torch.ones(2000), torch.zeros(2000), student.encode(torch.zeros(2000, 1))))
+        samples = noise - student.velocity(
+            noise, torch.ones(2000), torch.zeros(2000), student.encode(torch.zeros(2000, 1))
+        )
     samples = samples.flatten()
     near = ((samples.abs() - 1).abs() < 0.3).float().mean()
     positive = (samples > 0).float().mean()

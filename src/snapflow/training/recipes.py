@@ -61,6 +61,8 @@ class TargetOption:
     def label(self) -> str:
         if self.target == "bootstrap":
             return f"bootstrapped (K -> {self.steps})"
+        if self.target == "energy":
+            return f"energy term, K = {self.steps}"
         return f"K = {self.steps}" if isinstance(self.steps, int) else "K = " + " -> ".join(map(str, self.steps))
 
     def settings(self, base: DistillSettings | None = None) -> DistillSettings:
@@ -69,7 +71,8 @@ class TargetOption:
 
     @property
     def teacher_passes(self) -> float:
-        """No-grad passes per one-step row (averaged over a schedule's stages); each row adds one gradient pass."""
+        """No-grad passes per one-step row (averaged over a schedule's stages); each row adds one gradient pass (the
+        energy target adds more rows to that pass, and no no-grad pass)."""
         if self.target == "bootstrap":
             return 2.0
         stages = target_stages(self.steps)
@@ -98,6 +101,17 @@ RECIPES: dict[str, Recipe] = {
         f"lambda 3 ({_PAPER_BUDGET})",
         PAPER_STUDENT_TRAINING,
         {"consistency_weight": 3.0},
+    ),
+    "modes": Recipe(
+        "snapflow's recipe with an energy term that keeps a multimodal teacher's modes (docs/concepts/recipes.md, "
+        f"'A recipe that keeps modes'): target energy, lambda 3, energy weight 4 on 2 one-step samples per observation "
+        f"({_PAPER_BUDGET})",
+        PAPER_STUDENT_TRAINING,
+        {
+            "consistency_weight": 3.0,
+            "target": "energy",
+            "objective_options": {"energy_weight": 4.0, "energy_samples": 2},
+        },
     ),
     "paper": Recipe(
         f"the paper's settings: alpha {PAPER_ALPHA}, lambda {PAPER_CONSISTENCY_WEIGHT}, {PAPER_TARGET_STEPS}-step "
