@@ -120,7 +120,7 @@ def test_recipes_and_the_biased_one_step_are_rows_with_coverage_intervals_and_ti
     assert (modes["option"], modes["target"], modes["student_rows_per_row"], modes["alpha"]) == (
         "recipe-modes",
         "energy",
-        2,
+        3,
         0.5,
     )
     assert (biased["alpha"], biased["teacher_passes_per_row"], biased["student_rows_per_row"]) == (1.0, 0.0, 1)
@@ -133,5 +133,5 @@ def test_recipes_and_the_biased_one_step_are_rows_with_coverage_intervals_and_ti
     assert len(run["mode_shares"]["snapflow-1"]) == 3 and len(run["mode_shares"]["snapflow-1"][0]) == 3
     table = (tmp_path / "comparison.md").read_text()
     assert table.startswith("Toy conditional two rings, seeds 0, 1")
-    assert "| teacher 10-NFE |" in table and "| recipe modes | 0.5 / 3 |" in table
+    assert "| teacher 10-NFE |" in table and "| recipe modes | 0.5 / 0.3 |" in table
     assert (tmp_path / "coverage.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

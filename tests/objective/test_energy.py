@@ -84,7 +84,8 @@ def test_settings_and_recipe_pick_it_and_refuse_what_it_does_not_take():
     assert type(objective) is EnergySnapFlowObjective
     assert (objective.energy_weight, objective.energy_samples, objective.target_steps) == (2.0, 4, 2)
     _, modes = student_settings("modes")
-    assert (modes.target, modes.consistency_weight, modes.alpha) == ("energy", 3.0, 0.5)
+    assert (modes.target, modes.consistency_weight, modes.alpha) == ("energy", 0.3, 0.5)
+    assert modes.objective_options == {"energy_weight": 16.0, "energy_samples": 3}
     with pytest.raises(InvalidInputError, match="intermediate_jumps is not an option of the snapflow-energy"):
         DistillSettings(target="energy", intermediate_jumps=0.5)
     with pytest.raises(InvalidInputError, match="energy_samples must be an integer >= 2"):

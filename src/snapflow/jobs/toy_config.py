@@ -105,7 +105,7 @@ class BiasedOneStep:
     (its phi_s stays zero, so its jump is that step), as arXiv 2606.05737 does."""
 
     name = "biased-one-step"
-    label = "biased one step (naive, time shift 4)"
+    label = "biased one step (t shift 4)"
     teacher_passes = 0.0
 
     def settings(self, base: DistillSettings | None = None) -> DistillSettings:

@@ -81,21 +81,27 @@ def plot_coverage(runs: dict[str, dict[str, Any]], path: Path, contexts: int = 4
     bars += [(label, np.asarray(run["mode_shares"][SNAPFLOW_1.name])) for label, run in runs.items()]
     modes = truth.shape[1]
     colours = [f"C{k}" for k in range(modes)] + ["0.7"]
-    figure, axes = plt.subplots(1, shown, figsize=(0.9 * len(bars) * shown + 1, 4.2), squeeze=False, sharey=True)
-    for column in range(shown):
-        axis = axes[0][column]
+    columns = min(shown, 2)
+    grid = (-(-shown // columns), columns)
+    figure, axes = plt.subplots(*grid, figsize=(0.7 * len(bars) * columns + 1.5, 3.4 * grid[0] + 0.8), squeeze=False)
+    for panel in range(grid[0] * grid[1]):
+        axis = axes[panel // columns][panel % columns]
+        if panel >= shown:
+            axis.set_visible(False)
+            continue
         bottom = np.zeros(len(bars))
         for k in range(modes + 1):
-            heights = np.array([shares[column][k] for _, shares in bars])
+            heights = np.array([shares[panel][k] for _, shares in bars])
             label = f"mode {k}" if k < modes else "off every mode"
-            axis.bar(range(len(bars)), heights, bottom=bottom, color=colours[k], label=label if column == 0 else None)
+            axis.bar(range(len(bars)), heights, bottom=bottom, color=colours[k], label=label if panel == 0 else None)
             bottom += heights
-        axis.set_xticks(range(len(bars)), [label for label, _ in bars], rotation=60, ha="right", fontsize=7)
-        axis.set_title(f"context {column}", fontsize=9)
-    axes[0][0].set_ylabel("share of samples")
-    figure.legend(loc="upper center", ncol=modes + 1, fontsize=7, bbox_to_anchor=(0.5, 1.0))
-    figure.suptitle("Mode coverage per context (seed of the first run)", fontsize=9, y=0.93)
-    figure.tight_layout(rect=(0, 0, 1, 0.9))
+        axis.set_xticks(range(len(bars)), [label for label, _ in bars], rotation=30, ha="right", fontsize=7)
+        axis.set_ylim(0, 1)
+        axis.set_title(f"context {panel}", fontsize=9)
+        axis.set_ylabel("share of samples", fontsize=8)
+    figure.legend(loc="upper center", ncol=modes + 1, fontsize=7)
+    figure.suptitle("Mode coverage per context (seed of the first run)", fontsize=9, y=0.95)
+    figure.tight_layout(rect=(0, 0, 1, 0.93))
     save_figure(figure, path, dpi=120)
 
 

@@ -28,7 +28,7 @@ from torch import Tensor
 from snapflow.errors import InvalidInputError
 from snapflow.flow.path import conditional_velocity, interpolate
 from snapflow.flow.time_sampling import TimeSampler
-from snapflow.protocol import Context, FlowPolicy, PaddedActions, draw_flow_noise, index_batch
+from snapflow.protocol import Context, FlowPolicy, PaddedActions, draw_flow_noise, index_batch, map_tensors
 
 
 def draw_device(generator: torch.Generator | None, device: torch.device) -> torch.device:
@@ -73,13 +73,13 @@ class LossOutput:
 
 @dataclass(frozen=True)
 class SetRows:
-    """More one-step rows in the same gradient pass, without a regression target of their own: row i is another sample
-    of the observation of one-step row ``of[i]`` (an index among the one-step rows), from its own input ``x``."""
+    """More one-step rows in the same gradient pass, without a regression target of their own: ``repeats`` more samples
+    of every one-step row's observation, each from its own input ``x`` (sample j of one-step row r at row j R + r)."""
 
     x: Tensor
     t: Tensor
     s: Tensor
-    of: Tensor
+    repeats: int
 
 
 @dataclass(frozen=True)
@@ -222,8 +222,9 @@ class TwoBranchObjective(ABC):
                 torch.cat([t_in, rows.extra.t.to(t_in.dtype)]),
                 torch.cat([s_in, rows.extra.s.to(s_in.dtype)]),
             )
-            context = index_batch(
-                context, torch.cat([torch.arange(batch, device=rows.extra.of.device), n_fm + rows.extra.of])
+            repeats = rows.extra.repeats  # the one-step rows' contexts tiled (a copy: on a CPU, cheaper than a gather)
+            context = map_tensors(
+                context, lambda tensor: torch.cat([tensor, tensor[sc_rows].repeat(repeats, *(1,) * (tensor.ndim - 1))])
             )
         prediction = policy.velocity(x_in, t_in, s_in, context)  # one gradient pass over every kind of row
 

@@ -67,8 +67,8 @@ class EnergySnapFlowObjective(SnapFlowObjective):
             noises); each adds one row per one-step row to the gradient pass, and no teacher pass.
     """
 
-    energy_weight: float = 4.0
-    energy_samples: int = 2
+    energy_weight: float = 16.0
+    energy_samples: int = 3
     intermediate_jumps: float = field(default=0.0, init=False)  # every jump from noise, as the energy term's
 
     def __post_init__(self) -> None:
@@ -94,9 +94,8 @@ class EnergySnapFlowObjective(SnapFlowObjective):
         count = noise.shape[0]
         shape = ((self.energy_samples - 1) * count, *noise.shape[1:])
         more = draw_flow_noise(policy, shape, generator, draw_device(generator, noise.device)).to(noise)
-        of = torch.arange(count, device=noise.device).repeat(self.energy_samples - 1)
         ones = torch.ones(shape[0], device=noise.device)
-        return replace(rows, extra=SetRows(more, ones, torch.zeros_like(ones), of))
+        return replace(rows, extra=SetRows(more, ones, torch.zeros_like(ones), self.energy_samples - 1))
 
     def set_loss(
         self, rows: OneStepRows, prediction: Tensor, extra: Tensor, actions: Tensor, weights: Tensor | None

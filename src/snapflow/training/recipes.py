@@ -102,22 +102,22 @@ RECIPES: dict[str, Recipe] = {
         PAPER_STUDENT_TRAINING,
         {"consistency_weight": 3.0},
     ),
-    "modes": Recipe(
-        "snapflow's recipe with an energy term that keeps a multimodal teacher's modes (docs/concepts/recipes.md, "
-        f"'A recipe that keeps modes'): target energy, lambda 3, energy weight 4 on 2 one-step samples per observation "
-        f"({_PAPER_BUDGET})",
-        PAPER_STUDENT_TRAINING,
-        {
-            "consistency_weight": 3.0,
-            "target": "energy",
-            "objective_options": {"energy_weight": 4.0, "energy_samples": 2},
-        },
-    ),
     "paper": Recipe(
         f"the paper's settings: alpha {PAPER_ALPHA}, lambda {PAPER_CONSISTENCY_WEIGHT}, {PAPER_TARGET_STEPS}-step "
         f"Euler target, prefix frozen; {_PAPER_BUDGET}",
         PAPER_STUDENT_TRAINING,
         {},
+    ),
+    "modes": Recipe(
+        "snapflow's recipe with an energy term that keeps a multimodal teacher's modes (docs/concepts/recipes.md, "
+        "'A recipe that keeps modes'): target energy, lambda 0.3, energy weight 16 over 3 one-step samples an "
+        f"observation ({_PAPER_BUDGET})",
+        PAPER_STUDENT_TRAINING,
+        {
+            "consistency_weight": 0.3,
+            "target": "energy",
+            "objective_options": {"energy_weight": 16.0, "energy_samples": 3},
+        },
     ),
 }
 DEFAULT_RECIPE = "snapflow"
