@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from snapflow.evaluation.distances import energy_distance
+from snapflow.evaluation.distances import coverage_error, energy_distance, mode_shares
 
 
 def test_energy_distance_by_hand():
@@ -36,3 +36,17 @@ def test_energy_distance_rejects_bad_shapes():
         energy_distance(torch.zeros(5, 2), torch.zeros(5, 3))
     with pytest.raises(ValueError, match="two samples"):
         energy_distance(torch.zeros(1, 2), torch.zeros(5, 2))
+
+
+def test_mode_shares_and_coverage_error_by_hand():
+    """Two contexts of four samples over two modes (-1: off every mode): shares per context, the last column off
+    every mode; the coverage error is the mean total variation to the true weights, with zero truth off the modes."""
+    modes = torch.tensor([[0, 0, 1, -1], [1, 1, 1, 1]])
+    shares = mode_shares(modes, 2)
+    assert torch.equal(shares, torch.tensor([[0.5, 0.25, 0.25], [0.0, 1.0, 0.0]], dtype=torch.float64))
+    weights = torch.tensor([[0.5, 0.5], [0.5, 0.5]])
+    # context 0: |0.5 - 0.5| + |0.25 - 0.5| + |0.25 - 0| = 0.5 -> 0.25; context 1: 0.5 + 0.5 -> 0.5
+    assert coverage_error(shares, weights).item() == pytest.approx((0.25 + 0.5) / 2)
+    assert coverage_error(torch.tensor([[0.5, 0.5, 0.0]]), torch.tensor([[0.5, 0.5]])).item() == 0.0
+    with pytest.raises(ValueError, match="one column more"):
+        coverage_error(shares, torch.ones(2, 3))

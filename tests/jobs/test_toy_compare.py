@@ -13,7 +13,7 @@ import pytest
 from snapflow.cli import main
 from snapflow.jobs.runner import is_done
 from snapflow.jobs.toy_compare import ToyJob, compare_targets
-from snapflow.jobs.toy_config import RECORDED_SETTINGS, ToyConfig, toy_distill_settings
+from snapflow.jobs.toy_config import RECORDED_SETTINGS, BiasedOneStep, RecipeOption, ToyConfig, toy_distill_settings
 from snapflow.reporting.machine import versions
 from snapflow.training.recipes import TargetOption
 
@@ -75,7 +75,10 @@ def test_toy_compare_writes_a_table_per_target_reuses_finished_runs_and_reruns_s
     assert first["ratio_to_first_mean"] == 1.0 and len(first["distance_per_seed"]) == 2
     assert [row["teacher_passes_per_row"] for row in summary["rows"]] == [2.0, 3.0, 2.0]
     run = json.loads((tmp_path / "runs" / "euler-2-4" / "seed-1.json").read_text())
-    assert list(run) == ["config", "energy_distance", "distill_step_s", "versions"]
+    assert list(run) == [
+        *("config", "energy_distance", "distill_step_s", "coverage_error", "mode_shares", "true_mode_weights"),
+        "versions",
+    ]
     assert run["versions"] == versions(), "each run notes the versions it was made under"
     assert run["config"] == json.loads(
         json.dumps(replace(base, seed=1, distill=options[1].settings(base.distill)).record())
@@ -100,3 +103,35 @@ def test_toy_compare_writes_a_table_per_target_reuses_finished_runs_and_reruns_s
     compare_targets(options, [0, 1], base, tmp_path, progress=False)
     assert [path for path in runs if path.stat().st_mtime_ns != stamps[path]] == [stale], "only the stale run ran again"
     assert json.loads(stale.read_text())["config"] == replace(base, seed=0).record()
+
+
+@pytest.mark.slow
+def test_recipes_and_the_biased_one_step_are_rows_with_coverage_intervals_and_timed_step_costs(tmp_path):
+    """On the held-out rings: a target, the modes recipe and the biased one step, each row with its settings, its
+    mode coverage, its ratio's interval over seeds and its step cost relative to the first row's; the coverage plot."""
+    options = [TargetOption.parse("euler:2"), RecipeOption("modes"), BiasedOneStep()]
+    base = ToyConfig(
+        teacher_steps=10, distill_steps=8, batch_size=32, hidden_dim=32, eval_contexts=3, samples_per_context=50
+    )
+    summary = compare_targets(
+        options, [0, 1], replace(base, shape="rings"), tmp_path, workers=2, progress=False, step_repeats=1
+    )
+    first, modes, biased = summary["rows"]
+    assert (modes["option"], modes["target"], modes["student_rows_per_row"], modes["alpha"]) == (
+        "recipe-modes",
+        "energy",
+        3,
+        0.5,
+    )
+    assert (biased["alpha"], biased["teacher_passes_per_row"], biased["student_rows_per_row"]) == (1.0, 0.0, 1)
+    assert first["step_cost_ratio"] == 1.0 and modes["step_cost_ratio"] > 0
+    for row in summary["rows"]:
+        low, high = row["ratio_to_teacher_interval"]
+        assert low <= row["ratio_to_teacher_mean"] <= high and 0 <= row["coverage_error_mean"] <= 1
+    run = json.loads((tmp_path / "runs" / "biased-one-step" / "seed-0.json").read_text())
+    assert run["config"]["shape"] == "rings" and run["config"]["time_shift"] == 4.0
+    assert len(run["mode_shares"]["snapflow-1"]) == 3 and len(run["mode_shares"]["snapflow-1"][0]) == 3
+    table = (tmp_path / "comparison.md").read_text()
+    assert table.startswith("Toy conditional two rings, seeds 0, 1")
+    assert "| teacher 10-NFE |" in table and "| recipe modes | 0.5 / 0.3 |" in table
+    assert (tmp_path / "coverage.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

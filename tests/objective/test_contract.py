@@ -85,6 +85,8 @@ class ObjectiveContract:
     name: ClassVar[str]  # its key in snapflow.objective.OBJECTIVES
     options: ClassVar[dict[str, Any]] = {}  # keyword options for make_objective
     target_passes: ClassVar[int]  # no-grad velocity passes of the online policy per call (at the end of training)
+    samples_per_row: ClassVar[int] = 1  # rows of the gradient pass per one-step row (more: a set-level term's samples)
+    without_set_term: ClassVar[dict[str, Any]] = {}  # options that zero a set-level term, for the loss's combination
 
     def build(self, **changes: Any) -> TwoBranchObjective:
         return make_objective(self.name, **{**self.options, **changes})
@@ -108,13 +110,14 @@ class ObjectiveContract:
         for call in targets:
             assert not call.grad_enabled and not call.output.requires_grad
         assert gradient_pass.grad_enabled and gradient_pass.output.requires_grad
-        assert gradient_pass.x.shape == (6, CHUNK, ACTION_DIM)
         assert output.num_flow_matching + output.num_consistency == 6
+        rows = output.num_flow_matching + self.samples_per_row * output.num_consistency
+        assert gradient_pass.x.shape == (rows, CHUNK, ACTION_DIM)
 
     def test_loss_output_shapes_types_and_combination(self, policy_kind: str):
         """A scalar loss with a graph, detached finite scalar parts, integer row counts, and
         loss = alpha * L_FM + (1 - alpha) * lambda * L_one-step."""
-        output, _, _ = self.run(policy_kind, alpha=0.5, consistency_weight=0.3)
+        output, _, _ = self.run(policy_kind, alpha=0.5, consistency_weight=0.3, **self.without_set_term)
         assert isinstance(output, LossOutput)
         assert output.loss.shape == () and output.loss.requires_grad and torch.isfinite(output.loss)
         for part in (output.flow_matching_loss, output.consistency_loss):
@@ -175,7 +178,7 @@ class ObjectiveContract:
 
     def test_alpha_zero_is_the_one_step_branch_alone(self, policy_kind: str):
         """alpha = 0: every row is a one-step row and the loss is lambda * L_one-step."""
-        output, recorder, _ = self.run(policy_kind, alpha=0.0, consistency_weight=0.3)
+        output, recorder, _ = self.run(policy_kind, alpha=0.0, consistency_weight=0.3, **self.without_set_term)
         assert (output.num_flow_matching, output.num_consistency) == (0, 6) and output.flow_matching_loss == 0
         assert torch.all(recorder.calls[-1].s < recorder.calls[-1].t)
         assert torch.allclose(output.loss.detach(), 0.3 * output.consistency_loss)
@@ -243,6 +246,16 @@ class TestBootstrappedSnapFlow(ObjectiveContract):
     name = "snapflow-bootstrap"
     options = {"target_steps": 8}
     target_passes = 2
+
+
+class TestEnergySnapFlow(ObjectiveContract):
+    """SnapFlow's two-step target, and two more one-step samples per row in the gradient pass for its energy term."""
+
+    name = "snapflow-energy"
+    options = {"energy_samples": 3}
+    target_passes = 2
+    samples_per_row = 3
+    without_set_term = {"energy_weight": 0.0}
 
 
 class TestConsistencyDistillation(ObjectiveContract):

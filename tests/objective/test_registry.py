@@ -10,6 +10,7 @@ from snapflow.objective import (
     OBJECTIVES,
     BootstrappedSnapFlowObjective,
     ConsistencyDistillationObjective,
+    EnergySnapFlowObjective,
     MeanFlowObjective,
     SnapFlowObjective,
     make_objective,
@@ -21,21 +22,23 @@ from snapflow.training.recipes import DistillSettings
 
 
 def test_registry_maps_names_to_the_objective_classes_and_the_settings_that_pick_them():
-    """The four registered names, their classes, and the method and target of each; the methods and targets are
+    """The five registered names, their classes, and the method and target of each; the methods and targets are
     the registry's."""
     assert {name: entry.objective_class for name, entry in OBJECTIVES.items()} == {
         "snapflow": SnapFlowObjective,
         "snapflow-bootstrap": BootstrappedSnapFlowObjective,
+        "snapflow-energy": EnergySnapFlowObjective,
         "consistency-distillation": ConsistencyDistillationObjective,
         "meanflow": MeanFlowObjective,
     }
     assert methods() == ("snapflow", "consistency-distillation", "meanflow")
-    assert targets() == ("euler", "bootstrap")
+    assert targets() == ("euler", "bootstrap", "energy")
     picked = {
         (settings.method, settings.target): settings.objective_type.name
         for settings in (
             DistillSettings(),
             DistillSettings(target="bootstrap", target_steps=4),
+            DistillSettings(target="energy"),
             DistillSettings(method="consistency-distillation"),
             DistillSettings(method="meanflow"),
         )
@@ -43,6 +46,7 @@ def test_registry_maps_names_to_the_objective_classes_and_the_settings_that_pick
     assert picked == {
         ("snapflow", "euler"): "snapflow",
         ("snapflow", "bootstrap"): "snapflow-bootstrap",
+        ("snapflow", "energy"): "snapflow-energy",
         ("consistency-distillation", "euler"): "consistency-distillation",
         ("meanflow", "euler"): "meanflow",
     }
@@ -58,6 +62,9 @@ def test_options_are_the_constructor_fields():
         "intermediate_jumps",
     }
     assert objective_options("snapflow-bootstrap") == shared | {"target_steps"}
+    assert objective_options("snapflow-energy") == shared | {
+        *("teacher_velocity_clamp", "teacher_velocity", "target_steps", "energy_weight", "energy_samples"),
+    }
     assert objective_options("consistency-distillation") == shared | {"num_intervals", "ema_decay"}
     assert objective_options("meanflow") == shared | {"adaptive_power"}
 
@@ -108,7 +115,7 @@ def test_unknown_objective_and_option_are_named():
     for call in (lambda: make_objective("dance"), lambda: objective_options("dance")):
         with pytest.raises(
             ValueError,
-            match="unknown objective 'dance'; choose one of snapflow, snapflow-bootstrap, "
+            match="unknown objective 'dance'; choose one of snapflow, snapflow-bootstrap, snapflow-energy, "
             "consistency-distillation, meanflow",
         ):
             call()

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from snapflow.reporting.statistics import mean_std, paired_difference, wilson_interval
+from snapflow.reporting.statistics import mean_std, paired_difference, t_interval_95, wilson_interval
 
 
 @pytest.mark.parametrize("successes, trials", [(8, 10), (0, 10), (10, 10), (187, 200), (1, 1)])
@@ -56,3 +56,14 @@ def test_a_paired_difference_is_the_mean_difference_with_a_bootstrap_interval_ar
 
 def test_mean_std_is_the_sample_standard_deviation():
     assert mean_std([1.0, 2.0, 3.0]) == pytest.approx((2.0, 1.0)) and mean_std([4.0]) == (4.0, 0.0)
+
+
+def test_t_interval_is_the_mean_plus_minus_the_t_quantile_times_the_standard_error():
+    """Three seeds: 2 degrees of freedom, quantile 4.303; a single value is its own interval."""
+    low, high = t_interval_95([1.0, 2.0, 3.0])
+    assert (low, high) == pytest.approx((2 - 4.303 / math.sqrt(3), 2 + 4.303 / math.sqrt(3)))
+    assert t_interval_95([0.7]) == (0.7, 0.7)
+    # beyond the table the approximation is within 0.01 of t's quantile (2.042 at 30 degrees of freedom)
+    values = [float(v) for v in range(31)]
+    half = (t_interval_95(values)[1] - t_interval_95(values)[0]) / 2
+    assert half / (np.std(values, ddof=1) / math.sqrt(31)) == pytest.approx(2.042, abs=0.01)

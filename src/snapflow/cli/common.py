@@ -265,8 +265,8 @@ def add_objective_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--target",
         choices=targets(),
-        help="SnapFlow's one-step target: the average of Euler velocities, or bootstrapped from the model's own half-jumps"
-        + recipe,
+        help="SnapFlow's one-step target: the average of Euler velocities, bootstrapped from the model's own half-jumps, "
+        "or Euler's with an energy term over several one-step samples per observation (keeps modes)" + recipe,
     )
     parser.add_argument(
         "--target-steps",

@@ -17,7 +17,7 @@ from snapflow.cli.common import (
     given,
     nothing_written,
 )
-from snapflow.jobs.toy_config import ToyConfig, toy_distill_settings
+from snapflow.jobs.toy_config import SHAPES, ToyConfig, toy_distill_settings
 from snapflow.reporting.files import write_json
 
 
@@ -31,6 +31,9 @@ def add_parser(subparsers: Any) -> None:
     )
     parser.add_argument(
         "--seed", type=NON_NEGATIVE_COUNT, default=ToyConfig.seed, help="seed of data, models and noise"
+    )
+    parser.add_argument(
+        "--shape", choices=SHAPES, default=ToyConfig.shape, help="the toy distribution: the mixture, or two rings"
     )
     add_step_options(parser)
     add_objective_options(parser)
@@ -52,7 +55,11 @@ def run(args: argparse.Namespace) -> int:
     objective = {"method": args.method, "consistency_weight": args.consistency_weight, "target": args.target}
     settings = toy_distill_settings(**given({**objective, "target_steps": args.target_steps}))
     config = ToyConfig(
-        seed=args.seed, teacher_steps=args.teacher_steps, distill_steps=args.distill_steps, distill=settings
+        seed=args.seed,
+        teacher_steps=args.teacher_steps,
+        distill_steps=args.distill_steps,
+        distill=settings,
+        shape=args.shape,
     )
     started = time.perf_counter()
     result = run_toy_experiment(config, progress=not args.no_progress)

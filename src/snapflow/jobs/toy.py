@@ -1,7 +1,9 @@
 """``snapflow toy``: the paper's story in miniature, on a conditional Gaussian mixture whose samples are exact.
 
 Train a flow-matching teacher, SnapFlow-distill it, then compare the 10-step teacher, the naive 1-step teacher
-(which collapses onto the conditional mean) and SnapFlow 1-NFE by their energy distance to the data.
+(which collapses onto the conditional mean) and SnapFlow 1-NFE by their energy distance to the data and their mode
+coverage (per observation, the share of samples in each mode against the true one). ``ToyConfig.shape`` picks the
+distribution (:mod:`snapflow.data.toy_shapes`).
 """
 
 from __future__ import annotations
@@ -15,8 +17,8 @@ import torch
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from snapflow.data.toy_mixture import ConditionalGaussianMixture
-from snapflow.evaluation.distances import energy_distance
+from snapflow.data.toy_shapes import ToyShape
+from snapflow.evaluation.distances import coverage_error, energy_distance, mode_shares
 from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, STANDARD_MODES, TEACHER_10
 from snapflow.flow.solver import sample_actions
 from snapflow.flow.time_sampling import UniformTimeSampler
@@ -33,8 +35,10 @@ from snapflow.training.trainer import ObjectiveModule, train_step
 
 @dataclass
 class ToyResult:
-    """Mean energy distance to exact samples per sampling mode, the distillation's seconds per step, and
-    what is needed to plot them."""
+    """Mean energy distance to exact samples per sampling mode, the distillation's seconds per step, each sampler's
+    mode coverage (``coverage``: its :func:`~snapflow.evaluation.distances.coverage_error`; ``shares``: per evaluation
+    context, the share of samples in each mode and, last, off every mode; ``data`` the exact samples' own), and what
+    is needed to plot them."""
 
     config: ToyConfig
     distances: dict[str, float]
@@ -42,12 +46,18 @@ class ToyResult:
     eval_contexts: Tensor
     data_samples: Tensor = field(repr=False)
     model_samples: dict[str, Tensor] = field(repr=False)
+    coverage: dict[str, float] = field(default_factory=dict)
+    shares: dict[str, list[list[float]]] = field(default_factory=dict, repr=False)
+    true_weights: list[list[float]] = field(default_factory=list, repr=False)
 
     def to_dict(self) -> dict:
         return {
             "config": self.config.record(),
             "energy_distance": self.distances,
             "distill_step_s": self.distill_step_s,
+            "coverage_error": self.coverage,
+            "mode_shares": self.shares,
+            "true_mode_weights": self.true_weights,
         }
 
 
@@ -55,7 +65,7 @@ def _fit(
     policy: SnapFlowPolicy,
     trainable: list[torch.nn.Parameter],
     objective: TwoBranchObjective,
-    mixture: ConditionalGaussianMixture,
+    mixture: ToyShape,
     config: TrainConfig,
     generator: torch.Generator,
     description: str,
@@ -104,7 +114,7 @@ def run_toy_experiment(config: ToyConfig | None = None, progress: bool = True) -
     config = config or ToyConfig()
     torch.manual_seed(config.seed)
     generator = torch.Generator().manual_seed(config.seed)
-    mixture = ConditionalGaussianMixture(num_modes=config.num_modes, radius=config.mode_radius)
+    mixture = ToyShape(config.shape, config.num_modes, config.mode_radius)
     model = MLPFlowModel(
         MLPPolicyConfig(observation_dim=mixture.context_dim, action_dim=2, hidden_dim=config.hidden_dim)
     )
@@ -149,7 +159,12 @@ def run_toy_experiment(config: ToyConfig | None = None, progress: bool = True) -
             .mean()
             .item()
         )
-    return ToyResult(config, distances, step_s, contexts, data, samples)
+    weights = mixture.mode_weights(contexts)
+    coverage, shares = {}, {}
+    for name, points in {"data": data, **samples}.items():
+        share = mode_shares(mixture.mode_of(points.reshape(-1, 2)).view(points.shape[:2]), mixture.num_modes)
+        coverage[name], shares[name] = coverage_error(share, weights).item(), share.tolist()
+    return ToyResult(config, distances, step_s, contexts, data, samples, coverage, shares, weights.tolist())
 
 
 def markdown_toy(result: ToyResult) -> str:
@@ -160,15 +175,23 @@ def markdown_toy(result: ToyResult) -> str:
     student = "SnapFlow 1-NFE" if method == "snapflow" else f"{method} 1-NFE"
     rows = [("teacher 10-NFE", TEACHER_10.name, 10), ("naive 1-NFE", NAIVE_1.name, 1), (student, SNAPFLOW_1.name, 1)]
     table = markdown_table(
-        ["sampler", "NFE", "energy distance", "/ naive 1-NFE"],
+        ["sampler", "NFE", "energy distance", "/ naive 1-NFE", "coverage error"],
         [
-            [label, nfe, f"{result.distances[key]:.4f}", f"{result.distances[key] / naive:.3f}"]
+            [
+                label,
+                nfe,
+                f"{result.distances[key]:.4f}",
+                f"{result.distances[key] / naive:.3f}",
+                f"{result.coverage[key]:.3f}",
+            ]
             for label, key, nfe in rows
         ],
     )
+    shape = "Conditional Gaussian mixture" if config.shape == "mixture" else "Conditional two rings"
     return (
-        f"Conditional Gaussian mixture, seed {config.seed}: {config.eval_contexts} contexts x "
-        f"{config.samples_per_context} samples, energy distance to exact samples (lower is better)\n\n{table}"
+        f"{shape}, seed {config.seed}: {config.eval_contexts} contexts x {config.samples_per_context} samples, energy "
+        "distance to exact samples and coverage error (the total variation between the samples' shares of the modes "
+        f"and the true weights; exact samples {result.coverage['data']:.3f}), lower is better\n\n{table}"
     )
 
 

@@ -2,16 +2,21 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
+from snapflow.errors import InvalidInputError
 from snapflow.objective.settings import DistillSettings
-from snapflow.reporting.records import as_record
-from snapflow.training.recipes import DEFAULT_RECIPE, student_settings
+from snapflow.reporting.records import added_option, as_record
+from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES, TargetOption, student_settings
 
 #: the distillation settings every toy run records, in this order among its own (the cache keys of the committed
 #: comparisons, docs/results/toy-targets*); another setting is recorded where it differs from the toy's default
 RECORDED_SETTINGS = ("alpha", "consistency_weight", "method", "target", "target_steps")
+
+#: the toy's distributions (:mod:`snapflow.data.toy_shapes`): the mixture of ``num_modes`` Gaussians on a circle, and
+#: two concentric rings, held out from tuning
+SHAPES = ("mixture", "rings")
 
 
 def toy_distill_settings(**given: Any) -> DistillSettings:
@@ -38,6 +43,11 @@ class ToyConfig:
     hidden_dim: int = 256
     eval_contexts: int = 12
     samples_per_context: int = 400
+    shape: str = added_option("mixture")
+
+    def __post_init__(self) -> None:
+        if self.shape not in SHAPES:
+            raise InvalidInputError(f"unknown toy shape {self.shape!r}; choose one of {list(SHAPES)}")
 
     def record(self) -> dict[str, Any]:
         """The settings as a toy run records them (its cache key): the fields in order, ``distill`` in its place as
@@ -54,4 +64,61 @@ class ToyConfig:
         return record
 
 
-__all__ = ["RECORDED_SETTINGS", "ToyConfig", "toy_distill_settings"]
+@dataclass(frozen=True)
+class RecipeOption:
+    """A row of ``snapflow toy-compare``: a named recipe's distillation settings (:data:`RECIPES`) on the toy, every
+    parameter trained as in :func:`toy_distill_settings` (the comparison's own lambda does not apply)."""
+
+    recipe: str
+
+    def __post_init__(self) -> None:
+        if self.recipe not in RECIPES:
+            raise InvalidInputError(f"unknown recipe {self.recipe!r}; choose one of {list(RECIPES)}")
+
+    @property
+    def name(self) -> str:
+        return f"recipe-{self.recipe}"
+
+    @property
+    def label(self) -> str:
+        return f"recipe {self.recipe}"
+
+    def settings(self, base: DistillSettings | None = None) -> DistillSettings:
+        """The recipe's settings with every parameter trained; ``base`` is not read."""
+        return student_settings(self.recipe, distill={"freeze_prefix": False})[1]
+
+    @property
+    def teacher_passes(self) -> float:
+        """No-grad passes per one-step row, as its target's (:attr:`TargetOption.teacher_passes`)."""
+        settings = self.settings()
+        return TargetOption(settings.target, settings.target_steps).teacher_passes
+
+
+#: arXiv 2606.05737's high-noise-biased fine-tuning: flow matching alone on times shifted toward noise by this factor
+BIASED_TIME_SHIFT = 4.0
+
+
+@dataclass(frozen=True)
+class BiasedOneStep:
+    """A row of ``snapflow toy-compare``: no distillation, the teacher fine-tuned by flow matching on times biased
+    toward noise (``time_shift`` :data:`BIASED_TIME_SHIFT`, every row flow matching), then sampled in one Euler step
+    (its phi_s stays zero, so its jump is that step), as arXiv 2606.05737 does."""
+
+    name = "biased-one-step"
+    label = "biased one step (t shift 4)"
+    teacher_passes = 0.0
+
+    def settings(self, base: DistillSettings | None = None) -> DistillSettings:
+        """``base`` (default: the toy's) with alpha 1 and the noise-biased times."""
+        return replace(base or toy_distill_settings(), alpha=1.0, time_shift=BIASED_TIME_SHIFT)
+
+
+__all__ = [
+    "BIASED_TIME_SHIFT",
+    "BiasedOneStep",
+    "RecipeOption",
+    "RECORDED_SETTINGS",
+    "SHAPES",
+    "ToyConfig",
+    "toy_distill_settings",
+]

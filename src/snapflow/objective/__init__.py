@@ -7,7 +7,8 @@ __getattr__, __dir__, __all__ = lazy_exports(
     {
         "snapflow.objective.bootstrap": ["BootstrappedSnapFlowObjective"],
         "snapflow.objective.consistency_distillation": ["ConsistencyDistillationObjective"],
-        "snapflow.objective.base": ["LossOutput", "OneStepRows", "TwoBranchObjective"],
+        "snapflow.objective.base": ["LossOutput", "OneStepRows", "SetRows", "TwoBranchObjective"],
+        "snapflow.objective.energy": ["EnergySnapFlowObjective"],
         "snapflow.objective.meanflow": ["MeanFlowObjective"],
         "snapflow.objective.registry": ["OBJECTIVES", "ObjectiveType", "make_objective", "register_objective"],
         "snapflow.objective.settings": ["DistillSettings"],

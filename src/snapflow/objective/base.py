@@ -5,7 +5,10 @@ F(x_t, s=t, t) on eps - a, which is also what the one-step targets are built fro
 "one-step" rows: each method chooses their inputs (x, t, s) and a regression target computed without
 gradient, and one gradient pass covers both kinds of rows:
 
-    L = alpha * L_FM + (1 - alpha) * lambda * mean_rows(w * || F(x, t, s) - target ||^2).
+    L = alpha * L_FM + (1 - alpha) * (lambda * mean_rows(w * || F(x, t, s) - target ||^2) + L_set).
+
+A method may add more one-step rows to the same pass (:class:`SetRows`: more samples of a row's observation, from
+other noises) and score them, with the one-step rows, by a set-level term L_set (:meth:`TwoBranchObjective.set_loss`).
 
 A policy whose chunks hold padding (:class:`snapflow.protocol.PaddedActions`) has both means taken over the
 entries it weighs only: L_FM over all the FM rows' weighted entries (as GR00T's own loss), each one-step row's
@@ -25,7 +28,7 @@ from torch import Tensor
 from snapflow.errors import InvalidInputError
 from snapflow.flow.path import conditional_velocity, interpolate
 from snapflow.flow.time_sampling import TimeSampler
-from snapflow.protocol import Context, FlowPolicy, PaddedActions, draw_flow_noise, index_batch
+from snapflow.protocol import Context, FlowPolicy, PaddedActions, draw_flow_noise, index_batch, map_tensors
 
 
 def draw_device(generator: torch.Generator | None, device: torch.device) -> torch.device:
@@ -69,11 +72,23 @@ class LossOutput:
 
 
 @dataclass(frozen=True)
+class SetRows:
+    """More one-step rows in the same gradient pass, without a regression target of their own: ``repeats`` more samples
+    of every one-step row's observation, each from its own input ``x`` (sample j of one-step row r at row j R + r)."""
+
+    x: Tensor
+    t: Tensor
+    s: Tensor
+    repeats: int
+
+
+@dataclass(frozen=True)
 class OneStepRows:
     """Inputs and no-grad regression target of a method's one-step rows.
 
     ``weight`` (rows,) scales each row's squared error e; ``adaptive_power`` p > 0 further divides it by
     sg(e + ADAPTIVE_EPSILON) ** p, MeanFlow's adaptive loss weighting (p = 1 makes each row's loss ~ 1 - c / e).
+    ``extra`` holds more rows for a set-level term (:meth:`TwoBranchObjective.set_loss`).
     """
 
     x: Tensor
@@ -82,6 +97,7 @@ class OneStepRows:
     target: Tensor
     weight: Tensor | None = None
     adaptive_power: float = 0.0
+    extra: SetRows | None = None
 
 
 ADAPTIVE_EPSILON = 1e-3
@@ -133,6 +149,13 @@ class TwoBranchObjective(ABC):
     def schedule(self, progress: float) -> dict[str, int]:
         """The scheduled settings in force at ``progress``, which the trainer logs; none by default."""
         return {}
+
+    def set_loss(
+        self, rows: OneStepRows, prediction: Tensor, extra: Tensor, actions: Tensor, weights: Tensor | None
+    ) -> Tensor:
+        """The set-level term L_set of an objective whose one-step rows hold ``extra`` rows, from the one-step rows'
+        ``prediction``, the extra rows' (``extra``), the rows' ``actions`` and their entries' ``weights``."""
+        raise ValueError(f"{type(self).__name__} returned extra one-step rows but scores none")
 
     def __call__(
         self,
@@ -193,7 +216,17 @@ class TwoBranchObjective(ABC):
                 torch.cat([t_in, rows.t.to(t_in.dtype)]),
                 torch.cat([s_in, rows.s.to(s_in.dtype)]),
             )
-        prediction = policy.velocity(x_in, t_in, s_in, context)  # one gradient pass over both kinds of rows
+        if rows is not None and rows.extra is not None:  # each extra row on its one-step row's context
+            x_in, t_in, s_in = (
+                torch.cat([x_in, rows.extra.x]),
+                torch.cat([t_in, rows.extra.t.to(t_in.dtype)]),
+                torch.cat([s_in, rows.extra.s.to(s_in.dtype)]),
+            )
+            repeats = rows.extra.repeats  # the one-step rows' contexts tiled (a copy: on a CPU, cheaper than a gather)
+            context = map_tensors(
+                context, lambda tensor: torch.cat([tensor, tensor[sc_rows].repeat(repeats, *(1,) * (tensor.ndim - 1))])
+            )
+        prediction = policy.velocity(x_in, t_in, s_in, context)  # one gradient pass over every kind of row
 
         zero = prediction.new_zeros(())
         fm_loss = zero
@@ -208,7 +241,20 @@ class TwoBranchObjective(ABC):
                 weighted = weighted / (error.detach() + ADAPTIVE_EPSILON) ** rows.adaptive_power
             sc_loss = weighted.mean()
         loss = self.alpha * fm_loss + (1 - self.alpha) * self.consistency_weight * sc_loss
+        if rows is not None and rows.extra is not None:
+            sc_weights = None if weights is None else weights[sc_rows]
+            set_term = self.set_loss(rows, prediction[sc_rows], prediction[batch:], actions[sc_rows], sc_weights)
+            loss = loss + (1 - self.alpha) * set_term
         return LossOutput(loss, fm_loss.detach(), sc_loss.detach(), n_fm, n_sc)
 
 
-__all__ = ["LossOutput", "OneStepRows", "TwoBranchObjective", "draw_device", "row_means", "uniform", "weighted_mean"]
+__all__ = [
+    "LossOutput",
+    "OneStepRows",
+    "SetRows",
+    "TwoBranchObjective",
+    "draw_device",
+    "row_means",
+    "uniform",
+    "weighted_mean",
+]

@@ -72,6 +72,13 @@ register_objective(
     target="bootstrap",
 )
 register_objective(
+    "snapflow-energy",
+    "snapflow.objective.energy:EnergySnapFlowObjective",
+    ("teacher_velocity_clamp", "teacher_velocity", "target_steps", "energy_weight", "energy_samples"),
+    method="snapflow",
+    target="energy",
+)
+register_objective(
     "consistency-distillation",
     "snapflow.objective.consistency_distillation:ConsistencyDistillationObjective",
     ("num_intervals", "ema_decay"),

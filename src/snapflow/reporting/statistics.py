@@ -15,6 +15,24 @@ def mean_std(values: list[float]) -> tuple[float, float]:
     return float(np.mean(values)), float(np.std(values, ddof=1)) if len(values) > 1 else 0.0
 
 
+# two-sided 95% quantiles of Student's t with 1, 2, ..., 10 degrees of freedom
+_T_95 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228)
+
+
+def t_interval_95(values: Sequence[float]) -> tuple[float, float]:
+    """Student's t 95% interval of the mean of a few per-seed results (beyond 10 degrees of freedom, its quantile by
+    the first Cornish-Fisher term, within 0.01); a single value is its own interval."""
+    if len(values) < 1:
+        raise ValueError("an interval needs at least one value")
+    mean, std = mean_std(list(values))
+    freedom = len(values) - 1
+    if not freedom:
+        return mean, mean
+    quantile = _T_95[freedom - 1] if freedom <= len(_T_95) else Z_95 + (Z_95**3 + Z_95) / (4 * freedom)
+    half = quantile * std / math.sqrt(len(values))
+    return mean - half, mean + half
+
+
 def wilson_interval(successes: int, trials: int, z: float = Z_95) -> tuple[float, float]:
     """Wilson score interval of a success rate (95% by default): unlike the normal approximation, it stays inside
     [0, 1] and keeps its coverage near 0% and 100%, where robot success rates live."""
@@ -44,4 +62,4 @@ def paired_difference(
     return float(differences.mean()), float(low), float(high)
 
 
-__all__ = ["Z_95", "mean_std", "wilson_interval", "paired_difference"]
+__all__ = ["Z_95", "mean_std", "t_interval_95", "wilson_interval", "paired_difference"]

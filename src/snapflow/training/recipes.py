@@ -61,6 +61,8 @@ class TargetOption:
     def label(self) -> str:
         if self.target == "bootstrap":
             return f"bootstrapped (K -> {self.steps})"
+        if self.target == "energy":
+            return f"energy term, K = {self.steps}"
         return f"K = {self.steps}" if isinstance(self.steps, int) else "K = " + " -> ".join(map(str, self.steps))
 
     def settings(self, base: DistillSettings | None = None) -> DistillSettings:
@@ -69,7 +71,8 @@ class TargetOption:
 
     @property
     def teacher_passes(self) -> float:
-        """No-grad passes per one-step row (averaged over a schedule's stages); each row adds one gradient pass."""
+        """No-grad passes per one-step row (averaged over a schedule's stages); each row adds one gradient pass (the
+        energy target adds more rows to that pass, and no no-grad pass)."""
         if self.target == "bootstrap":
             return 2.0
         stages = target_stages(self.steps)
@@ -104,6 +107,17 @@ RECIPES: dict[str, Recipe] = {
         f"Euler target, prefix frozen; {_PAPER_BUDGET}",
         PAPER_STUDENT_TRAINING,
         {},
+    ),
+    "modes": Recipe(
+        "snapflow's recipe with an energy term that keeps a multimodal teacher's modes (docs/concepts/recipes.md, "
+        "'A recipe that keeps modes'): target energy, lambda 0.3, energy weight 16 over 3 one-step samples an "
+        f"observation ({_PAPER_BUDGET})",
+        PAPER_STUDENT_TRAINING,
+        {
+            "consistency_weight": 0.3,
+            "target": "energy",
+            "objective_options": {"energy_weight": 16.0, "energy_samples": 3},
+        },
     ),
 }
 DEFAULT_RECIPE = "snapflow"
