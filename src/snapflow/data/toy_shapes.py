@@ -15,13 +15,13 @@ from collections.abc import Callable
 import torch
 from torch import Tensor
 
-from snapflow.data.toy_mixture import ConditionalGaussianMixture
+from snapflow.data.toy_mixture import ConditionalGaussianMixture, ContextWeightedModes
 
 #: a sample further than this many mode standard deviations from every mode lies off them all
 OFF_MODE_STDS = 4.0
 
 
-class ConditionalRings:
+class ConditionalRings(ContextWeightedModes):
     """p(a | c) = sum_k softmax(gain * W c)_k Ring(r_k): a uniform angle, the radius r_k + std * N(0, 1).
 
     The radii are ``radius`` * (1 + k) / ``num_modes`` (two rings of radii 1 and 2 by default); contexts are
@@ -37,23 +37,13 @@ class ConditionalRings:
         weight_gain: float = 2.0,
         seed: int = 0,
     ) -> None:
+        super().__init__(num_modes, context_dim, weight_gain, seed)
         self.radii = radius * torch.arange(1, num_modes + 1, dtype=torch.float32) / num_modes
         self.mode_std = mode_std
-        self.context_dim = context_dim
-        self.num_modes = num_modes
-        self.logit_map = weight_gain * torch.randn(
-            num_modes, context_dim, generator=torch.Generator().manual_seed(seed)
-        )
-
-    def mode_weights(self, context: Tensor) -> Tensor:
-        return torch.softmax(context @ self.logit_map.T, dim=1)
-
-    def sample_contexts(self, n: int, generator: torch.Generator | None = None) -> Tensor:
-        return torch.randn(n, self.context_dim, generator=generator)
 
     def sample(self, context: Tensor, generator: torch.Generator | None = None) -> Tensor:
         """One exact sample a ~ p(a | c) per context row, shape (B, 2)."""
-        modes = torch.multinomial(self.mode_weights(context), 1, generator=generator).squeeze(1)
+        modes = self.sample_modes(context, generator)
         angles = 2 * math.pi * torch.rand(len(modes), generator=generator)
         radii = self.radii[modes] + self.mode_std * torch.randn(len(modes), generator=generator)
         return radii[:, None] * torch.stack([angles.cos(), angles.sin()], dim=1)
