@@ -322,11 +322,14 @@ def write_tiny_dataset(
     nan_at: int | None = None,
     bimodal: bool = False,
     seed: int = 0,
+    mode_per_episode: bool = False,
 ) -> Path:
     """A LeRobotDataset on disk (images stored in the parquet, no video) whose tasks use the tiny vocabulary;
     ``nan_at`` puts a NaN into that frame's action. ``bimodal``: each action is one of two far-apart values by a coin
     the observation does not show, so the flow from noise to actions curves (one Euler step lands between the
-    modes)."""
+    modes); with ``mode_per_episode`` an episode keeps to one of them (a demonstrator who keeps to one way: the
+    episodes alternate, the first one's mode drawn), twin episodes seeing the same frames and task, so that a chunk's
+    first actions tell its others and the observation does not."""
     import numpy as np
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
@@ -349,20 +352,29 @@ def write_tiny_dataset(
         image_writer_threads=0,
         image_writer_processes=0,
     )
+    first_mode = None
     for episode in range(episodes):
+        # with a mode an episode, episodes come in twins that see the same frames and task in opposite modes: only a
+        # chunk's own first actions tell its mode, never the observation
+        seen = np.random.default_rng([seed, episode // 2]) if mode_per_episode else generator
+        task = (episode // 2 if mode_per_episode else episode) % 3
         for frame in range(frames):
             action = (generator.standard_normal(4) + episode).astype(np.float32)
             if bimodal:
-                action = generator.choice([-1.0, 1.0]) * np.array([2.0, -2.0, 1.0, 1.5]) + 0.1 * action
+                sign = generator.choice([-1.0, 1.0])
+                if mode_per_episode:
+                    first_mode = sign if first_mode is None else first_mode
+                    sign = first_mode * (-1.0) ** episode
+                action = sign * np.array([2.0, -2.0, 1.0, 1.5]) + 0.1 * action
                 action = action.astype(np.float32)
             if episode * frames + frame == nan_at:
                 action[1] = np.nan
             dataset.add_frame(
                 {
-                    "observation.state": generator.standard_normal(6).astype(np.float32),
-                    "observation.images.top": generator.integers(0, 256, (IMAGE_SIZE, IMAGE_SIZE, 3), dtype=np.uint8),
+                    "observation.state": seen.standard_normal(6).astype(np.float32),
+                    "observation.images.top": seen.integers(0, 256, (IMAGE_SIZE, IMAGE_SIZE, 3), dtype=np.uint8),
                     "action": action,
-                    "task": ["push the red cube", "open the drawer", "pick the blue cube"][episode % 3],
+                    "task": ["push the red cube", "open the drawer", "pick the blue cube"][task],
                 }
             )
         dataset.save_episode()

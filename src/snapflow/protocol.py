@@ -3,7 +3,9 @@
 ``FlowPolicy`` is all the objective and the samplers ever see. ``TimeEmbeddingModel`` is what a plain
 flow-matching policy exposes so that :class:`snapflow.nn.SnapFlowPolicy` can add the target-time
 embedding to it without editing its code. ``PaddedActions`` is what a policy whose chunks hold entries its
-own loss leaves out (GR00T's padded width) adds, so that the objective leaves them out too. The fast paths
+own loss leaves out (GR00T's padded width) adds, so that the objective leaves them out too. ``PerActionTimes`` is
+what a policy whose time enters each action of the chunk on its own (SmolVLA) adds, so that a known prefix of the
+chunk can ride at time 0 (:mod:`snapflow.flow.known_prefix`, real-time chunking trained in). The fast paths
 (:mod:`snapflow.inference`) ask for the others by ``isinstance``: ``CompiledParts``, ``VisionPrecision``,
 ``HostSyncFree``, ``PromptPaddingTrim`` and ``FusedOneStep``.
 
@@ -68,6 +70,16 @@ class PaddedActions(Protocol):
     def action_weights(self, observation: Any) -> Tensor | None:
         """Per-entry loss weights for the chunks of ``observation``'s batch, broadcastable to (B, *action_shape)
         (1 where an entry counts, 0 where it is padding), or None where every entry counts."""
+        ...
+
+
+@runtime_checkable
+class PerActionTimes(Protocol):
+    """A policy that takes a time per action of the chunk: ``t`` and ``s`` of shape (B, chunk length), each action's
+    own time and target time, so that some actions ride clean (time 0) beside others at any time."""
+
+    def velocity_per_action(self, x_t: Tensor, t: Tensor, s: Tensor, context: Context) -> Tensor:
+        """The velocity as :meth:`FlowPolicy.velocity`, with ``t`` and ``s`` of shape (B, chunk length)."""
         ...
 
 
@@ -155,6 +167,7 @@ __all__ = [
     "FusedOneStep",
     "HostSyncFree",
     "PaddedActions",
+    "PerActionTimes",
     "PromptPaddingTrim",
     "TimeEmbeddingModel",
     "VisionPrecision",

@@ -3,6 +3,7 @@ output), prefix inpainting on the one jump (the executed prefix continues the pr
 
 from __future__ import annotations
 
+import json
 import warnings
 
 import pytest
@@ -120,14 +121,74 @@ def test_trained_rtc_is_refused_by_name(vlm_directory):
         student.predict_action_chunk(tiny_batch(), inference_delay=1, prev_chunk_left_over=prev)
 
 
-def test_the_boundary_benchmark_measures_every_row_on_recorded_chunks(vlm_directory, tmp_path):
-    from snapflow.benchmark.rtc import ROWS, boundary_jumps, write_boundary_report
+@pytest.mark.parametrize("mode", ["snapflow-1", "teacher-10"])
+def test_trained_rtc_gives_a_student_distilled_with_known_prefixes_the_previous_chunk_in_every_pass(
+    vlm_directory, mode
+):
+    from dataclasses import replace
+
+    from lerobot.configs.types import RTCAttentionSchedule
+    from lerobot.policies.rtc.configuration_rtc import RTCConfig
+
+    from snapflow.adapters.lerobot.rtc import inpaint_prefix
+    from snapflow.flow.known_prefix import sample_continuing
+    from snapflow.flow.modes import SamplingMode
 
     student = _student(vlm_directory)
-    rows = boundary_jumps(student, tiny_batch(batch_size=5), executed=2, inference_delay=1)
-    assert [row.name for row in rows] == [name for name, *_ in ROWS]
+    student.config.distill = replace(student.config.distill, rtc_max_delay=DELAY)
+    student.config.sampling_mode = mode
+    prev = torch.randn(4, 4, 4, generator=torch.Generator().manual_seed(5))
+    rtc = dict(inference_delay=DELAY, prev_chunk_left_over=prev, execution_horizon=HORIZON)
+    without = _chunk(student, rtc=False, **rtc)
+    noise = torch.randn(4, 4, 4, generator=torch.Generator().manual_seed(3))
+    chunks = {}
+    for schedule in (RTCAttentionSchedule.ZEROS, RTCAttentionSchedule.LINEAR):
+        student.config.rtc_config = RTCConfig(
+            enabled=True, execution_horizon=HORIZON, prefix_attention_schedule=schedule
+        )
+        student.config.rtc_config.mode = (
+            "trained"  # newer LeRobot's field; set on 0.6's config as lerobot-rollout would
+        )
+        student.init_rtc_processor()
+        chunks[schedule] = student.predict_action_chunk(tiny_batch(), noise=noise, **rtc)
+    trained = chunks[RTCAttentionSchedule.ZEROS]
+    assert torch.equal(trained[:, :DELAY], prev[:, :DELAY]), "the executed prefix is the previous chunk's, exactly"
+    assert (trained[:, DELAY:] - without[:, DELAY:]).abs().max() > 1e-3, "and the rest is conditioned on it"
+    adapter = student.snapflow
+    with torch.no_grad():  # snapflow's own sampler on the adapter, the same chunk
+        own = sample_continuing(adapter, adapter.encode(tiny_batch()), noise, SamplingMode.parse(mode), prev, DELAY)
+    assert torch.allclose(trained, own, atol=1e-6), "no ramp: LeRobot's trained mode as it is"
+    ramp = inpaint_prefix(own, student.rtc_processor, prev, DELAY, HORIZON)  # a jump blends as an untrained one does
+    assert torch.allclose(chunks[RTCAttentionSchedule.LINEAR], ramp if mode == "snapflow-1" else own, atol=1e-6)
+    with pytest.raises(ValueError, match="inference delay of 3 is past the 2 actions"):
+        student.predict_action_chunk(tiny_batch(), noise=noise, **{**rtc, "inference_delay": 3})
+
+
+def test_a_time_per_action_equal_to_the_rows_is_the_rows_velocity(vlm_directory):
+    adapter = _student(vlm_directory).snapflow
+    generator = torch.Generator().manual_seed(4)
+    x, t, s = torch.randn(4, 4, 4, generator=generator), torch.rand(4, generator=generator), torch.zeros(4)
+    with torch.no_grad():
+        context = adapter.encode(tiny_batch())
+        by_row = adapter.velocity(x, t, s, context)
+        by_action = adapter.velocity_per_action(x, t[:, None].expand(-1, 4), s[:, None].expand(-1, 4), context)
+    assert torch.allclose(by_row, by_action, atol=1e-6)
+
+
+def test_the_boundary_benchmark_measures_every_row_on_recorded_chunks(vlm_directory, tmp_path):
+    from dataclasses import replace
+
+    from snapflow.benchmark.rtc import ROWS, TRAINED_ROWS, boundary_jumps, write_boundary_report
+
+    student, trained = _student(vlm_directory), _student(vlm_directory)
+    trained.config.distill = replace(trained.config.distill, rtc_max_delay=1)
+    rows = boundary_jumps(student, tiny_batch(batch_size=5), executed=2, inference_delay=1, trained=trained)
+    assert [row.name for row in rows] == [name for name, *_ in ROWS + TRAINED_ROWS]
+    assert all(row.prefix_error < 1e-6 for row in rows[len(ROWS) :]), "a trained student is given the prefix"
     by_rtc = {row.rtc: row for row in rows}
     assert by_rtc["inpaint"].prefix_error < 1e-5 < by_rtc["off"].prefix_error
     assert by_rtc["guided"].prefix_error < rows[0].prefix_error
-    write_boundary_report(rows, {"chunk_size": 4}, tmp_path)
-    assert (tmp_path / "rtc_boundary.json").is_file() and "boundary jump" in (tmp_path / "rtc_boundary.md").read_text()
+    write_boundary_report([rows, rows], {"chunk_size": 4}, tmp_path)
+    table = (tmp_path / "rtc_boundary.md").read_text()
+    assert "2 seed(s)" in table and "| 1.00 |" in table, "the guided teacher's row is its own unit"
+    assert len(json.loads((tmp_path / "rtc_boundary.json").read_text())["seeds"]) == 2

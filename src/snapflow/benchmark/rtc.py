@@ -32,7 +32,9 @@ class BoundaryRow:
 
     name: str
     mode: str
-    rtc: str  # "off", "guided" (LeRobot's, per step), "inpaint" (the jump's), "guided-jump", "re-jump" (see ROWS)
+    rtc: str  # "off", "guided" (LeRobot's, per step), "inpaint" (the jump's), "guided-jump", "re-jump" (see ROWS),
+    # "trained" / "trained-zeros" (a student distilled with known prefixes, given the previous chunk's, with or without
+    # the schedule's ramp: TRAINED_ROWS)
     nfe: int
     prefix_error: float
     boundary_jump: float
@@ -56,12 +58,25 @@ ROWS = (
 )
 
 
+# the rows of a student distilled with known prefixes (``distill.rtc_max_delay`` > 0), in LeRobot's trained mode
+TRAINED_ROWS = (
+    ("SnapFlow 1-NFE trained for RTC: prefix given, the ramp inpainted", SNAPFLOW_1.name, "trained", 1),
+    ("SnapFlow 1-NFE trained for RTC: prefix given, no ramp (ZEROS schedule)", SNAPFLOW_1.name, "trained-zeros", 1),
+    ("the same student, 10-NFE trained for RTC: prefix given", TEACHER_10.name, "trained", 10),
+)
+
+
 def _chunk(student: Any, batch: dict[str, Any], noise: Tensor, mode: str, rtc: str, leftover: Any) -> Tensor:
+    from lerobot.configs.types import RTCAttentionSchedule
     from lerobot.policies.rtc.configuration_rtc import RTCConfig
     from lerobot.policies.rtc.modeling_rtc import RTCProcessor
 
     student.config.sampling_mode = mode
-    student.config.rtc_config = RTCConfig(enabled=True, execution_horizon=leftover["horizon"]) if rtc != "off" else None
+    schedule = {"prefix_attention_schedule": RTCAttentionSchedule.ZEROS} if rtc == "trained-zeros" else {}
+    enabled = RTCConfig(enabled=True, execution_horizon=leftover["horizon"], **schedule)
+    student.config.rtc_config = enabled if rtc != "off" else None
+    if rtc.startswith("trained"):
+        student.config.rtc_config.mode = "trained"  # LeRobot's field where it has training-time RTC
     student.init_rtc_processor()
     kwargs = {key: leftover[key] for key in ("inference_delay", "prev_chunk_left_over")} if rtc != "off" else {}
     if rtc == "re-jump":  # the prefix gap moved into the noise, so the jump's own tail follows the prefix's mode
@@ -103,10 +118,11 @@ def _batch_one_ms(student: Any, batch: dict[str, Any], noise: Tensor, mode: str,
 
 @torch.no_grad()
 def boundary_jumps(
-    student: Any, batch: dict[str, Any], executed: int, inference_delay: int, seed: int = 0
+    student: Any, batch: dict[str, Any], executed: int, inference_delay: int, seed: int = 0, trained: Any = None
 ) -> list[BoundaryRow]:
     """The rows of :data:`ROWS` for a LeRobot student (distilled, a SnapFlow student type) on ``batch``, the
-    pre-processed frames of one episode in order."""
+    pre-processed frames of one episode in order, then those of :data:`TRAINED_ROWS` for ``trained``, a student of
+    the same teacher distilled with known prefixes, on the same previous chunks and noise."""
     frames = next(value for value in batch.values() if isinstance(value, Tensor)).shape[0]
     chunk, dims = student.config.chunk_size, student.config.max_action_dim
     noise = torch.randn(frames, chunk, dims, generator=torch.Generator().manual_seed(seed))
@@ -124,28 +140,44 @@ def boundary_jumps(
     }
     previous = padded_prefix(leftover["prev_chunk_left_over"], planned[executed:])
     rows = []
-    for name, mode, rtc, nfe in ROWS:
-        actions = _chunk(student, now, noise[executed:], mode, rtc, leftover)
+    measured = [(student, row) for row in ROWS] + ([(trained, row) for row in TRAINED_ROWS] if trained else [])
+    for policy, (name, mode, rtc, nfe) in measured:
+        actions = _chunk(policy, now, noise[executed:], mode, rtc, leftover)
         prefix = (actions[:, :inference_delay] - previous[:, :inference_delay]).norm(dim=-1).mean().item()
         jump = (actions[:, inference_delay] - previous[:, inference_delay]).norm(dim=-1).mean().item()
-        milliseconds = _batch_one_ms(student, now, noise[executed:], mode, rtc, leftover)
+        milliseconds = _batch_one_ms(policy, now, noise[executed:], mode, rtc, leftover)
         rows.append(BoundaryRow(name, mode, rtc, nfe, prefix, jump, milliseconds))
     return rows
 
 
-def write_boundary_report(rows: list[BoundaryRow], settings: dict[str, Any], directory: str | Path) -> Path:
-    """``rtc_boundary.json`` (the rows and the settings) and ``rtc_boundary.md`` (the table) in ``directory``."""
+def write_boundary_report(rows: list[list[BoundaryRow]], settings: dict[str, Any], directory: str | Path) -> Path:
+    """``rtc_boundary.json`` (the settings and each seed's rows) and ``rtc_boundary.md`` (the table: each row's mean
+    over the seeds, the boundary jump with its 95% t-interval over them, its ratio to the guided teacher's) in
+    ``directory``; ``rows`` holds one list of :func:`boundary_jumps` rows a seed, in the same order."""
+    from snapflow.reporting.statistics import t_interval_95
+
     directory = Path(directory)
-    write_json(directory / "rtc_boundary.json", {"settings": settings, "rows": [asdict(row) for row in rows]})
-    table = markdown_table(
-        ["chunk from", "NFE", "prefix error", "boundary jump", "ms / chunk (batch 1, CPU)"],
-        [
-            (row.name, row.nfe, f"{row.prefix_error:.3f}", f"{row.boundary_jump:.3f}", f"{row.ms_per_chunk:.1f}")
-            for row in rows
-        ],
+    write_json(
+        directory / "rtc_boundary.json",
+        {"settings": settings, "seeds": [[asdict(row) for row in seed_rows] for seed_rows in rows]},
     )
-    write_text(directory / "rtc_boundary.md", table + "\n")
+    guided = next(index for index, row in enumerate(rows[0]) if row.rtc == "guided")
+    guided_jump = sum(seed_rows[guided].boundary_jump for seed_rows in rows) / len(rows)
+    table = []
+    for index, first in enumerate(rows[0]):
+        jumps = [seed_rows[index].boundary_jump for seed_rows in rows]
+        low, high = t_interval_95(jumps)
+        mean = sum(jumps) / len(jumps)
+        prefix = sum(seed_rows[index].prefix_error for seed_rows in rows) / len(rows)
+        milliseconds = sorted(seed_rows[index].ms_per_chunk for seed_rows in rows)[len(rows) // 2]
+        interval = f"{low:.3f}-{high:.3f}" if len(rows) > 1 else ""
+        cells = (first.name, first.nfe, f"{prefix:.3f}", f"{mean:.3f}", interval, f"{mean / guided_jump:.2f}")
+        table.append((*cells, f"{milliseconds:.1f}"))
+    header = ["chunk from", "NFE", "prefix error", "boundary jump", "95% interval", "/ guided teacher"]
+    text = markdown_table([*header, "ms / chunk (batch 1, CPU)"], table)
+    seeds = f"{len(rows)} seed(s), each with its own teacher and students"
+    write_text(directory / "rtc_boundary.md", f"{seeds}\n\n{text}\n")
     return directory
 
 
-__all__ = ["BoundaryRow", "ROWS", "boundary_jumps", "write_boundary_report"]
+__all__ = ["BoundaryRow", "ROWS", "TRAINED_ROWS", "boundary_jumps", "write_boundary_report"]

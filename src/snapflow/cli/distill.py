@@ -11,6 +11,7 @@ from typing import Any
 
 from snapflow.adapters.lerobot_types import LEROBOT_POLICY_TYPES
 from snapflow.cli.common import (
+    NON_NEGATIVE_COUNT,
     POSITIVE,
     RECIPE_SUMMARIES,
     SHARE,
@@ -95,6 +96,14 @@ def add_parser(subparsers: Any) -> None:
         help="push the flow-matching rows' times toward noise, t -> s t / (1 + (s - 1) t) (default 1: the policy's "
         "own); --alpha 1 --time-shift 4 fine-tunes without distilling, as arXiv 2606.05737 does (the result samples "
         "as naive or teacher-N)",
+    )
+    parser.add_argument(
+        "--rtc-max-delay",
+        type=NON_NEGATIVE_COUNT,
+        default=None,
+        help="train real-time chunking in: each row's first 0..N actions given as known, at time 0 (LeRobot's "
+        "training-time RTC), so the jump continues a previous chunk's prefix (LeRobot's RTC mode 'trained'; SmolVLA); "
+        "default 0: off",
     )
     add_objective_options(parser)
     settings_fields = {field.name for field in fields(DistillSettings)}
@@ -183,6 +192,7 @@ def _student_settings(args: argparse.Namespace, family: PolicyFamily) -> tuple[T
         "target_steps": args.target_steps,
         "intermediate_jumps": args.intermediate_jumps,
         "time_shift": args.time_shift,
+        "rtc_max_delay": args.rtc_max_delay,
         "objective_options": dict(args.objective_option) if args.objective_option else None,
     }
     return family.student_settings(args.recipe, given(training_overrides(args)), given(overrides))

@@ -36,7 +36,10 @@ class DistillSettings:
     :mod:`snapflow.objective.bootstrap`). ``intermediate_jumps`` is the share of SnapFlow's one-step rows that jump
     between inner times (t, s) instead of 1 -> 0. ``time_shift`` pushes the flow-matching rows' times toward noise
     (:class:`~snapflow.flow.time_sampling.ShiftedTimeSampler`; 1 keeps the policy's own): with ``alpha=1`` and no
-    consistency term it is arXiv 2606.05737's high-noise-biased fine-tuning at 4. ``objective_options`` holds the chosen objective's options that no
+    consistency term it is arXiv 2606.05737's high-noise-biased fine-tuning at 4. ``rtc_max_delay`` > 0 trains
+    real-time chunking in (:mod:`snapflow.objective.known_prefix`, LeRobot's ``rtc_training_max_delay``): each row's
+    first 0..``rtc_max_delay`` actions given as known, so the jump continues a previous chunk's prefix (a policy
+    whose time enters each action: SmolVLA's). ``objective_options`` holds the chosen objective's options that no
     field here holds (e.g. meanflow's ``adaptive_power``; absent: the objective's default). The objective is passed
     the options it declares, from their fields or ``objective_options``; an option of another objective must keep its
     default.
@@ -53,12 +56,15 @@ class DistillSettings:
     target_steps: int | tuple[int, ...] = PAPER_TARGET_STEPS
     intermediate_jumps: float = 0.0
     time_shift: float = added_option(1.0)
+    rtc_max_delay: int = added_option(0)
     # left out of the hash, which a dict cannot join (jobs holding these settings are hashed); equality still sees it
     objective_options: dict[str, Any] = added_option(default_factory=dict, hash=False)
 
     def __post_init__(self) -> None:
         if isinstance(self.target_steps, list):  # as read from TOML or JSON
             object.__setattr__(self, "target_steps", tuple(self.target_steps))
+        if isinstance(self.rtc_max_delay, bool) or not isinstance(self.rtc_max_delay, int) or self.rtc_max_delay < 0:
+            raise InvalidInputError(f"rtc_max_delay is a number of actions, 0 or more, got {self.rtc_max_delay!r}")
         self._passed_options()  # names, before torch loads, what the chosen objective does not take
         from snapflow.flow.time_sampling import BetaTimeSampler
 
@@ -106,13 +112,18 @@ class DistillSettings:
         ``time_shift``)."""
         from snapflow.flow.time_sampling import shifted
 
-        return make_objective(
+        objective = make_objective(
             self.objective_type.name,
             alpha=self.alpha,
             consistency_weight=self.consistency_weight,
             time_sampler=shifted(time_sampler, self.time_shift),
             **self._passed_options(),
         )
+        if not self.rtc_max_delay:
+            return objective
+        from snapflow.objective.known_prefix import KnownPrefixObjective
+
+        return KnownPrefixObjective(objective, self.rtc_max_delay)  # type: ignore[return-value]
 
 
 # each setting's default: what an option the chosen objective does not take must hold

@@ -22,7 +22,7 @@ from typing import Any, ClassVar
 import torch
 from torch import Tensor, nn
 
-from snapflow.adapters.lerobot.rtc import rtc_processor_in_force, sample_with_rtc
+from snapflow.adapters.lerobot.rtc import TrainedPrefix, rtc_processor_in_force, sample_with_rtc, trained_max_delay
 from snapflow.adapters.lerobot_config import SmolVLMSize
 from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SamplingMode
@@ -286,7 +286,8 @@ class LeRobotFlowPolicy(nn.Module, ABC):
         1-NFE for deployment, or ``teacher-N`` to run the same checkpoint as the N-step teacher. A callable is
         asked at every chunk (a student reads its config then, and refuses a jump it was never distilled for).
         With RTC enabled in the policy's config, the previous chunk LeRobot passes is continued
-        (:mod:`snapflow.adapters.lerobot.rtc`: LeRobot's guided RTC per Euler step, prefix inpainting for jumps)."""
+        (:mod:`snapflow.adapters.lerobot.rtc`: LeRobot's guided RTC per Euler step, prefix inpainting for jumps, or,
+        in its ``trained`` mode, the prefix given to every pass)."""
         current = mode if callable(mode) else lambda: mode
 
         def sample(
@@ -304,8 +305,9 @@ class LeRobotFlowPolicy(nn.Module, ABC):
             if noise is None:
                 noise = self.draw_noise(context, _first_tensor(context).shape[0])
             velocity = lambda x, t, s: self.velocity(x, t, s, context)  # noqa: E731
+            trained = TrainedPrefix(self, context, trained_max_delay(self.time_owner))
             return sample_with_rtc(
-                velocity, noise, chosen, processor, prev_chunk_left_over, inference_delay, execution_horizon
+                velocity, noise, chosen, processor, prev_chunk_left_over, inference_delay, execution_horizon, trained
             )
 
         self.install_sampler(sample)

@@ -12,20 +12,28 @@ lands nine times the gap past the prefix on its other side. What carries over is
 inpainting of the prefix with LeRobot's prefix weights (:func:`inpaint_prefix`): the actions executed while the chunk
 is computed are the previous chunk's, the next ones blend into the new chunk along the weights' ramp, and the rest
 is the jump's own. No backward pass. ``max_guidance_weight`` acts up to 1 (0.5: half the pull toward the prefix);
-above 1 (LeRobot's default, 10) the jump inpaints at 1 and says so in a warning, never silently. LeRobot's trained
-RTC (the prefix given in training) is refused by name: no student here was distilled with the prefix given.
+above 1 (LeRobot's default, 10) the jump inpaints at 1 and says so in a warning, never silently.
+
+LeRobot's ``trained`` mode (``RTCConfig.mode``, its training-time RTC) runs for a student distilled with the prefix
+given (``distill.rtc_max_delay`` > 0, LeRobot's ``rtc_training_max_delay``): the previous chunk's
+first ``inference_delay`` actions ride clean at time 0 through every pass (:func:`snapflow.flow.known_prefix.
+sample_continuing`), so the jump itself continues them, and its actions past the delay blend into the previous
+chunk's along the schedule's ramp as an untrained jump's do (``prefix_attention_schedule=ZEROS``: no ramp, LeRobot's
+trained mode as it is); a policy trained without is refused by name.
 """
 
 from __future__ import annotations
 
 import warnings
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import torch
 from torch import Tensor
 
 from snapflow.errors import InvalidInputError
+from snapflow.flow.known_prefix import sample_continuing
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.solver import euler_sample
 
@@ -38,13 +46,51 @@ def rtc_processor_in_force(model: Any) -> Any:
     config = getattr(model.config, "rtc_config", None)
     if processor is None or config is None or not config.enabled:
         return None
-    mode = getattr(config, "mode", "guided")
-    if str(getattr(mode, "value", mode)) != "guided":
+    mode = rtc_mode(processor)
+    if mode == "trained" and trained_max_delay(model) <= 0:
         raise InvalidInputError(
-            f"RTC mode {mode!r} needs a policy trained with the previous chunk's prefix given; snapflow's students "
-            "run guided RTC (teacher-N) and prefix inpainting (snapflow-N) only"
+            "RTC mode 'trained' needs a policy trained with the previous chunk's prefix given: distil its student with "
+            "rtc_max_delay > 0 (--policy.distill.rtc_max_delay); this one runs guided RTC (mode 'guided') only"
         )
+    if mode not in ("guided", "trained"):
+        raise InvalidInputError(f"unknown RTC mode {mode!r}: 'guided' or 'trained'")
     return processor
+
+
+def rtc_mode(processor: Any) -> str:
+    """The processor's RTC mode, ``guided`` where its LeRobot has no other (before its training-time RTC)."""
+    mode = getattr(processor.rtc_config, "mode", "guided")
+    return str(getattr(mode, "value", mode))
+
+
+def trained_max_delay(model: Any) -> int:
+    """The largest prefix ``model`` was trained to be given (0: none): a student's ``distill.rtc_max_delay``, else
+    its config's ``rtc_training_max_delay`` (LeRobot's own field, where its LeRobot has training-time RTC)."""
+    settings = getattr(model.config, "distill", None)
+    if settings is not None:
+        return settings.rtc_max_delay
+    return int(getattr(model.config, "rtc_training_max_delay", 0) or 0)
+
+
+@dataclass(frozen=True)
+class TrainedPrefix:
+    """What ``trained`` RTC samples with: a :class:`~snapflow.protocol.PerActionTimes` policy, its encoded
+    observations and the largest delay it was trained for."""
+
+    policy: Any
+    context: Any
+    max_delay: int
+
+    def sample(self, noise: Tensor, mode: SamplingMode, prev_chunk_left_over: Tensor, inference_delay: int) -> Tensor:
+        """The chunk continuing the leftover's first ``inference_delay`` actions, sampled with ``mode``."""
+        if inference_delay > self.max_delay:
+            raise InvalidInputError(
+                f"an inference delay of {inference_delay} is past the {self.max_delay} actions this policy was trained "
+                "to be given; distil it with a larger rtc_max_delay"
+            )
+        previous = prev_chunk_left_over if prev_chunk_left_over.ndim == 3 else prev_chunk_left_over[None]
+        previous = previous.expand(noise.shape[0], -1, -1) if previous.shape[0] == 1 else previous
+        return sample_continuing(self.policy, self.context, noise, mode, previous, inference_delay)
 
 
 def padded_prefix(prev_chunk_left_over: Tensor, like: Tensor) -> Tensor:
@@ -130,26 +176,39 @@ def sample_with_rtc(
     prev_chunk_left_over: Tensor | None,
     inference_delay: int | None,
     execution_horizon: int | None,
+    trained: TrainedPrefix | None = None,
 ) -> Tensor:
     """Sample a chunk with ``mode``, continuing ``prev_chunk_left_over`` when RTC is in force (``processor``) and a
-    previous chunk is given: guided Euler steps for the teacher's modes, prefix inpainting for jumps."""
+    previous chunk is given: in LeRobot's ``trained`` mode the prefix given to every pass (``trained``), else guided
+    Euler steps for the teacher's modes; a jump's chunk is then inpainted along the schedule's prefix weights (after
+    the delay, given or inpainted, a ramp down to the execution horizon; none under LeRobot's ``ZEROS`` schedule)."""
     if processor is None or prev_chunk_left_over is None:
         return euler_sample(velocity, noise, mode)
     if inference_delay is None:
         raise InvalidInputError("real-time chunking with a previous chunk needs inference_delay")
-    if not mode.jump:
+    if rtc_mode(processor) == "trained":
+        if trained is None:
+            raise ValueError("trained RTC is in force but no trained prefix sampler was given")
+        actions = trained.sample(noise, mode, prev_chunk_left_over, inference_delay)
+        if not mode.jump:  # LeRobot's trained mode: the prefix given, nothing steered
+            return actions
+    elif not mode.jump:
         return guided_euler(velocity, noise, mode, processor, prev_chunk_left_over, inference_delay, execution_horizon)
-    actions = euler_sample(velocity, noise, mode)
-    weight = jump_guidance_weight(processor)
+    else:
+        actions = euler_sample(velocity, noise, mode)
+    weight = jump_guidance_weight(processor)  # a jump's actions past the delay blend along the schedule's ramp
     return inpaint_prefix(actions, processor, prev_chunk_left_over, inference_delay, execution_horizon, weight)
 
 
 __all__ = [
+    "TrainedPrefix",
     "guided_euler",
     "inpaint_prefix",
     "jump_guidance_weight",
     "padded_prefix",
     "prefix_weights",
+    "rtc_mode",
     "rtc_processor_in_force",
     "sample_with_rtc",
+    "trained_max_delay",
 ]

@@ -1,13 +1,15 @@
 """LeRobot's SmolVLAPolicy under SnapFlow (LeRobot 0.4.4 and newer).
 
 SmolVLA fuses time into every action token: ``action_time_mlp_out(SiLU(action_time_mlp_in([a, sin(t)])))``;
-phi_s(s) is added to the output of ``action_time_mlp_in``, before the SiLU. The state is a prefix token, so it
+phi_s(s) is added to the output of ``action_time_mlp_in``, before the SiLU. Each token may take its own t and s
+(real-time chunking trained in: the known prefix at time 0). The state is a prefix token, so it
 goes through the frozen VLM with the images and the instruction.
 """
 
 from __future__ import annotations
 
 import inspect
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -26,24 +28,29 @@ from snapflow.adapters.lerobot.smolvlm import smolvla_config
 from snapflow.adapters.lerobot_config import SmolVLMSize
 
 
+def per_action(embed: Callable[[Tensor], Tensor], times: Tensor, chunk: int) -> Tensor:
+    """``embed`` (of (N,) times) of each action's time: (B, chunk, width) from times (B,) or (B, chunk)."""
+    if times.ndim == 1:
+        return embed(times)[:, None, :].expand(-1, chunk, -1)
+    return embed(times.reshape(-1)).reshape(*times.shape, -1)
+
+
 def _embed_suffix_with_target_time(
     self: nn.Module, noisy_actions: Tensor, timestep: Tensor
 ) -> tuple[Tensor, Tensor, Tensor]:
-    """SmolVLA's ``VLAFlowMatching.embed_suffix`` with phi_s(s) added after ``action_time_mlp_in``."""
+    """SmolVLA's ``VLAFlowMatching.embed_suffix`` with phi_s(s) added after ``action_time_mlp_in``; ``timestep`` (B,)
+    as LeRobot's, (B, 2) as [t, s] a row, or (B, 2, chunk) as [t, s] an action."""
     t, s = split_timestep(timestep)
     action_embedding = self.action_in_proj(noisy_actions)
     batch, chunk, width = action_embedding.shape
-    time_embedding = (
-        modeling_module(self)
-        .create_sinusoidal_pos_embedding(
-            t, width, self.config.min_period, self.config.max_period, device=action_embedding.device
-        )
-        .to(action_embedding.dtype)
+    sinusoid = modeling_module(self).create_sinusoidal_pos_embedding
+    time_embedding = per_action(
+        lambda times: sinusoid(times, width, self.config.min_period, self.config.max_period, device=times.device),
+        t,
+        chunk,
     )
-    fused = self.action_time_mlp_in(
-        torch.cat([action_embedding, time_embedding[:, None, :].expand_as(action_embedding)], dim=2)
-    )
-    fused = fused + self.target_time_embedding(s).to(fused.dtype)[:, None, :]
+    fused = self.action_time_mlp_in(torch.cat([action_embedding, time_embedding.to(action_embedding.dtype)], dim=2))
+    fused = fused + per_action(self.target_time_embedding, s, chunk).to(fused.dtype)
     embeddings = self.action_time_mlp_out(F.silu(fused))
     pad_masks = torch.ones(batch, chunk, dtype=torch.bool, device=embeddings.device)
     # each action token opens its own attention block: actions attend causally among themselves and to the prefix
@@ -102,6 +109,11 @@ class SmolVLAFlowPolicy(PrefixCacheFlowPolicy):
             model.action_time_mlp_in,
             model.action_time_mlp_out,
         ]
+
+    def velocity_per_action(self, x_t: Tensor, t: Tensor, s: Tensor, context: dict[str, Any]) -> Tensor:
+        """The velocity with a time and target time per action, (B, chunk) each: SmolVLA embeds time per action
+        token, so a known prefix rides at time 0 (:class:`~snapflow.protocol.PerActionTimes`)."""
+        return self.velocity(x_t, t, s, context)
 
     def loss_cuts_padded_width(self) -> bool:
         """From LeRobot 0.5.1 on; before, SmolVLA's loss weighed the whole padded width (it cut at ``max_action_dim``)."""
