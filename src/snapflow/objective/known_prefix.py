@@ -45,9 +45,14 @@ class KnownPrefixObjective:
         return getattr(self.objective, name)
 
     def __call__(
-        self, policy: FlowPolicy, observation: Any, actions: Tensor, *, generator: torch.Generator | None = None,
+        self,
+        policy: FlowPolicy,
+        observation: Any,
+        actions: Tensor,
+        *,
+        generator: torch.Generator | None = None,
         **kwargs: Any,
-    ) -> LossOutput:  # fmt: skip
+    ) -> LossOutput:
         """The objective's loss on ``actions`` (B, chunk length, width) with each row's known prefix drawn first;
         ``kwargs`` (noise, time, progress) are the objective's."""
         if actions.ndim != 3 or self.max_delay >= actions.shape[1]:
