@@ -79,6 +79,18 @@ class TargetOption:
         return sum(stages) / len(stages)
 
 
+#: the SnapFlow targets whose objective computes no target, and so spends no teacher pass, at lambda 0
+UNTARGETED_AT_LAMBDA_0 = ("euler", "energy")
+
+
+def teacher_passes_spent(settings: DistillSettings) -> float:
+    """No-grad teacher passes per one-step row that ``settings`` spend: their target's
+    (:attr:`TargetOption.teacher_passes`), or none at lambda 0 where the objective computes no target."""
+    if settings.consistency_weight == 0 and settings.target in UNTARGETED_AT_LAMBDA_0:
+        return 0.0
+    return TargetOption(settings.target, settings.target_steps).teacher_passes
+
+
 @dataclass(frozen=True)
 class Recipe:
     """A named way to distil a built-in teacher: the student's optimisation and the distillation settings. Every
@@ -155,4 +167,5 @@ __all__ = [
     "TargetOption",
     "parse_target_steps",
     "student_settings",
+    "teacher_passes_spent",
 ]
