@@ -140,6 +140,10 @@ def test_settings_and_recipe_pick_it_and_refuse_what_it_does_not_take():
     _, modes = student_settings("modes")
     assert (modes.target, modes.consistency_weight, modes.alpha) == ("energy", 0.3, 0.5)
     assert modes.objective_options == {"energy_weight": 16.0, "energy_samples": 3}
+    _, lean = student_settings("modes-lean")  # the energy term alone: no consistency target, no teacher pass
+    assert (lean.target, lean.consistency_weight, lean.alpha) == ("energy", 0.0, 0.6)
+    assert lean.objective_options == {"energy_weight": 16.0, "energy_samples": 4}
+    assert lean.trains_jump and teacher_passes_spent(lean) == 0.0
     with pytest.raises(InvalidInputError, match="intermediate_jumps is not an option of the snapflow-energy"):
         DistillSettings(target="energy", intermediate_jumps=0.5)
     with pytest.raises(InvalidInputError, match="energy_samples must be an integer >= 2"):

@@ -131,6 +131,18 @@ RECIPES: dict[str, Recipe] = {
             "objective_options": {"energy_weight": 16.0, "energy_samples": 3},
         },
     ),
+    "modes-lean": Recipe(
+        "the modes recipe at a leaner step (docs/concepts/recipes.md, 'A recipe that keeps modes'): target energy, "
+        "lambda 0 (no consistency target, so no teacher pass), alpha 0.6, energy weight 16 over 4 one-step samples an "
+        f"observation ({_PAPER_BUDGET})",
+        PAPER_STUDENT_TRAINING,
+        {
+            "alpha": 0.6,
+            "consistency_weight": 0.0,
+            "target": "energy",
+            "objective_options": {"energy_weight": 16.0, "energy_samples": 4},
+        },
+    ),
 }
 DEFAULT_RECIPE = "snapflow"
 # snapflow's recipe is measured on built-in policies; a LeRobot student starts from the paper's
