@@ -123,6 +123,13 @@ def test_update_labels_the_checkpoint_distilled_only_after_a_step_of_the_one_ste
     student.update()
     assert (student.config.distilled, student.config.steps_distilled) == (False, 2)
 
+    # lambda 0 trains no jump by SnapFlow's target; the energy term alone does
+    for target, distilled, steps in (("euler", False, 3), ("energy", True, 4)):
+        student.config.distill = replace(student.config.distill, alpha=0.5, consistency_weight=0.0, target=target)
+        student.forward(dict(batch))[0].backward()
+        student.update()
+        assert (student.config.distilled, student.config.steps_distilled) == (distilled, steps)
+
 
 def _save_teacher(vlm_directory, directory: Path) -> Path:
     from lerobot.policies.factory import make_pre_post_processors

@@ -109,22 +109,24 @@ def test_toy_compare_writes_a_table_per_target_reuses_finished_runs_and_reruns_s
 def test_recipes_and_the_biased_one_step_are_rows_with_coverage_intervals_and_timed_step_costs(tmp_path):
     """On the held-out rings: a target, the modes recipe and the biased one step, each row with its settings, its
     mode coverage, its ratio's interval over seeds and its step cost relative to the first row's; the coverage plot."""
-    options = [TargetOption.parse("euler:2"), RecipeOption("modes"), BiasedOneStep()]
+    options = [TargetOption.parse("euler:2"), RecipeOption("modes"), RecipeOption("modes-lean"), BiasedOneStep()]
     base = ToyConfig(
         teacher_steps=10, distill_steps=8, batch_size=32, hidden_dim=32, eval_contexts=3, samples_per_context=50
     )
     summary = compare_targets(
         options, [0, 1], replace(base, shape="rings"), tmp_path, workers=2, progress=False, step_repeats=1
     )
-    first, modes, biased = summary["rows"]
+    first, modes, lean, biased = summary["rows"]
     assert (modes["option"], modes["target"], modes["student_rows_per_row"], modes["alpha"]) == (
         "recipe-modes",
         "energy",
         3,
         0.5,
     )
+    assert (modes["teacher_passes_per_row"], lean["teacher_passes_per_row"], lean["student_rows_per_row"]) == (2, 0, 4)
     assert (biased["alpha"], biased["teacher_passes_per_row"], biased["student_rows_per_row"]) == (1.0, 0.0, 1)
     assert first["step_cost_ratio"] == 1.0 and modes["step_cost_ratio"] > 0
+    assert summary["step_cost"]["clock"] == "process CPU time"
     for row in summary["rows"]:
         low, high = row["ratio_to_teacher_interval"]
         assert low <= row["ratio_to_teacher_mean"] <= high and 0 <= row["coverage_error_mean"] <= 1
@@ -132,6 +134,6 @@ def test_recipes_and_the_biased_one_step_are_rows_with_coverage_intervals_and_ti
     assert run["config"]["shape"] == "rings" and run["config"]["time_shift"] == 4.0
     assert len(run["mode_shares"]["snapflow-1"]) == 3 and len(run["mode_shares"]["snapflow-1"][0]) == 3
     table = (tmp_path / "comparison.md").read_text()
-    assert table.startswith("Toy conditional two rings, seeds 0, 1")
+    assert table.startswith("Toy conditional two rings, seeds 0, 1") and "(1 rounds, process CPU time)" in table
     assert "| teacher 10-NFE |" in table and "| recipe modes | 0.5 / 0.3 |" in table
     assert (tmp_path / "coverage.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -5,6 +5,7 @@ every objective is in test_contract.py."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 import torch
@@ -12,11 +13,12 @@ import torch
 from snapflow.errors import InvalidInputError
 from snapflow.flow.time_sampling import UniformTimeSampler
 from snapflow.nn import SnapFlowPolicy
+from snapflow.objective.base import OneStepRows
 from snapflow.objective.energy import EnergySnapFlowObjective, energy_score
 from snapflow.objective.settings import DistillSettings
-from snapflow.objective.snapflow import euler_shortcut_target
+from snapflow.objective.snapflow import SnapFlowObjective, euler_shortcut_target
 from snapflow.policies.mlp import MLPFlowModel, MLPPolicyConfig
-from snapflow.training.recipes import student_settings
+from snapflow.training.recipes import student_settings, teacher_passes_spent
 from tests.helpers import RecordingPolicy
 from tests.objective.test_contract import make_problem
 
@@ -78,6 +80,58 @@ def test_extra_rows_share_the_gradient_pass_and_the_loss_adds_the_energy_term_by
     assert torch.allclose(output.loss.detach(), combined, rtol=1e-5)
 
 
+class TargetedAtLambdaZero(EnergySnapFlowObjective):
+    """The energy objective as it was before lambda 0 skipped its target: the two-step target computed, weighted 0."""
+
+    def one_step_rows(self, policy, observation, context, actions, noise, generator, progress) -> OneStepRows:  # noqa: ANN001
+        rows = super().one_step_rows(policy, observation, context, actions, noise, generator, progress)
+        velocity = lambda x, t, s: policy.velocity(x, t, s, context)  # noqa: E731
+        return replace(rows, target=euler_shortcut_target(velocity, noise, self.target_steps))
+
+
+def test_lambda_zero_spends_no_teacher_pass_and_changes_nothing_else():
+    """At lambda 0 the consistency target is weighted 0, so it must cost nothing: the step makes one velocity call (the
+    gradient pass) where the target costs two more no-grad passes, and its loss and every gradient are bit-identical to
+    computing the target and weighting it 0."""
+    losses, gradients, calls = [], [], []
+    for kind in (EnergySnapFlowObjective, TargetedAtLambdaZero):
+        policy, observation, actions = make_problem("mlp", 6)
+        objective = kind(alpha=0.5, consistency_weight=0.0, time_sampler=UniformTimeSampler(), energy_weight=2.0)
+        recorder = RecordingPolicy(policy)
+        output = objective(recorder, observation, actions, generator=torch.Generator().manual_seed(0))
+        output.loss.backward()
+        losses.append(output.loss.detach())
+        gradients.append([parameter.grad for parameter in policy.parameters()])
+        calls.append([call.grad_enabled for call in recorder.calls])
+    assert calls == [[True], [False, False, True]]
+    assert torch.equal(losses[0], losses[1])
+    assert all(torch.equal(ours, theirs) for ours, theirs in zip(*gradients, strict=True))
+    assert objective.trains_jump and not replace(objective, energy_weight=0.0).trains_jump
+
+
+def test_plain_snapflow_at_lambda_zero_spends_no_teacher_pass_either():
+    policy, observation, actions = make_problem("mlp", 6)
+    recorder = RecordingPolicy(policy)
+    objective = SnapFlowObjective(alpha=0.5, consistency_weight=0.0, time_sampler=UniformTimeSampler())
+    output = objective(recorder, observation, actions, generator=torch.Generator().manual_seed(0))
+    assert len(recorder.calls) == 1 and output.consistency_loss == 0 and not objective.trains_jump
+    paid = SnapFlowObjective(alpha=0.5, consistency_weight=0.1, time_sampler=UniformTimeSampler())
+    recorder = RecordingPolicy(policy)
+    paid(recorder, observation, actions, generator=torch.Generator().manual_seed(0))
+    assert [call.grad_enabled for call in recorder.calls] == [False, False, True]
+
+
+def test_settings_say_what_lambda_zero_trains_and_spends():
+    energy = DistillSettings(target="energy", consistency_weight=0.0)
+    assert energy.trains_jump and teacher_passes_spent(energy) == 0.0
+    muted = DistillSettings(target="energy", consistency_weight=0.0, objective_options={"energy_weight": 0.0})
+    assert not muted.trains_jump
+    euler = DistillSettings(consistency_weight=0.0)
+    assert not euler.trains_jump and teacher_passes_spent(euler) == 0.0
+    assert teacher_passes_spent(DistillSettings(target="energy", consistency_weight=0.3)) == 2.0
+    assert teacher_passes_spent(DistillSettings(target="bootstrap", target_steps=8, consistency_weight=0.0)) == 2.0
+
+
 def test_settings_and_recipe_pick_it_and_refuse_what_it_does_not_take():
     settings = DistillSettings(target="energy", objective_options={"energy_weight": 2.0, "energy_samples": 4})
     objective = settings.objective(UniformTimeSampler())
@@ -86,6 +140,10 @@ def test_settings_and_recipe_pick_it_and_refuse_what_it_does_not_take():
     _, modes = student_settings("modes")
     assert (modes.target, modes.consistency_weight, modes.alpha) == ("energy", 0.3, 0.5)
     assert modes.objective_options == {"energy_weight": 16.0, "energy_samples": 3}
+    _, lean = student_settings("modes-lean")  # the energy term alone: no consistency target, no teacher pass
+    assert (lean.target, lean.consistency_weight, lean.alpha) == ("energy", 0.0, 0.6)
+    assert lean.objective_options == {"energy_weight": 16.0, "energy_samples": 4}
+    assert lean.trains_jump and teacher_passes_spent(lean) == 0.0
     with pytest.raises(InvalidInputError, match="intermediate_jumps is not an option of the snapflow-energy"):
         DistillSettings(target="energy", intermediate_jumps=0.5)
     with pytest.raises(InvalidInputError, match="energy_samples must be an integer >= 2"):

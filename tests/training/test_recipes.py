@@ -92,7 +92,8 @@ rows = [{ label = "x", run = "paper", mode = "snapflow-1" }]
     assert runs["tuned"].train == replace(RECIPES["paper"].train, steps=10)
     path.write_text(path.read_text().replace('recipe = "snapflow"', 'recipe = "fast"'))
     with pytest.raises(
-        ValueError, match=r"\[runs.default\]: unknown recipe 'fast'; choose one of \['snapflow', 'paper', 'modes'\]"
+        ValueError,
+        match=r"\[runs.default\]: unknown recipe 'fast'; choose one of \['snapflow', 'paper', 'modes', 'modes-lean'\]",
     ):
         load_sweep(path)
 

@@ -174,7 +174,7 @@ def compare_targets(
         from snapflow.jobs.toy_coverage import step_costs
 
         costs = step_costs({option.name: jobs[(option, seeds[0])].config for option in options}, step_repeats)
-        summary["step_cost"] = {"repeats": step_repeats, "ms_median": costs}
+        summary["step_cost"] = {"repeats": step_repeats, "clock": "process CPU time", "ms_median": costs}
         for row in rows:
             row["step_cost_ratio"] = costs[row["option"]] / costs[rows[0]["option"]]
     write_json(output_dir / "comparison.json", summary)
@@ -242,7 +242,9 @@ def markdown_coverage(summary: dict[str, Any]) -> str:
         f"exact samples score {summary['data']['coverage_error_mean']:.3f}); lower is better. Cost: no-grad passes + "
         "student rows in the gradient pass, per one-step row"
         + (
-            f"; step cost relative to the first row's, timed round-robin ({summary['step_cost']['repeats']} rounds)."
+            f"; step cost relative to the first row's, timed round-robin ({summary['step_cost']['repeats']} rounds"
+            + (f", {summary['step_cost']['clock']}" if "clock" in summary["step_cost"] else "")
+            + ")."
             if costed
             else "."
         )

@@ -8,7 +8,7 @@ from typing import Any
 from snapflow.errors import InvalidInputError
 from snapflow.objective.settings import DistillSettings
 from snapflow.reporting.records import added_option, as_record
-from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES, TargetOption, student_settings
+from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES, student_settings, teacher_passes_spent
 
 #: the distillation settings every toy run records, in this order among its own (the cache keys of the committed
 #: comparisons, docs/results/toy-targets*); another setting is recorded where it differs from the toy's default
@@ -89,9 +89,10 @@ class RecipeOption:
 
     @property
     def teacher_passes(self) -> float:
-        """No-grad passes per one-step row, as its target's (:attr:`TargetOption.teacher_passes`)."""
-        settings = self.settings()
-        return TargetOption(settings.target, settings.target_steps).teacher_passes
+        """No-grad passes per one-step row, as its target's
+        (:attr:`~snapflow.training.recipes.TargetOption.teacher_passes`); none at lambda 0
+        (:func:`~snapflow.training.recipes.teacher_passes_spent`)."""
+        return teacher_passes_spent(self.settings())
 
 
 #: arXiv 2606.05737's high-noise-biased fine-tuning: flow matching alone on times shifted toward noise by this factor

@@ -2,7 +2,8 @@
 
 :func:`plot_coverage` draws, for a few evaluation contexts, each sampler's share of samples in each mode beside the
 true weights (from the run records of :mod:`snapflow.jobs.toy_compare`). :func:`step_costs` times the distillation
-step of several settings round-robin, block by block, so that a machine whose load drifts slows them alike.
+step of several settings round-robin, block by block, so that a machine whose load drifts slows them alike, in the
+CPU time of the timing process, which other processes on a shared machine do not inflate as they do the wall clock.
 """
 
 from __future__ import annotations
@@ -30,8 +31,9 @@ BLOCK_STEPS = 20
 
 def step_costs(configs: dict[str, ToyConfig], repeats: int, block: int = BLOCK_STEPS) -> dict[str, float]:
     """Median milliseconds of one distillation step under each named config, over ``repeats`` rounds that each time a
-    block of ``block`` steps of every config in turn (after one untimed block each). The student starts from an
-    untrained teacher: a step's cost does not depend on the weights."""
+    block of ``block`` steps of every config in turn (after one untimed block each), in CPU time of this process
+    (summed over its threads: run it on one torch thread for a step's latency). The student starts from an untrained
+    teacher: a step's cost does not depend on the weights."""
     if repeats < 1 or block < 1:
         raise ValueError(f"time at least one round of one step, got {repeats} rounds of {block}")
     steppers = {name: _stepper(config) for name, config in configs.items()}
@@ -40,9 +42,9 @@ def step_costs(configs: dict[str, ToyConfig], repeats: int, block: int = BLOCK_S
     timings: dict[str, list[float]] = {name: [] for name in configs}
     for _ in range(repeats):
         for name, step in steppers.items():
-            started = time.perf_counter()
+            started = time.process_time()
             step(block)
-            timings[name].append(1000 * (time.perf_counter() - started) / block)
+            timings[name].append(1000 * (time.process_time() - started) / block)
     return {name: float(np.median(values)) for name, values in timings.items()}
 
 

@@ -86,6 +86,7 @@ class SetRows:
 class OneStepRows:
     """Inputs and no-grad regression target of a method's one-step rows.
 
+    ``target`` None: no regression term (lambda 0), so no teacher pass is spent on one and L_SC is logged as 0.
     ``weight`` (rows,) scales each row's squared error e; ``adaptive_power`` p > 0 further divides it by
     sg(e + ADAPTIVE_EPSILON) ** p, MeanFlow's adaptive loss weighting (p = 1 makes each row's loss ~ 1 - c / e).
     ``extra`` holds more rows for a set-level term (:meth:`TwoBranchObjective.set_loss`).
@@ -94,7 +95,7 @@ class OneStepRows:
     x: Tensor
     t: Tensor
     s: Tensor
-    target: Tensor
+    target: Tensor | None
     weight: Tensor | None = None
     adaptive_power: float = 0.0
     extra: SetRows | None = None
@@ -121,6 +122,11 @@ class TwoBranchObjective(ABC):
             raise InvalidInputError(f"alpha must be in [0, 1], got {self.alpha}")
         if self.consistency_weight < 0:
             raise InvalidInputError(f"consistency_weight (lambda) must be non-negative, got {self.consistency_weight}")
+
+    @property
+    def trains_jump(self) -> bool:
+        """Whether a one-step row's loss is weighted at all (lambda > 0, or a set-level term's weight)."""
+        return self.consistency_weight > 0
 
     def num_flow_matching(self, batch_size: int) -> int:
         """Fixed FM share of a batch: round(alpha * B), keeping both branches present when 0 < alpha < 1."""
@@ -234,7 +240,7 @@ class TwoBranchObjective(ABC):
             squared = (prediction[fm_rows] - conditional_velocity(actions[fm_rows], noise[fm_rows])).pow(2)
             fm_loss = weighted_mean(squared, None if weights is None else weights[fm_rows])
         sc_loss = zero
-        if rows is not None:
+        if rows is not None and rows.target is not None:
             error = row_means((prediction[sc_rows] - rows.target).pow(2), None if weights is None else weights[sc_rows])
             weighted = error if rows.weight is None else rows.weight * error
             if rows.adaptive_power:

@@ -14,7 +14,8 @@ itself, so one demonstration per observation suffices and no teacher pass is spe
     L = alpha * L_FM + (1 - alpha) * (lambda * L_SC + energy_weight * mean_rows ES).
 
 The set term rewards spread that lands on the data (the second sum) and the consistency term keeps the jump on its
-teacher's flow: together the student keeps its teacher's modes where the two-step target alone averages them.
+teacher's flow: together the student keeps its teacher's modes where the two-step target alone averages them. At
+lambda 0 the consistency target's K no-grad teacher passes are skipped, and the energy term trains the jump alone.
 """
 
 from __future__ import annotations
@@ -65,6 +66,8 @@ class EnergySnapFlowObjective(SnapFlowObjective):
         energy_weight: the energy term's weight, beside lambda, within the one-step branch.
         energy_samples: M >= 2, one-step samples per observation (the row's own jump and M - 1 more, from independent
             noises); each adds one row per one-step row to the gradient pass, and no teacher pass.
+
+    At lambda 0 the consistency target is not computed: the step spends no teacher pass at all.
     """
 
     energy_weight: float = 16.0
@@ -77,6 +80,11 @@ class EnergySnapFlowObjective(SnapFlowObjective):
             raise InvalidInputError(f"energy_samples must be an integer >= 2, got {self.energy_samples!r}")
         if self.energy_weight < 0:
             raise InvalidInputError(f"energy_weight must be non-negative, got {self.energy_weight}")
+
+    @property
+    def trains_jump(self) -> bool:
+        """Whether the jump is trained: by lambda or by the energy term."""
+        return self.consistency_weight > 0 or self.energy_weight > 0
 
     def one_step_rows(
         self,

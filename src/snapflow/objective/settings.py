@@ -73,9 +73,10 @@ class DistillSettings:
     @property
     def trains_jump(self) -> bool:
         """Whether these settings train a one-step jump at all: some consistency rows (alpha < 1), weighted
-        (lambda > 0). Without, they fine-tune the flow-matching velocity only, to be sampled as ``naive`` or
-        ``teacher-N``."""
-        return self.alpha < 1 and self.consistency_weight > 0
+        (lambda > 0, or the energy target's term, whose weight is positive unless ``objective_options`` sets it 0).
+        Without, they fine-tune the flow-matching velocity only, to be sampled as ``naive`` or ``teacher-N``."""
+        energy = self.target == "energy" and self.objective_options.get("energy_weight", 1.0) > 0
+        return self.alpha < 1 and (self.consistency_weight > 0 or energy)
 
     @property
     def objective_type(self) -> ObjectiveType:

@@ -157,7 +157,8 @@ class SnapFlowObjective(TwoBranchObjective):
         progress: float,
     ) -> OneStepRows:
         """The jump t = 1 -> s = 0 from x_1 = eps onto the K-step Euler shortcut of the teacher velocities; the
-        first ``intermediate_jumps`` share of the rows jump between inner times instead."""
+        first ``intermediate_jumps`` share of the rows jump between inner times instead. At lambda 0 the rows have no
+        target and cost no teacher pass (a subclass may still score them, as the energy term does)."""
         rows = noise.shape[0]
         inner = round(self.intermediate_jumps * rows)
         t = torch.ones(rows, device=noise.device)
@@ -168,6 +169,8 @@ class SnapFlowObjective(TwoBranchObjective):
             s_inner = t_inner * uniform(inner, generator, t)
             t, s = torch.cat([t_inner, t[inner:]]), torch.cat([s_inner, s[inner:]])
             x = torch.cat([interpolate(actions[:inner], noise[:inner], t_inner), noise[inner:]])
+        if self.consistency_weight == 0:  # a term weighted 0 costs nothing: no target, no teacher pass
+            return OneStepRows(x, t, s, None)
         if self.teacher_velocity == "conditional":  # the straight path's average velocity over any jump
             return OneStepRows(x, t, s, conditional_velocity(actions, noise))
         steps = self.schedule(progress)["target_steps"]

@@ -79,6 +79,18 @@ class TargetOption:
         return sum(stages) / len(stages)
 
 
+#: the SnapFlow targets whose objective computes no target, and so spends no teacher pass, at lambda 0
+UNTARGETED_AT_LAMBDA_0 = ("euler", "energy")
+
+
+def teacher_passes_spent(settings: DistillSettings) -> float:
+    """No-grad teacher passes per one-step row that ``settings`` spend: their target's
+    (:attr:`TargetOption.teacher_passes`), or none at lambda 0 where the objective computes no target."""
+    if settings.consistency_weight == 0 and settings.target in UNTARGETED_AT_LAMBDA_0:
+        return 0.0
+    return TargetOption(settings.target, settings.target_steps).teacher_passes
+
+
 @dataclass(frozen=True)
 class Recipe:
     """A named way to distil a built-in teacher: the student's optimisation and the distillation settings. Every
@@ -119,6 +131,18 @@ RECIPES: dict[str, Recipe] = {
             "objective_options": {"energy_weight": 16.0, "energy_samples": 3},
         },
     ),
+    "modes-lean": Recipe(
+        "the modes recipe at a leaner step (docs/concepts/recipes.md, 'A recipe that keeps modes'): target energy, "
+        "lambda 0 (no consistency target, so no teacher pass), alpha 0.6, energy weight 16 over 4 one-step samples an "
+        f"observation ({_PAPER_BUDGET})",
+        PAPER_STUDENT_TRAINING,
+        {
+            "alpha": 0.6,
+            "consistency_weight": 0.0,
+            "target": "energy",
+            "objective_options": {"energy_weight": 16.0, "energy_samples": 4},
+        },
+    ),
 }
 DEFAULT_RECIPE = "snapflow"
 # snapflow's recipe is measured on built-in policies; a LeRobot student starts from the paper's
@@ -155,4 +179,5 @@ __all__ = [
     "TargetOption",
     "parse_target_steps",
     "student_settings",
+    "teacher_passes_spent",
 ]

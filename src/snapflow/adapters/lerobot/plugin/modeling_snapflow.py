@@ -152,7 +152,7 @@ class SnapFlowStudent:
         output = objective(
             self.snapflow, batch, targets, noise=noise, time=time, generator=generator, progress=progress
         )
-        self._distilled_by_last_forward = output.num_consistency > 0 and objective.consistency_weight > 0
+        self._distilled_by_last_forward = output.num_consistency > 0 and objective.trains_jump
         logs = {
             "flow_matching_loss": output.flow_matching_loss.item(),
             "consistency_loss": output.consistency_loss.item(),
@@ -162,7 +162,8 @@ class SnapFlowStudent:
     def update(self) -> None:
         """Run by ``lerobot-train`` after each optimiser step: counts it (``steps_distilled``), and records whether it
         trained the one-step jump (the config, and so every checkpoint from now on, says distilled) or, with alpha 1
-        or lambda 0, flow matching alone (says not distilled: the jump was not trained and phi_s drifts)."""
+        or lambda 0 and no energy term, flow matching alone (says not distilled: the jump was not trained and phi_s
+        drifts)."""
         self.config.steps_distilled += 1
         self.config.distilled = self._distilled_by_last_forward
 
