@@ -49,6 +49,9 @@ def test_the_settings_are_checked_and_guidance_of_a_jump_is_refused():
     with pytest.raises(InvalidInputError, match="steers Euler steps; snapflow-1 jumps"):
         RealTimeChunking(2, "guided").check_mode(SNAPFLOW_1)
     RealTimeChunking(2, "guided").check_mode(NAIVE_1)
+    assert RealTimeChunking(2).for_mode(SNAPFLOW_1).kind == "inpaint"
+    assert RealTimeChunking(2).for_mode(TEACHER_10).kind == "guided"
+    assert RealTimeChunking(2, "trained").for_mode(SNAPFLOW_1).kind == "trained"
 
 
 def test_guidance_with_zero_weights_is_the_plain_euler_chunk_and_pulls_toward_the_prefix_otherwise():

@@ -24,7 +24,6 @@ where the ramp ends, at most the previous chunk's leftover; by default all of it
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
 from typing import Any
 
 import torch
@@ -33,61 +32,11 @@ from torch import Tensor
 from snapflow.errors import InvalidInputError
 from snapflow.flow.known_prefix import sample_continuing
 from snapflow.flow.modes import SamplingMode
+from snapflow.flow.realtime_settings import PREFIX_SCHEDULES, RTC_KINDS, RealTimeChunking
 from snapflow.flow.solver import euler_sample
 from snapflow.protocol import Context
 
 VelocityFn = Callable[[Tensor, Tensor, Tensor], Tensor]
-
-RTC_KINDS = ("guided", "inpaint", "trained")
-PREFIX_SCHEDULES = ("linear", "zeros")
-
-
-@dataclass(frozen=True)
-class RealTimeChunking:
-    """How chunks continue each other under an inference delay.
-
-    Args:
-        delay: actions executed while a chunk is computed (the new chunk's first ones are the previous chunk's).
-        kind: ``guided``, ``inpaint`` or ``trained`` (see the module).
-        execution_horizon: where the weights' ramp reaches 0 (at most the previous chunk's leftover); None: the
-            whole leftover.
-        schedule: ``linear`` (LeRobot's default ramp) or ``zeros`` (no ramp: weight 1 over the delay only).
-        max_guidance_weight: the guided step's largest weight (LeRobot's default 10).
-        jump_weight: the weight a jump's chunk is inpainted at, in [0, 1].
-    """
-
-    delay: int
-    kind: str = "guided"
-    execution_horizon: int | None = None
-    schedule: str = "linear"
-    max_guidance_weight: float = 10.0
-    jump_weight: float = 1.0
-
-    def __post_init__(self) -> None:
-        if isinstance(self.delay, bool) or not isinstance(self.delay, int) or self.delay < 0:
-            raise InvalidInputError(f"an inference delay is a whole number of actions, 0 or more, got {self.delay!r}")
-        if self.kind not in RTC_KINDS:
-            raise InvalidInputError(f"unknown real-time chunking kind {self.kind!r}: one of {', '.join(RTC_KINDS)}")
-        if self.schedule not in PREFIX_SCHEDULES:
-            raise InvalidInputError(f"unknown prefix schedule {self.schedule!r}: one of {', '.join(PREFIX_SCHEDULES)}")
-        horizon = self.execution_horizon
-        if horizon is not None and (isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 1):
-            raise InvalidInputError(f"an execution horizon is a whole number of actions, 1 or more, got {horizon!r}")
-        if not self.max_guidance_weight > 0:
-            raise InvalidInputError(f"max_guidance_weight must be positive, got {self.max_guidance_weight}")
-        if not 0 <= self.jump_weight <= 1:
-            raise InvalidInputError(f"a jump's inpainting weight is between 0 and 1, got {self.jump_weight}")
-
-    def check_mode(self, mode: SamplingMode) -> None:
-        """Refuse guidance for a jump, which integrates nothing to steer (its kind is ``inpaint``)."""
-        if self.kind == "guided" and mode.jump:
-            raise InvalidInputError(
-                f"guided real-time chunking steers Euler steps; {mode.name} jumps: inpaint its chunk (kind 'inpaint') "
-                "or give it known prefixes (kind 'trained')"
-            )
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 def prefix_weights(delay: int, execution_horizon: int, chunk_length: int, schedule: str = "linear") -> Tensor:
@@ -164,8 +113,9 @@ def sample_chunk_continuing(
         noise: (B, chunk, width), where the chunk starts.
         previous: (B, P, width), the previous chunk's actions from the one executed next, P >= ``rtc.delay``.
         mode: a resolved mode (``teacher-N``, ``naive``, ``snapflow-N``).
+        rtc: the setting; its kind ``auto`` is ``guided`` for Euler modes and ``inpaint`` for jumps.
     """
-    rtc.check_mode(mode)
+    rtc = rtc.for_mode(mode)
     if not mode.resolved:
         raise ValueError(f"{mode.name} must be resolved to its number of steps before it samples")
     if previous.shape[1] < rtc.delay:
