@@ -95,6 +95,7 @@ def test_the_pipeline_records_the_setting_each_run_resolved_and_resumes_only_the
             resume=resume, rtc=rtc,
         )  # fmt: skip
 
+    assert student.known_prefix_delay == 0 == teacher.known_prefix_delay, "distilled without known prefixes"
     report = delayed(RealTimeChunking(1))
     assert report.to_dict()["rtc"] == RealTimeChunking(1).to_dict()
     assert "Inference delay of 1 action(s)" in markdown_report(report)

@@ -17,6 +17,7 @@ from snapflow.data.chunks import ChunkData
 from snapflow.data.demonstrations import Demonstrations
 from snapflow.envs.base import Benchmark
 from snapflow.envs.factory import DEFAULT_BENCHMARK
+from snapflow.errors import InvalidInputError
 from snapflow.evaluation.closed_loop import ClosedLoopEvaluator, check_rtc
 from snapflow.evaluation.config import N_ACT, OFFLINE_SAMPLES
 from snapflow.evaluation.episode_log import EpisodeLog
@@ -114,7 +115,7 @@ def evaluate(
     for _, loaded, mode in runs:
         loaded.check_mode(mode)
         if rtc is not None:
-            check_rtc(rtc, loaded.policy, mode, n_act, loaded.processor.chunk_length)
+            _check_rtc_run(rtc, loaded, mode, n_act)
     evaluator = runs_evaluator(runs, benchmark, tasks, episodes_per_task, first_variation, max_episode_steps)
     demonstrations = Demonstrations.load(data) if data is not None else None
     held_out: dict[Path, ChunkData | None] = {}  # per checkpoint: its modes share one set of held-out chunks
@@ -179,6 +180,17 @@ def evaluate(
     if timing:
         report.latency = checkpoint_latency(runs)
     return report
+
+
+def _check_rtc_run(rtc: RealTimeChunking, loaded: OpenedPolicy, mode: SamplingMode, n_act: int) -> None:
+    """Refuse a run the evaluator cannot do under ``rtc``, or a delay past the prefixes a policy was trained for."""
+    resolved = check_rtc(rtc, loaded.policy, mode, n_act, loaded.processor.chunk_length)
+    if resolved.kind == "trained" and rtc.delay > loaded.known_prefix_delay:
+        raise InvalidInputError(
+            f"{loaded.path} was distilled to be given at most {loaded.known_prefix_delay} actions of a previous chunk "
+            f"(rtc_max_delay), so real-time chunking 'trained' cannot run it under an inference delay of {rtc.delay}: "
+            "distil it with --rtc-max-delay at least that, or use --rtc inpaint"
+        )
 
 
 def _log_name(index: int, label: str) -> str:
