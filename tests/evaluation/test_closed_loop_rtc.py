@@ -29,14 +29,33 @@ def _run(scripted, policy, processor, mode, n_act, rtc, seed=3):
     return results, encodes
 
 
-def test_a_delayed_chunk_is_planned_with_d_actions_queued_and_runs_from_its_action_d(scripted, runs):
+# (delay, the index in the previous chunk each next chunk continues from, the (chunk, action) run at each step) with
+# n_act 2, chunks of 4 and 6 steps an episode
+SCHEDULES = {
+    "delay 1": (1, [1, 2, 2], [(0, 0), (0, 1), (1, 1), (1, 2), (2, 1), (2, 2)]),
+    "no delay: the rest past the executed actions still guides": (
+        0,
+        [2, 2],
+        [(0, 0), (0, 1), (1, 0), (1, 1), (2, 0), (2, 1)],
+    ),
+    "delay = n_act: the second chunk planned before any step": (
+        2,
+        [0, 2, 2],
+        [(0, 0), (0, 1), (1, 2), (1, 3), (2, 2), (2, 3)],
+    ),
+}
+
+
+@pytest.mark.parametrize("case", SCHEDULES, ids=list(SCHEDULES))
+def test_a_delayed_chunk_is_planned_with_d_actions_queued_and_runs_from_its_action_d(scripted, runs, case):
+    delay, starts, executed = SCHEDULES[case]
     _, teacher, _ = runs
     policy, processor = teacher.policy, teacher.processor
-    rtc = RealTimeChunking(1, "inpaint")
+    rtc = RealTimeChunking(delay, "inpaint")
     results, encodes = _run(scripted, policy, processor, NAIVE_1, 2, rtc)
     assert [r.steps for r in results] == [EPISODE_STEPS] * 4
-    assert encodes == [4, 4, 4, 4], "planned at step 0, then with one action left: at steps 1, 3 and 5"
-    # by hand: the first chunk plain, each next one continuing the rest of the chunk its next action comes from
+    assert encodes == [4] * (len(starts) + 1), "every environment plans in one batch"
+    # by hand: the first chunk plain, each next one continuing the rest of the chunk before it
     generator = torch.Generator().manual_seed(3)
     envs = scripted.envs
     observation = processor.observation(np.stack([env.state for env in envs]), [env.instruction for env in envs])
@@ -47,16 +66,22 @@ def test_a_delayed_chunk_is_planned_with_d_actions_queued_and_runs_from_its_acti
 
     with torch.no_grad():
         chunks = [sample_actions(policy, observation, noise(), NAIVE_1)]
-        for start in (1, 2):  # the next action's index in the chunk it comes from: 1 in the first, then 2
+        for start in starts:
             chunks.append(sample_chunk_continuing(policy, context, noise(), NAIVE_1, chunks[-1][:, start:], rtc))
     actions = [processor.unnormalize_actions(chunk).numpy() for chunk in chunks]
     for row, env in enumerate(envs):
-        expected = np.stack([actions[0][row, 0], actions[0][row, 1], *actions[1][row, 1:3], *actions[2][row, 1:3]])
+        expected = np.stack([actions[chunk][row, index] for chunk, index in executed])
         assert np.allclose(np.stack(env.actions), expected, atol=1e-6)
-        assert np.allclose(actions[1][row, 0], actions[0][row, 1], atol=1e-5), "its delayed action is the one run"
+    if delay:  # the delayed actions of a chunk are those of the chunk before it that ran meanwhile
+        assert np.allclose(actions[1][:, :delay], actions[0][:, starts[0] : starts[0] + delay], atol=1e-5)
+    else:  # the second chunk's own noise, sampled without the rest of the first: its first action differs
+        generator.manual_seed(3)
+        noise()
+        plain = processor.unnormalize_actions(sample_actions(policy, observation, noise(), NAIVE_1)).numpy()
+        assert not np.allclose(actions[1][:, 0], plain[:, 0], atol=1e-3), "the first chunk's rest pulls it"
 
 
-def test_a_delay_as_long_as_n_act_plans_the_second_chunk_at_the_first_observation(scripted, runs):
+def test_guided_and_inpainted_runs_go_to_the_end_of_each_episode(scripted, runs):
     _, teacher, student = runs
     results, encodes = _run(scripted, teacher.policy, teacher.processor, TEACHER_10, 2, RealTimeChunking(2, "guided"))
     assert encodes == [4, 4, 4, 4], "steps 0 (twice: nothing runs before the second chunk is computed), 2 and 4"

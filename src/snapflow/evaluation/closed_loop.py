@@ -162,19 +162,21 @@ class ClosedLoopEvaluator:
     ) -> list[EpisodeResult]:
         observations = [env.reset(self.slots[slot][1]) for env, slot in zip(envs, slots, strict=True)]
         queues: list[deque] = [deque() for _ in envs]
-        # with rtc: each queued action's normalised chunk and its index there, whose rest a next chunk continues
+        # with rtc: where each queued action comes from (its normalised chunk, its index there), and where the rest of
+        # the last executed one's chunk starts: a next chunk continues the chunk its next action would come from
         sources: list[deque] = [deque() for _ in envs]
+        rests: list[tuple[torch.Tensor, int] | None] = [None for _ in envs]
         results: dict[int, EpisodeResult] = {}
         delay = None if rtc is None else rtc.delay
         while len(results) < len(envs):
             alive = [i for i in range(len(envs)) if i not in results]
-            replan = [i for i in alive if not queues[i]] if rtc is None else [i for i in alive if not sources[i]]
-            if replan:
-                batch = _observation_batch(processor, [observations[i] for i in replan])
-                noise = torch.randn(len(replan), processor.chunk_length, processor.action_dim, generator=generator)
+            first = [i for i in alive if not queues[i] and (rtc is None or rests[i] is None)]
+            if first:
+                batch = _observation_batch(processor, [observations[i] for i in first])
+                noise = torch.randn(len(first), processor.chunk_length, processor.action_dim, generator=generator)
                 normalised = sample_actions(policy, batch, noise, mode)
                 chunks = processor.unnormalize_actions(normalised).numpy()
-                for row, i in enumerate(replan):
+                for row, i in enumerate(first):
                     queues[i].extend(chunks[row, :n_act])
                     if rtc is not None:
                         sources[i].extend((normalised[row], index) for index in range(n_act))
@@ -182,6 +184,7 @@ class ClosedLoopEvaluator:
             if continuing:
                 self._continue_chunks(
                     [observations[i] for i in continuing],
+                    [sources[i][0] if sources[i] else rests[i] for i in continuing],
                     [queues[i] for i in continuing],
                     [sources[i] for i in continuing],
                     policy,
@@ -194,7 +197,8 @@ class ClosedLoopEvaluator:
             for i in alive:
                 action = queues[i].popleft()
                 if rtc is not None:
-                    sources[i].popleft()
+                    chunk, index = sources[i].popleft()
+                    rests[i] = (chunk, index + 1)
                 if record is not None:
                     record(slots[i], observations[i], action)
                 # render only where the next step re-plans: the image is needed nowhere else
@@ -208,6 +212,7 @@ class ClosedLoopEvaluator:
     @staticmethod
     def _continue_chunks(
         observations: list[Observation],
+        rests: list[tuple[torch.Tensor, int]],
         queues: list[deque],
         sources: list[deque],
         policy: FlowPolicy,
@@ -217,10 +222,11 @@ class ClosedLoopEvaluator:
         generator: torch.Generator,
         rtc: RealTimeChunking,
     ) -> None:
-        """Plan the next chunks of environments with ``rtc.delay`` actions queued, each continuing the rest of the
-        chunk its next queued action comes from, and queue their actions d..d+n_act-1."""
+        """Plan the next chunks of environments with ``rtc.delay`` actions queued, each continuing the rest of a
+        previous chunk (``rests``: the normalised chunk and the index of its next action), and queue their actions
+        d..d+n_act-1."""
         noise = torch.randn(len(observations), processor.chunk_length, processor.action_dim, generator=generator)
-        previous = torch.stack([chunk[index:] for chunk, index in (queued[0] for queued in sources)])
+        previous = torch.stack([chunk[index:] for chunk, index in rests])
         context = policy.encode(_observation_batch(processor, observations))
         normalised = sample_chunk_continuing(policy, context, noise, mode, previous, rtc)
         chunks = processor.unnormalize_actions(normalised).numpy()
