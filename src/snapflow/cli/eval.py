@@ -90,8 +90,9 @@ def add_parser(subparsers: Any) -> None:
         choices=["guided", "inpaint", "trained"],
         help="with --inference-delay, how a chunk continues the previous one: guided (LeRobot's guided Euler steps; "
         "teacher-N, naive), inpaint (the chunk blended into the previous one along the prefix weights; any mode), "
-        "trained (the previous chunk's first D actions given to every pass: a MiniVLA student distilled with "
-        "--rtc-max-delay >= D, its jump's ramp then inpainted) (default: guided for Euler modes, inpaint for jumps)",
+        "trained (the previous chunk's first D actions given to every pass: a student whose time enters each action, "
+        "MiniVLA's or SmolVLA's, distilled with --rtc-max-delay >= D; a jump's ramp past them then inpainted) "
+        "(default: guided for Euler modes, inpaint for jumps)",
     )
     parser.add_argument(
         "--execution-horizon",
