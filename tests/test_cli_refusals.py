@@ -75,6 +75,25 @@ ARGUMENT_MISTAKES = {
     "no timed calls": (["bench", "--architecture", "mlp", "--repeats", "0"], "--repeats"),
     "no workers": (["sweep", "config.toml", "--workers", "0"], "--workers"),
     "mistyped mode": (["eval", "--policy", "run", "--modes", "snapflow-x"], "unknown sampling mode 'snapflow-x'"),
+    "a real-time chunking kind without a delay": (
+        ["eval", "--policy", "run", "--rtc", "inpaint"],
+        "--rtc",
+        "--inference-delay",
+    ),
+    "a delay past the actions a chunk runs": (
+        ["eval", "--policy", "run", "--inference-delay", "5", "--n-act", "4"],
+        "--inference-delay 5",
+        "--n-act",
+    ),
+    "guidance of a jump": (
+        ["eval", "--policy", "run", "--inference-delay", "2", "--rtc", "guided", "--modes", "teacher-10,snapflow-1"],
+        "steers Euler steps; snapflow-1 jumps",
+    ),
+    "a negative delay": (["eval", "--policy", "run", "--inference-delay", "-1"], "--inference-delay", "at least 0"),
+    "a delay in LeRobot's environment": (
+        ["eval", "--policy", "run", "--lerobot-env", "pusht", "--inference-delay", "2"],
+        "--inference-delay runs snapflow's own evaluator",
+    ),
     "a server open to the network without TLS": (["serve", "--host", "0.0.0.0"], "--host 0.0.0.0", "--tls-cert"),
     "TLS without its client CA": (
         ["serve", "--tls-cert", "c.pem", "--tls-key", "k.pem"],

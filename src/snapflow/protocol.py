@@ -76,7 +76,10 @@ class PaddedActions(Protocol):
 @runtime_checkable
 class PerActionTimes(Protocol):
     """A policy that takes a time per action of the chunk: ``t`` and ``s`` of shape (B, chunk length), each action's
-    own time and target time, so that some actions ride clean (time 0) beside others at any time."""
+    own time and target time, so that some actions ride clean (time 0) beside others at any time.
+
+    A wrapper whose model may take one time a chunk (:class:`snapflow.nn.SnapFlowPolicy`) says so in an attribute
+    ``per_action_times_refusal``: None where it takes a time per action, else why not (naming the model)."""
 
     def velocity_per_action(self, x_t: Tensor, t: Tensor, s: Tensor, context: Context) -> Tensor:
         """The velocity as :meth:`FlowPolicy.velocity`, with ``t`` and ``s`` of shape (B, chunk length)."""

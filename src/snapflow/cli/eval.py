@@ -24,6 +24,7 @@ from snapflow.envs.factory import BENCHMARKS, DEFAULT_BENCHMARK, make_benchmark
 from snapflow.errors import InvalidInputError
 from snapflow.evaluation.config import N_ACT
 from snapflow.flow.modes import STANDARD_MODES, SamplingMode
+from snapflow.flow.realtime_settings import RealTimeChunking
 
 EPISODES = "episodes"  # each row's episode log, in the output folder
 
@@ -75,6 +76,31 @@ def add_parser(subparsers: Any) -> None:
         dest="n_act",
         help=f"actions executed per predicted chunk (default: {N_ACT}; with --lerobot-env the policy's own)",
     )
+    parser.add_argument(
+        "--inference-delay",
+        type=NON_NEGATIVE_COUNT,
+        metavar="D",
+        help="run every episode under an inference delay of D actions (real-time chunking): after the first chunk, "
+        "each is planned when D actions of the previous one remain queued, from the observation of that moment, "
+        "continuing the previous chunk's rest, and runs its actions D..D+n_act-1 (D <= n_act, n_act + D <= the "
+        "chunk length); chunks switch at steps n_act, 2 n_act, ... (default: no delay, no real-time chunking)",
+    )
+    parser.add_argument(
+        "--rtc",
+        choices=["guided", "inpaint", "trained"],
+        help="with --inference-delay, how a chunk continues the previous one: guided (LeRobot's guided Euler steps; "
+        "teacher-N, naive), inpaint (the chunk blended into the previous one along the prefix weights; any mode), "
+        "trained (the previous chunk's first D actions given to every pass: a student whose time enters each action, "
+        "MiniVLA's or SmolVLA's, distilled with --rtc-max-delay >= D; a jump's ramp past them then inpainted) "
+        "(default: guided for Euler modes, inpaint for jumps)",
+    )
+    parser.add_argument(
+        "--execution-horizon",
+        type=COUNT,
+        metavar="H",
+        help="with --inference-delay: the new chunk's action at which the prefix weights' linear ramp from 1 "
+        "(after the delay) reaches 0 (default: the previous chunk's end)",
+    )
     parser.add_argument("--data", help="demonstrations for offline metrics on the held-out episodes")
     parser.add_argument(
         "--seed", type=NON_NEGATIVE_COUNT, help="evaluation seed (default: 0; with --lerobot-env LeRobot's 1000)"
@@ -109,13 +135,14 @@ def run(args: argparse.Namespace) -> int:
         return _eval_in_lerobot_env(args)
     # every registered benchmark is checked again below once the policies name theirs; a typo is caught here first
     tasks(args.env or DEFAULT_BENCHMARK, args.tasks)
+    modes = dict(_policy_modes(entry, args.modes) for entry in args.policy)
+    rtc = _real_time_chunking(args, modes)
     check_writable(args.output)
     from snapflow.evaluation.pipeline import evaluate, labelled_runs, trained_benchmark
     from snapflow.evaluation.report import markdown_report, write_report
     from snapflow.inference.fast_paths import apply_fast_path
     from snapflow.sources import open_policy
 
-    modes = dict(_policy_modes(entry, args.modes) for entry in args.policy)
     opened = {path: open_policy(path) for path in modes}
     # a bare 'teacher' at each policy's own steps, named by them (teacher-4 for GR00T N1.7)
     policies = {path: (opened[path], [opened[path].resolve_mode(mode) for mode in modes[path]]) for path in modes}
@@ -135,6 +162,7 @@ def run(args: argparse.Namespace) -> int:
         resume=args.resume,
         first_variation=args.first_variation,
         max_episode_steps=args.max_episode_steps,
+        rtc=rtc,
         **given({"n_act": args.n_act, "seed": args.seed}),
     )
     write_report(report, args.output)
@@ -152,6 +180,29 @@ def _interrupted(args: argparse.Namespace) -> str:
     )
 
 
+def _real_time_chunking(args: argparse.Namespace, modes: dict[str, list[SamplingMode]]) -> RealTimeChunking | None:
+    """The real-time chunking setting of --inference-delay, --rtc and --execution-horizon, checked against every
+    mode and --n-act before anything loads (the chunk length is checked once the policies are open)."""
+    if args.inference_delay is None:
+        extra = [
+            flag for flag, value in (("--rtc", args.rtc), ("--execution-horizon", args.execution_horizon)) if value
+        ]
+        if extra:
+            raise InvalidInputError(f"{' and '.join(extra)} set how chunks continue under --inference-delay: give it")
+        return None
+    rtc = RealTimeChunking(args.inference_delay, args.rtc or "auto", args.execution_horizon)
+    for path_modes in modes.values():
+        for mode in path_modes:
+            rtc.for_mode(mode)
+    n_act = args.n_act or N_ACT
+    if rtc.delay > n_act:
+        raise InvalidInputError(
+            f"--inference-delay {rtc.delay} is more than the {n_act} actions a chunk runs (--n-act): a chunk is planned "
+            "while the previous one's last D actions run"
+        )
+    return rtc
+
+
 def _policy_modes(entry: str, default: list[SamplingMode]) -> tuple[str, list[SamplingMode]]:
     """``PATH`` (the --modes) or ``PATH=MODES``: the sampling modes of one policy of several."""
     path, separator, modes = entry.rpartition("=")
@@ -165,6 +216,11 @@ def _eval_in_lerobot_env(args: argparse.Namespace) -> int:
         raise InvalidInputError("--lerobot-env evaluates one distilled LeRobot policy directory at a time")
     if args.resume:
         raise InvalidInputError("--resume continues snapflow's own evaluator; a --lerobot-env evaluation runs whole")
+    if args.inference_delay is not None:
+        raise InvalidInputError(
+            "--inference-delay runs snapflow's own evaluator; in LeRobot's environment a policy's real-time chunking "
+            "is its config's (rtc_config)"
+        )
     if args.first_variation:
         raise InvalidInputError(
             "--first-variation chooses the variations of snapflow's own evaluator; in LeRobot's environment, "

@@ -18,7 +18,9 @@ from snapflow.envs.base import Benchmark, Environment, Observation
 from snapflow.errors import InvalidInputError
 from snapflow.evaluation.episode_log import EpisodeLog, FinishedWave
 from snapflow.evaluation.results import EpisodeResult
+from snapflow.flow.known_prefix import per_action_times_refusal
 from snapflow.flow.modes import SamplingMode
+from snapflow.flow.realtime import RealTimeChunking, sample_chunk_continuing
 from snapflow.flow.solver import sample_actions
 from snapflow.policies.processor import Processor
 from snapflow.protocol import FlowPolicy
@@ -92,15 +94,25 @@ class ClosedLoopEvaluator:
         progress: bool = True,
         record: Callable[[int, Observation, np.ndarray], None] | None = None,
         log: EpisodeLog | None = None,
+        rtc: RealTimeChunking | None = None,
     ) -> list[EpisodeResult]:
         """Roll out every slot to success or the step limit, re-planning a chunk every ``n_act`` actions;
         ``record(slot, observation, action)`` is called before each step (to trace episodes). With ``log``, each
         finished wave is appended to it, and the waves it already holds are taken from it, not run again (nor
-        recorded): the run goes on from the noise generator's state after the last of them."""
+        recorded): the run goes on from the noise generator's state after the last of them.
+
+        With ``rtc`` (real-time chunking under an inference delay d = ``rtc.delay``) the first chunk executes its
+        actions 0..n_act-1; afterwards a new chunk is planned when d actions remain queued, from the observation of
+        that moment, continuing the previous chunk's unexecuted (normalised) actions, whose first d are executed
+        while it is computed, and the queue goes on with its actions d..d+n_act-1 (so d <= n_act and
+        n_act + d <= the chunk length). Either way each chunk executes n_act actions: an episode's chunk switches
+        are at its steps n_act, 2 n_act, ... (the step whose action ``record`` is given first of a new chunk)."""
         if not 1 <= n_act <= processor.chunk_length:
             raise InvalidInputError(
                 f"n_act must be in [1, {processor.chunk_length}] (the policy's chunk length), got {n_act}"
             )
+        if rtc is not None:
+            rtc = check_rtc(rtc, policy, mode, n_act, processor.chunk_length)
         unrendered = [name for name in processor.extra_cameras if name not in self.extra_cameras]
         if unrendered:
             raise InvalidInputError(f"the policy reads camera(s) {unrendered} that this evaluator does not render")
@@ -128,6 +140,7 @@ class ClosedLoopEvaluator:
                         generator,
                         bar.update,
                         record,
+                        rtc,
                     )
                     if log is not None:
                         log.append(FinishedWave(finished, time.perf_counter() - started, generator.get_state()))
@@ -145,38 +158,82 @@ class ClosedLoopEvaluator:
         generator: torch.Generator,
         finished: Callable[[], object],
         record: Callable[[int, Observation, np.ndarray], None] | None,
+        rtc: RealTimeChunking | None = None,
     ) -> list[EpisodeResult]:
         observations = [env.reset(self.slots[slot][1]) for env, slot in zip(envs, slots, strict=True)]
         queues: list[deque] = [deque() for _ in envs]
+        # with rtc: where each queued action comes from (its normalised chunk, its index there), and where the rest of
+        # the last executed one's chunk starts: a next chunk continues the chunk its next action would come from
+        sources: list[deque] = [deque() for _ in envs]
+        rests: list[tuple[torch.Tensor, int] | None] = [None for _ in envs]
         results: dict[int, EpisodeResult] = {}
+        delay = None if rtc is None else rtc.delay
         while len(results) < len(envs):
-            replan = [i for i in range(len(envs)) if i not in results and not queues[i]]
-            if replan:
-                batch = processor.observation(
-                    np.stack([observations[i].state for i in replan]),
-                    [observations[i].instruction for i in replan],
-                    np.stack([observations[i].image for i in replan]) if processor.image_size else None,
-                    {
-                        name: np.stack([observations[i].extra_images[name] for i in replan])
-                        for name in processor.extra_cameras
-                    },
-                )
-                noise = torch.randn(len(replan), processor.chunk_length, processor.action_dim, generator=generator)
-                chunks = processor.unnormalize_actions(sample_actions(policy, batch, noise, mode)).numpy()
-                for row, i in enumerate(replan):
+            alive = [i for i in range(len(envs)) if i not in results]
+            first = [i for i in alive if not queues[i] and (rtc is None or rests[i] is None)]
+            if first:
+                batch = _observation_batch(processor, [observations[i] for i in first])
+                noise = torch.randn(len(first), processor.chunk_length, processor.action_dim, generator=generator)
+                normalised = sample_actions(policy, batch, noise, mode)
+                chunks = processor.unnormalize_actions(normalised).numpy()
+                for row, i in enumerate(first):
                     queues[i].extend(chunks[row, :n_act])
-            for i, env in enumerate(envs):
-                if i in results:
-                    continue
+                    if rtc is not None:
+                        sources[i].extend((normalised[row], index) for index in range(n_act))
+            continuing = [] if rtc is None else [i for i in alive if len(queues[i]) == delay]
+            if continuing:
+                self._continue_chunks(
+                    [observations[i] for i in continuing],
+                    [sources[i][0] if sources[i] else rests[i] for i in continuing],
+                    [queues[i] for i in continuing],
+                    [sources[i] for i in continuing],
+                    policy,
+                    processor,
+                    mode,
+                    n_act,
+                    generator,
+                    rtc,
+                )
+            for i in alive:
                 action = queues[i].popleft()
+                if rtc is not None:
+                    chunk, index = sources[i].popleft()
+                    rests[i] = (chunk, index + 1)
                 if record is not None:
                     record(slots[i], observations[i], action)
                 # render only where the next step re-plans: the image is needed nowhere else
-                observations[i], success, done = env.step(action, render=not queues[i])
-                if done or env.steps == self.max_episode_steps:
-                    results[i] = EpisodeResult(*self.slots[slots[i]], success, env.steps)
+                replans = not queues[i] if rtc is None else len(queues[i]) == delay
+                observations[i], success, done = envs[i].step(action, render=replans)
+                if done or envs[i].steps == self.max_episode_steps:
+                    results[i] = EpisodeResult(*self.slots[slots[i]], success, envs[i].steps)
                     finished()
         return [results[i] for i in range(len(envs))]
+
+    @staticmethod
+    def _continue_chunks(
+        observations: list[Observation],
+        rests: list[tuple[torch.Tensor, int]],
+        queues: list[deque],
+        sources: list[deque],
+        policy: FlowPolicy,
+        processor: Processor,
+        mode: SamplingMode,
+        n_act: int,
+        generator: torch.Generator,
+        rtc: RealTimeChunking,
+    ) -> None:
+        """Plan the next chunks of environments with ``rtc.delay`` actions queued, each continuing the rest of a
+        previous chunk (``rests``: the normalised chunk and the index of its next action), and queue their actions
+        d..d+n_act-1."""
+        noise = torch.randn(len(observations), processor.chunk_length, processor.action_dim, generator=generator)
+        previous = torch.stack([chunk[index:] for chunk, index in rests])
+        context = policy.encode(_observation_batch(processor, observations))
+        normalised = sample_chunk_continuing(policy, context, noise, mode, previous, rtc)
+        chunks = processor.unnormalize_actions(normalised).numpy()
+        executed = range(rtc.delay, rtc.delay + n_act)
+        for row, (queue, source) in enumerate(zip(queues, sources, strict=True)):
+            queue.extend(chunks[row, executed.start : executed.stop])
+            source.extend((normalised[row], index) for index in executed)
 
     def close(self) -> None:
         for env in self._envs:
@@ -184,4 +241,35 @@ class ClosedLoopEvaluator:
         self._envs = []
 
 
-__all__ = ["ClosedLoopEvaluator"]
+def _observation_batch(processor: Processor, observations: list[Observation]) -> object:
+    """The policy's inputs for a batch of observations."""
+    return processor.observation(
+        np.stack([observation.state for observation in observations]),
+        [observation.instruction for observation in observations],
+        np.stack([observation.image for observation in observations]) if processor.image_size else None,
+        {
+            name: np.stack([observation.extra_images[name] for observation in observations])
+            for name in processor.extra_cameras
+        },
+    )
+
+
+def check_rtc(
+    rtc: RealTimeChunking, policy: FlowPolicy, mode: SamplingMode, n_act: int, chunk_length: int
+) -> RealTimeChunking:
+    """The real-time chunking setting for ``mode`` (its kind resolved), or refuse one the evaluator cannot run with
+    this policy, mode and ``n_act``."""
+    rtc = rtc.for_mode(mode)
+    if rtc.delay > n_act or n_act + rtc.delay > chunk_length:
+        raise InvalidInputError(
+            f"an inference delay of {rtc.delay} with n_act {n_act} needs delay <= n_act (a chunk is planned while "
+            f"the previous one's last {rtc.delay} actions run) and n_act + delay <= the policy's chunk length "
+            f"{chunk_length}"
+        )
+    refusal = per_action_times_refusal(policy) if rtc.kind == "trained" else None
+    if refusal is not None:
+        raise InvalidInputError(f"{refusal}: real-time chunking 'trained' needs a policy given a time per action")
+    return rtc
+
+
+__all__ = ["ClosedLoopEvaluator", "check_rtc"]

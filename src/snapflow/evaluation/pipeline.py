@@ -17,12 +17,14 @@ from snapflow.data.chunks import ChunkData
 from snapflow.data.demonstrations import Demonstrations
 from snapflow.envs.base import Benchmark
 from snapflow.envs.factory import DEFAULT_BENCHMARK
-from snapflow.evaluation.closed_loop import ClosedLoopEvaluator
+from snapflow.errors import InvalidInputError
+from snapflow.evaluation.closed_loop import ClosedLoopEvaluator, check_rtc
 from snapflow.evaluation.config import N_ACT, OFFLINE_SAMPLES
 from snapflow.evaluation.episode_log import EpisodeLog
 from snapflow.evaluation.offline import offline_metrics
 from snapflow.evaluation.results import EvaluationReport, EvaluationRow, success_by_task
 from snapflow.flow.modes import SamplingMode
+from snapflow.flow.realtime import RealTimeChunking
 from snapflow.policies.loaded import OpenedPolicy
 from snapflow.reporting.files import recorded_path
 
@@ -97,6 +99,7 @@ def evaluate(
     val_fraction: float | None = None,
     max_episode_steps: int | None = None,
     kept_logs: str | Path | None = None,
+    rtc: RealTimeChunking | None = None,
 ) -> EvaluationReport:
     """Closed-loop success, offline metrics (when ``data`` is given) and, with ``timing``, batch-1 latency for each
     (label, policy, mode); latency speedups are relative to the first entry. A jump mode (``snapflow-N``) on a
@@ -106,9 +109,13 @@ def evaluate(
     variations ``first_variation`` on (LIBERO's fixed initial states). The offline metrics read the share of each
     task's episodes a policy's training held out, or ``val_fraction`` where given (a trainer that records none).
     ``max_episode_steps`` ends every episode there, short of the benchmark's own limit (a quick check). With
-    ``kept_logs``, a whole copy of each episode log is kept there after each wave (a sweep's committed progress)."""
+    ``kept_logs``, a whole copy of each episode log is kept there after each wave (a sweep's committed progress).
+    With ``rtc``, every run's chunks are planned under an inference delay and continue each other
+    (:meth:`ClosedLoopEvaluator.run`), each run checked before any runs."""
     for _, loaded, mode in runs:
         loaded.check_mode(mode)
+        if rtc is not None:
+            _check_rtc_run(rtc, loaded, mode, n_act)
     evaluator = runs_evaluator(runs, benchmark, tasks, episodes_per_task, first_variation, max_episode_steps)
     demonstrations = Demonstrations.load(data) if data is not None else None
     held_out: dict[Path, ChunkData | None] = {}  # per checkpoint: its modes share one set of held-out chunks
@@ -121,6 +128,7 @@ def evaluate(
         {},
         first_variation=first_variation,
         max_episode_steps=max_episode_steps,
+        rtc=None if rtc is None else rtc.to_dict(),
     )
     try:
         for index, (label, loaded, mode) in enumerate(runs):
@@ -141,13 +149,14 @@ def evaluate(
                     # only where set: a log written before the option existed is one of the first variations
                     **({"first_variation": first_variation} if first_variation else {}),
                     **({"max_episode_steps": max_episode_steps} if max_episode_steps else {}),
+                    **({"rtc": rtc.for_mode(mode).to_dict()} if rtc is not None else {}),
                 }
                 name = _log_name(index, label)
                 kept = None if kept_logs is None else Path(kept_logs) / name
                 log = EpisodeLog(Path(episode_logs) / name, identity, resume, kept)
             earlier = sum(wave.seconds for wave in log.finished) if log is not None else 0.0
             started = time.perf_counter()
-            episodes = evaluator.run(loaded.policy, loaded.processor, mode, n_act, seed, progress, log=log)
+            episodes = evaluator.run(loaded.policy, loaded.processor, mode, n_act, seed, progress, log=log, rtc=rtc)
             row = EvaluationRow(
                 recorded_path(loaded.path),
                 mode.name,
@@ -171,6 +180,17 @@ def evaluate(
     if timing:
         report.latency = checkpoint_latency(runs)
     return report
+
+
+def _check_rtc_run(rtc: RealTimeChunking, loaded: OpenedPolicy, mode: SamplingMode, n_act: int) -> None:
+    """Refuse a run the evaluator cannot do under ``rtc``, or a delay past the prefixes a policy was trained for."""
+    resolved = check_rtc(rtc, loaded.policy, mode, n_act, loaded.processor.chunk_length)
+    if resolved.kind == "trained" and rtc.delay > loaded.known_prefix_delay:
+        raise InvalidInputError(
+            f"{loaded.path} was distilled to be given at most {loaded.known_prefix_delay} actions of a previous chunk "
+            f"(rtc_max_delay), so real-time chunking 'trained' cannot run it under an inference delay of {rtc.delay}: "
+            "distil it with --rtc-max-delay at least that, or use --rtc inpaint"
+        )
 
 
 def _log_name(index: int, label: str) -> str:

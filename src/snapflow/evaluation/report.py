@@ -13,6 +13,18 @@ from snapflow.reporting.machine import machine_description, versions
 from snapflow.reporting.tables import markdown_table
 
 
+def _rtc_sentence(rtc: dict | None) -> str:
+    """How chunks continued each other under an inference delay, where they did."""
+    if not rtc:
+        return ""
+    horizon = rtc["execution_horizon"] or "the previous chunk's end"
+    return (
+        f" Inference delay of {rtc['delay']} action(s): each chunk after the first planned while the previous one's last "
+        f"{rtc['delay']} ran, continuing it by real-time chunking '{rtc['kind']}' ({rtc['schedule']} prefix weights to "
+        f"{horizon}); chunk switches at steps n_act, 2 n_act, ..."
+    )
+
+
 def _intervals_markdown(report: EvaluationReport) -> str:
     """Each row's mean with its 95% Wilson interval, and its paired difference from the first row."""
     intervals = report.intervals()
@@ -49,7 +61,8 @@ def markdown_report(report: EvaluationReport) -> str:
         f"{len(report.tasks)} task(s), {report.episodes_per_task} episodes per task on evaluation variations no demonstration saw "
         f"({report.first_variation} to {report.first_variation + report.episodes_per_task - 1} of each task), "
         f"{report.n_act} actions executed per predicted chunk."
-        + (f" Episodes cut at {report.max_episode_steps} steps." if report.max_episode_steps else ""),
+        + (f" Episodes cut at {report.max_episode_steps} steps." if report.max_episode_steps else "")
+        + _rtc_sentence(report.rtc),
         "\n".join(
             f"- **{label}**: {SamplingMode.parse(row.mode).description} (`{row.policy}`)."
             for label, row in report.rows.items()

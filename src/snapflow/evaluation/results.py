@@ -101,6 +101,7 @@ class EvaluationReport:
     versions: dict[str, str] = field(default_factory=dict)  # what it ran under (reporting.machine.versions)
     first_variation: int = 0  # each task's episodes ran on its evaluation variations from this one on
     max_episode_steps: int | None = None  # each episode was cut here, short of the benchmark's own limit
+    rtc: dict[str, Any] | None = None  # real-time chunking under an inference delay (RealTimeChunking.to_dict())
 
     def intervals(self) -> dict[str, dict[str, float]]:
         """Per row: mean success (%), its 95% Wilson interval over the pooled episodes and, for every row after the
@@ -132,6 +133,7 @@ class EvaluationReport:
             "first_variation": self.first_variation,
             "n_act": self.n_act,
             **({"max_episode_steps": self.max_episode_steps} if self.max_episode_steps else {}),
+            **({"rtc": self.rtc} if self.rtc else {}),
             "rows": {label: row.to_dict() for label, row in self.rows.items()},
             "intervals": self.intervals(),
         }

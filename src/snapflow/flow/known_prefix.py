@@ -26,6 +26,13 @@ from snapflow.flow.solver import euler_sample
 from snapflow.protocol import Context, PaddedActions, PerActionTimes, draw_flow_noise
 
 
+def per_action_times_refusal(policy: Any) -> str | None:
+    """None where ``policy`` takes a time per action (:class:`~snapflow.protocol.PerActionTimes`), else why not."""
+    if not isinstance(policy, PerActionTimes):
+        return f"{type(policy).__name__} takes one time a chunk"
+    return getattr(policy, "per_action_times_refusal", None)
+
+
 def prefix_mask(delays: Tensor, chunk_length: int) -> Tensor:
     """(B, chunk_length) booleans, True on each row's first ``delays[row]`` actions."""
     return torch.arange(chunk_length, device=delays.device)[None, :] < delays[:, None]
@@ -49,10 +56,11 @@ class KnownPrefixPolicy:
     """
 
     def __init__(self, policy: Any, known: Tensor, mask: Tensor) -> None:
-        if not isinstance(policy, PerActionTimes):
+        refusal = per_action_times_refusal(policy)
+        if refusal is not None:
             raise InvalidInputError(
-                f"{type(policy).__name__} takes one time a chunk, so it cannot be given known actions at time 0 "
-                "(real-time chunking trained in needs a policy whose time enters each action: SmolVLA's)"
+                f"{refusal}, so it cannot be given known actions at time 0 (real-time chunking trained in needs a "
+                "policy whose time enters each action: SmolVLA's, MiniVLA's)"
             )
         if known.shape[:2] != mask.shape:
             raise ValueError(f"mask {tuple(mask.shape)} must cover the chunks' first two axes {tuple(known.shape)}")
@@ -116,4 +124,11 @@ def sample_continuing(
     return euler_sample(lambda x, t, s: view.velocity(x, t, s, conditioned), with_known(noise, known, mask), mode)
 
 
-__all__ = ["KnownPrefixPolicy", "draw_delays", "prefix_mask", "sample_continuing", "with_known"]
+__all__ = [
+    "KnownPrefixPolicy",
+    "draw_delays",
+    "per_action_times_refusal",
+    "prefix_mask",
+    "sample_continuing",
+    "with_known",
+]

@@ -6,6 +6,7 @@ from typing import Any
 
 from torch import Tensor, nn
 
+from snapflow.errors import InvalidInputError
 from snapflow.nn.time_embedding import TargetTimeEmbedding
 from snapflow.protocol import Context
 
@@ -14,6 +15,8 @@ class SnapFlowPolicy(nn.Module):
     """Implements :class:`snapflow.protocol.FlowPolicy` for a :class:`snapflow.protocol.TimeEmbeddingModel`.
 
     The velocity is ``model.velocity_from_time_embedding(x_t, model.embed_time(t) + phi_s(s), context)``.
+    A model whose class declares ``per_action_times = True`` (MiniVLA) takes a time embedding per action too,
+    (B, chunk, width): :meth:`velocity_per_action` then answers :class:`~snapflow.protocol.PerActionTimes`.
     With ``target_time=False`` there is no phi_s and s is ignored: that is the flow-matching teacher, and
     the "without phi_s" ablation of the paper.
 
@@ -76,6 +79,30 @@ class SnapFlowPolicy(nn.Module):
         if self.target_time_embedding is not None:
             time_embedding = time_embedding + self.target_time_embedding(s).to(time_embedding.dtype)
         return self.model.velocity_from_time_embedding(x_t, time_embedding, context)
+
+    @property
+    def per_action_times_refusal(self) -> str | None:
+        """None where the model takes a time per action (its class declares ``per_action_times = True``), else why
+        not (:class:`~snapflow.protocol.PerActionTimes`)."""
+        if getattr(type(self.model), "per_action_times", False) is True:
+            return None
+        return f"{type(self.model).__name__} takes one time a chunk"
+
+    def velocity_per_action(self, x_t: Tensor, t: Tensor, s: Tensor, context: Context) -> Tensor:
+        """The velocity with ``t`` and ``s`` of shape (B, chunk): each action's time and target time, embedded
+        flattened and given to the model as a time embedding per action.
+
+        Raises:
+            InvalidInputError: the model takes one time a chunk (the MLP policy).
+        """
+        refusal = self.per_action_times_refusal
+        if refusal is not None:
+            raise InvalidInputError(f"{refusal}: it cannot be given a time per action (real-time chunking trained in)")
+        batch, chunk = t.shape
+        time_embedding = self.model.embed_time(t.reshape(-1))
+        if self.target_time_embedding is not None:
+            time_embedding = time_embedding + self.target_time_embedding(s.reshape(-1)).to(time_embedding.dtype)
+        return self.model.velocity_from_time_embedding(x_t, time_embedding.reshape(batch, chunk, -1), context)
 
 
 __all__ = ["SnapFlowPolicy"]

@@ -59,6 +59,10 @@ class LoadedPolicy(OpenedPolicy):
         return self.metadata
 
     @property
+    def known_prefix_delay(self) -> int:
+        return int(self.metadata.get("distill", {}).get("rtc_max_delay", 0))
+
+    @property
     def distill_command(self) -> str:
         return f"snapflow distill --teacher {self.path} ..."
 

@@ -111,6 +111,12 @@ class OpenedPolicy(ABC):
         return {}
 
     @property
+    def known_prefix_delay(self) -> int:
+        """The most actions of a previous chunk it was distilled to be given (``DistillSettings.rtc_max_delay``; 0:
+        none): how long an inference delay real-time chunking ``trained`` may run it under."""
+        return 0
+
+    @property
     def exported(self) -> bool:
         return self.export is not None
 

@@ -174,6 +174,14 @@ class LoadedLeRobotPolicy(OpenedPolicy):
         return f"snapflow distill --policy {self.path} ..."
 
     @property
+    def known_prefix_delay(self) -> int:
+        """A student's ``distill.rtc_max_delay``, else LeRobot's own ``rtc_training_max_delay`` where it has one."""
+        settings = getattr(self.config, "distill", None)
+        if settings is not None:
+            return settings.rtc_max_delay
+        return int(getattr(self.config, "rtc_training_max_delay", 0) or 0)
+
+    @property
     def own_steps(self) -> int:
         return lerobot_own_steps(self.config)
 

@@ -70,6 +70,12 @@ class PrefixLayer(nn.Module):
         return x + self.mlp(self.mlp_norm(x)), k, v
 
 
+def _per_action(modulation: Tensor) -> Tensor:
+    """A modulation (B, width) shared by the chunk's actions as (B, 1, width); (B, chunk, width), each action's own,
+    as it is."""
+    return modulation[:, None, :] if modulation.ndim == 2 else modulation
+
+
 class ExpertLayer(nn.Module):
     def __init__(self, config: MiniVLAConfig) -> None:
         super().__init__()
@@ -83,7 +89,7 @@ class ExpertLayer(nn.Module):
         nn.init.zeros_(self.modulation.bias)
 
     def forward(self, x: Tensor, condition: Tensor, prefix_k: Tensor, prefix_v: Tensor, prefix_mask: Tensor) -> Tensor:
-        scale_a, shift_a, gate_a, scale_m, shift_m, gate_m = self.modulation(condition)[:, None, :].chunk(6, dim=-1)
+        scale_a, shift_a, gate_a, scale_m, shift_m, gate_m = _per_action(self.modulation(condition)).chunk(6, dim=-1)
         q, k, v = self.attention.project(self.norm(x) * (1 + scale_a) + shift_a)
         keys, values = torch.cat([prefix_k, k], dim=2), torch.cat([prefix_v, v], dim=2)
         mask = torch.cat([prefix_mask, prefix_mask.new_ones(x.shape[0], x.shape[1])], dim=1)
@@ -97,7 +103,14 @@ def camera_keys(config: MiniVLAConfig) -> list[str]:
 
 
 class MiniVLA(nn.Module):
-    """Observation dict in (see :meth:`encode`), velocity of the noisy action chunk out."""
+    """Observation dict in (see :meth:`encode`), velocity of the noisy action chunk out.
+
+    Its time enters each action through that action's adaptive norm, so a time embedding may be one a chunk,
+    (B, width), or one an action, (B, chunk, width): ``per_action_times`` declares it to
+    :class:`~snapflow.nn.SnapFlowPolicy` (real-time chunking trained in, :mod:`snapflow.flow.known_prefix`).
+    """
+
+    per_action_times = True
 
     def __init__(self, config: MiniVLAConfig) -> None:
         super().__init__()
@@ -180,12 +193,18 @@ class MiniVLA(nn.Module):
         return self.time_mlp(sinusoidal_features(t, self.time_embedding_dim).to(self.time_mlp[0].weight.dtype))
 
     def velocity_from_time_embedding(self, x_t: Tensor, time_embedding: Tensor, context: dict[str, Tensor]) -> Tensor:
+        """The velocity of ``x_t`` (B, chunk, action_dim) given a time embedding (B, width) or (B, chunk, width)."""
         expected = (self.config.chunk_length, self.config.action_dim)
         if tuple(x_t.shape[1:]) != expected:
             raise ValueError(f"noisy actions must have shape (B, {expected[0]}, {expected[1]}), got {tuple(x_t.shape)}")
+        if time_embedding.ndim == 3 and time_embedding.shape[1] != expected[0]:
+            raise ValueError(
+                f"a time embedding per action must have shape (B, {expected[0]}, width), got "
+                f"{tuple(time_embedding.shape)}"
+            )
         condition = F.silu(time_embedding)
         x = self.action_projection(x_t) + self.action_position
         for index, layer in enumerate(self.expert_layers):
             x = layer(x, condition, context["keys"][:, index], context["values"][:, index], context["mask"])
-        scale, shift = self.final_modulation(condition)[:, None, :].chunk(2, dim=-1)
+        scale, shift = _per_action(self.final_modulation(condition)).chunk(2, dim=-1)
         return self.velocity_head(self.final_norm(x) * (1 + scale) + shift)
