@@ -215,3 +215,22 @@ def test_offline_metrics_summarise_the_per_chunk_errors_of_fixed_draws(runs):
     assert metrics.mse_p95 == pytest.approx(torch.quantile(errors, 0.95).item()) and metrics.mse_p90 <= metrics.mse_p95
     assert offline_metrics(teacher.policy, chunks, TEACHER_10, max_samples=15, seed=4) == metrics
     assert offline_metrics(teacher.policy, chunks, NAIVE_1, max_samples=15, seed=4) != metrics
+
+
+def test_more_tasks_than_environments_run_a_group_of_tasks_at_a_time_every_slot_once(scripted, runs):
+    _, teacher, _ = runs
+    made = scripted.make_env
+
+    def make_env(*args, **kwargs):  # at most one environment open at once: max_envs, below the two tasks
+        assert not [env for env in scripted.envs if not env.closed], "a group's environments are closed first"
+        return made(*args, **kwargs)
+
+    scripted.make_env = make_env
+    evaluator = ClosedLoopEvaluator(scripted, list(SYNTHETIC_TASKS), 2, image_size=None, max_envs=1)
+    assert [list(group) for group in evaluator.task_groups] == [[0], [1]] and evaluator.wave_groups == [0, 0, 1, 1]
+    results = evaluator.run(teacher.policy, teacher.processor, TEACHER_10, n_act=4, seed=3, progress=False)
+    evaluator.close()
+    assert [(r.task, r.variation) for r in results] == [(task, v) for task in SYNTHETIC_TASKS for v in range(2)]
+    assert len(scripted.envs) == 2 and all(env.closed for env in scripted.envs), "one environment a task, made once"
+    together = ClosedLoopEvaluator(scripted, list(SYNTHETIC_TASKS), 2, image_size=None, max_envs=4)
+    assert len(together.task_groups) == 1, "as many environments as tasks: one group, the waves as before"

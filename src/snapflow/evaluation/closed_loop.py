@@ -32,7 +32,9 @@ class ClosedLoopEvaluator:
     A task's episodes start from its evaluation variations ``first_variation`` on (LIBERO's fixed initial states, in
     order). Each task gets ``max_envs // len(tasks)`` environments (at least one), made at the first run and kept for the
     next ones: episodes run in waves of that many variations per task, every task side by side, the noise drawn
-    from one generator across waves. Results depend on ``max_envs`` only when a task has more episodes than that.
+    from one generator across waves. Results depend on ``max_envs`` only when a task has more episodes than that, or
+    when there are more tasks than ``max_envs``: then the tasks run in groups of ``max_envs``, one group's waves after
+    the other's, each group's environments closed before the next group's are made.
     The environments render ``image_size`` frames from the benchmark's main camera and ``extra_cameras`` alone: the
     cameras the evaluated policies read, no more. ``max_episode_steps`` ends each episode there, short of the
     environment's own limit (a quick check of a chain, not a success rate to report).
@@ -63,24 +65,37 @@ class ClosedLoopEvaluator:
         variations = range(first_variation, first_variation + episodes_per_task)
         self.slots = [(task, variation) for task in tasks for variation in variations]
         self.envs_per_task = min(episodes_per_task, max(1, max_envs // len(tasks)))
-        # wave -> (slot, environment index) pairs, task-major as the slots: one wave is the old all-at-once loop
+        # more tasks than max_envs (LIBERO's four suites: 40): their environments exist a group of tasks at a time,
+        # the groups one after another (40 LIBERO environments with cameras side by side ran 24 GB out of memory)
+        size = min(len(tasks), max_envs)
+        self.task_groups = [range(start, min(start + size, len(tasks))) for start in range(0, len(tasks), size)]
+        # wave -> (slot, environment index in its group) pairs, task-major as the slots; with one group (every task
+        # at once) one wave is the old all-at-once loop
         self.waves = [
             [
-                (t * episodes_per_task + v, t * self.envs_per_task + v - first)
-                for t in range(len(tasks))
+                (t * episodes_per_task + v, (t - group.start) * self.envs_per_task + v - first)
+                for t in group
                 for v in range(first, min(first + self.envs_per_task, episodes_per_task))
             ]
+            for group in self.task_groups
             for first in range(0, episodes_per_task, self.envs_per_task)
         ]
+        self.wave_groups = [
+            g for g, _ in enumerate(self.task_groups) for _ in range(0, episodes_per_task, self.envs_per_task)
+        ]
         self._envs: list[Environment] = []
+        self._envs_group: int | None = None
 
-    def _environments(self) -> list[Environment]:
-        if not self._envs:
+    def _environments(self, group: int) -> list[Environment]:
+        """The environments of task group ``group``, made when first needed; another group's are closed first."""
+        if self._envs_group != group:
+            self.close()
             self._envs = [
-                self.benchmark.make_env(task, "eval", self.image_size, self.extra_cameras)
-                for task in self.tasks
+                self.benchmark.make_env(self.tasks[task], "eval", self.image_size, self.extra_cameras)
+                for task in self.task_groups[group]
                 for _ in range(self.envs_per_task)
             ]
+            self._envs_group = group
         return self._envs
 
     @torch.no_grad()
@@ -129,7 +144,7 @@ class ClosedLoopEvaluator:
                     bar.update(len(finished))
                 else:
                     started = time.perf_counter()
-                    envs = self._environments()  # made at the first wave that runs: none for a finished log
+                    envs = self._environments(self.wave_groups[index])  # none made for a finished log
                     finished = self._run_wave(
                         [envs[env] for _, env in wave],
                         slots,
@@ -238,7 +253,7 @@ class ClosedLoopEvaluator:
     def close(self) -> None:
         for env in self._envs:
             env.close()
-        self._envs = []
+        self._envs, self._envs_group = [], None
 
 
 def _observation_batch(processor: Processor, observations: list[Observation]) -> object:

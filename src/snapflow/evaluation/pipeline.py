@@ -144,6 +144,8 @@ def evaluate(
                     "tasks": tasks,
                     "episodes_per_task": episodes_per_task,
                     "envs_per_task": evaluator.envs_per_task,
+                    # only where the tasks run in groups (more of them than environments at once): the waves' order
+                    **({"task_groups": len(evaluator.task_groups)} if len(evaluator.task_groups) > 1 else {}),
                     "n_act": n_act,
                     "seed": seed,
                     # only where set: a log written before the option existed is one of the first variations
