@@ -91,7 +91,8 @@ def add_parser(subparsers: Any) -> None:
         help="with --inference-delay, how a chunk continues the previous one: guided (LeRobot's guided Euler steps; "
         "teacher-N, naive), inpaint (the chunk blended into the previous one along the prefix weights; any mode), "
         "trained (the previous chunk's first D actions given to every pass: a student whose time enters each action, "
-        "MiniVLA's or SmolVLA's, distilled with --rtc-max-delay >= D; a jump's ramp past them then inpainted) "
+        "SmolVLA's or a built-in transformer's, distilled with --rtc-max-delay >= D; a jump's ramp past them then "
+        "inpainted) "
         "(default: guided for Euler modes, inpaint for jumps)",
     )
     parser.add_argument(
@@ -197,8 +198,8 @@ def _real_time_chunking(args: argparse.Namespace, modes: dict[str, list[Sampling
     n_act = args.n_act or N_ACT
     if rtc.delay > n_act:
         raise InvalidInputError(
-            f"--inference-delay {rtc.delay} is more than the {n_act} actions a chunk runs (--n-act): a chunk is planned "
-            "while the previous one's last D actions run"
+            f"--inference-delay {rtc.delay} is more than the {n_act} actions a chunk runs (--n-act): a chunk is "
+            "planned while the previous one's last D actions run"
         )
     return rtc
 

@@ -60,7 +60,7 @@ class KnownPrefixPolicy:
         if refusal is not None:
             raise InvalidInputError(
                 f"{refusal}, so it cannot be given known actions at time 0 (real-time chunking trained in needs a "
-                "policy whose time enters each action: SmolVLA's, MiniVLA's)"
+                "policy whose time enters each action: SmolVLA's, a built-in transformer's)"
             )
         if known.shape[:2] != mask.shape:
             raise ValueError(f"mask {tuple(mask.shape)} must cover the chunks' first two axes {tuple(known.shape)}")

@@ -15,8 +15,9 @@ class SnapFlowPolicy(nn.Module):
     """Implements :class:`snapflow.protocol.FlowPolicy` for a :class:`snapflow.protocol.TimeEmbeddingModel`.
 
     The velocity is ``model.velocity_from_time_embedding(x_t, model.embed_time(t) + phi_s(s), context)``.
-    A model whose class declares ``per_action_times = True`` (MiniVLA) takes a time embedding per action too,
-    (B, chunk, width): :meth:`velocity_per_action` then answers :class:`~snapflow.protocol.PerActionTimes`.
+    A model whose class declares ``per_action_times = True`` (a transformer over the chunk's actions) takes a time
+    embedding per action too, (B, chunk, width): :meth:`velocity_per_action` then answers
+    :class:`~snapflow.protocol.PerActionTimes`.
     With ``target_time=False`` there is no phi_s and s is ignored: that is the flow-matching teacher, and
     the "without phi_s" ablation of the paper.
 
