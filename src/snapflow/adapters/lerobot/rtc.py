@@ -35,6 +35,7 @@ from torch import Tensor
 from snapflow.errors import InvalidInputError
 from snapflow.flow.known_prefix import sample_continuing
 from snapflow.flow.modes import SamplingMode
+from snapflow.flow.realtime import inpaint, padded_previous
 from snapflow.flow.solver import euler_sample
 
 VelocityFn = Callable[[Tensor, Tensor, Tensor], Tensor]
@@ -96,10 +97,7 @@ class TrainedPrefix:
 def padded_prefix(prev_chunk_left_over: Tensor, like: Tensor) -> Tensor:
     """The previous chunk's leftover, batched and zero-padded to the chunk's shape, as LeRobot pads it."""
     prev = prev_chunk_left_over if prev_chunk_left_over.ndim == 3 else prev_chunk_left_over[None]
-    padded = like.new_zeros(like.shape)
-    steps, dims = min(prev.shape[1], like.shape[1]), min(prev.shape[2], like.shape[2])
-    padded[:, :steps, :dims] = prev[:, :steps, :dims].to(like)
-    return padded
+    return padded_previous(prev, like)
 
 
 def prefix_weights(processor: Any, prev: Tensor, inference_delay: int, horizon: int | None, chunk: int) -> Tensor:
@@ -151,7 +149,7 @@ def inpaint_prefix(
         raise InvalidInputError(f"a jump's guidance weight is between 0 and 1, got {guidance_weight}")
     prev = padded_prefix(prev_chunk_left_over, actions)
     weights = prefix_weights(processor, prev_chunk_left_over, inference_delay, execution_horizon, actions.shape[1])
-    return actions + guidance_weight * weights.to(actions) * (prev - actions)
+    return inpaint(actions, prev, weights.to(actions), guidance_weight)
 
 
 def jump_guidance_weight(processor: Any) -> float:
