@@ -127,6 +127,25 @@ def test_the_tracker_counts_a_pass_within_the_radius_of_either_via_point():
     assert not tracker.visited
 
 
+def test_the_tracker_keeps_the_via_point_passed_first_as_the_paths_mode():
+    """The path's mode is the via-point passed first (0 left, 1 right), -1 before any; passing the other one later
+    does not change it, and a reset clears it."""
+    tracker = ViaPointTracker()
+    start = np.array([0.0, 0.6, 0.2], np.float32)
+    left, right = via_points(start)
+    tracker.reset(at(start).state)
+    tracker.update(at(start).state)
+    assert tracker.first == -1
+    tracker.update(at(right).state)
+    assert tracker.first == 1
+    tracker.update(at(left).state)
+    assert tracker.first == 1, "the first via-point passed is the path's mode"
+    tracker.reset(at(start).state)
+    assert tracker.first == -1
+    tracker.update(at(left).state)
+    assert tracker.first == 0
+
+
 def run_episode(env: Environment, expert: Expert) -> tuple[bool, int, np.ndarray]:
     """One episode on the first variation: (success, steps taken, hand positions visited)."""
     observation = env.reset(0, render=False)
@@ -151,9 +170,13 @@ def test_success_needs_the_task_done_after_a_via_point(side: int):
     assert success
     nearest = np.linalg.norm(hands[:, None, :] - via_points(hands[0])[None], axis=-1).min(0)
     assert nearest[side] < VIA_POINT_RADIUS < nearest[1 - side]
+    assert env.path_mode() == side and variant.path_modes[side].startswith(("left", "right")[side])
     success, steps, _ = run_episode(env, plain.make_expert("reach-v3"))
     assert not success and steps < MAX_EPISODE_STEPS, "the episode ends at the task's success, counted as a failure"
-    assert run_episode(plain.make_env("reach-v3", "eval"), plain.make_expert("reach-v3"))[0]
+    assert env.path_mode() == -1, "straight to the goal: neither mode"
+    plain_env = plain.make_env("reach-v3", "eval")
+    assert run_episode(plain_env, plain.make_expert("reach-v3"))[0]
+    assert plain_env.path_mode() is None and plain.path_modes == ()
 
 
 @pytest.mark.slow

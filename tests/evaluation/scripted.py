@@ -62,3 +62,24 @@ class ScriptedBenchmark(Benchmark):
 
     def make_expert(self, task: str):
         raise NotImplementedError
+
+
+class ModalScriptedEnv(ScriptedEnv):
+    """A scripted environment whose path has a mode: the sign of its first action's first entry, 0 above 0.1, 1 below
+    -0.1, -1 (neither) between or before any action."""
+
+    def path_mode(self) -> int | None:
+        if not self.actions or abs(self.actions[0][0]) <= 0.1:
+            return -1
+        return 0 if self.actions[0][0] > 0 else 1
+
+
+class ModalScriptedBenchmark(ScriptedBenchmark):
+    name, title = "scripted-modal", "Scripted test benchmark with two path modes"
+    path_modes, path_mode_weights = ("up", "down"), (0.5, 0.5)
+
+    def make_env(
+        self, task: str, split: str, image_size: int | None = None, extra_cameras: Sequence[str] | None = None
+    ) -> ModalScriptedEnv:
+        self.envs.append(ModalScriptedEnv(task))
+        return self.envs[-1]

@@ -13,6 +13,7 @@ from snapflow.data.chunks import ChunkData
 from snapflow.data.demonstrations import Demonstrations
 from snapflow.errors import InvalidInputError
 from snapflow.evaluation.closed_loop import ClosedLoopEvaluator
+from snapflow.evaluation.episode_log import EpisodeLog
 from snapflow.evaluation.offline import offline_metrics
 from snapflow.evaluation.pipeline import runs_evaluator
 from snapflow.evaluation.report import markdown_report
@@ -22,13 +23,14 @@ from snapflow.evaluation.results import (
     EvaluationRow,
     OfflineMetrics,
     SuccessCount,
+    path_modes_by_task,
     success_by_task,
 )
 from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, TEACHER_10
 from snapflow.flow.solver import sample_actions
 from snapflow.policies.mlp.processor import MLPProcessor
 from snapflow.reporting.statistics import wilson_interval
-from tests.evaluation.scripted import EPISODE_STEPS, ScriptedEnv
+from tests.evaluation.scripted import EPISODE_STEPS, ModalScriptedBenchmark, ScriptedEnv
 from tests.training.fixtures import SYNTHETIC_TASKS
 
 
@@ -36,6 +38,36 @@ def test_success_is_counted_per_task_and_averaged_over_tasks():
     results = [EpisodeResult("a", 0, True, 5), EpisodeResult("a", 1, False, 9), EpisodeResult("b", 0, True, 3)]
     table = success_by_task(results)
     assert table == {"a": SuccessCount(1, 2, 0.5), "b": SuccessCount(1, 1, 1.0), "mean": SuccessCount(2, 3, 0.75)}
+
+
+def test_path_modes_are_counted_per_task_with_a_last_column_for_neither():
+    results = [
+        EpisodeResult("a", 0, True, 5, 1),
+        EpisodeResult("a", 1, False, 9, -1),
+        EpisodeResult("b", 0, True, 3, 1),
+    ]
+    assert path_modes_by_task(results, 2) == {"a": [0, 1, 1], "b": [0, 1, 0]}
+    assert path_modes_by_task([EpisodeResult("a", 0, True, 5)], 2) is None, "a benchmark without modes records none"
+    row = EvaluationRow("p", "naive-1", 1, success_by_task(results), 1.0, path_modes=path_modes_by_task(results, 2))
+    assert EvaluationRow.from_dict(row.to_dict()) == row
+    plain = EvaluationRow("p", "naive-1", 1, success_by_task(results), 1.0)
+    assert "path_modes" not in plain.to_dict() and EvaluationRow.from_dict(plain.to_dict()) == plain
+    assert "mode" not in EpisodeResult("a", 0, True, 5).to_dict(), "logs of benchmarks without modes keep their form"
+
+
+def test_each_episode_records_the_mode_its_environment_says_its_path_took(runs, tmp_path):
+    """The evaluator asks each environment for its path's mode as the episode ends; an episode log keeps it."""
+    _, teacher, _ = runs
+    benchmark = ModalScriptedBenchmark()
+    evaluator = ClosedLoopEvaluator(benchmark, list(SYNTHETIC_TASKS), 3, image_size=None)
+    log = EpisodeLog(tmp_path / "log.jsonl", {"run": 1}, resume=False)
+    results = evaluator.run(teacher.policy, teacher.processor, NAIVE_1, n_act=2, seed=1, progress=False, log=log)
+    evaluator.close()
+    expected = [env.path_mode() for env in benchmark.envs]
+    assert [result.mode for result in results] == expected and set(expected) <= {-1, 0, 1}
+    assert [
+        r.mode for wave in EpisodeLog(log.path, {"run": 1}, resume=True).finished for r in wave.episodes
+    ] == expected
 
 
 def test_a_report_gives_each_rows_wilson_interval_and_its_paired_difference_from_the_first():

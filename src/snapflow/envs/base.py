@@ -49,6 +49,11 @@ class Environment(ABC):
     @abstractmethod
     def close(self) -> None: ...
 
+    def path_mode(self) -> int | None:
+        """Which of its benchmark's :attr:`~Benchmark.path_modes` the current episode's path took so far: an index
+        into them, -1 for none; ``None`` where the benchmark has no modes."""
+        return None
+
 
 class Expert(Protocol):
     """A scripted demonstrator: ``reset`` at each episode's first observation, then ``act`` at every step."""
@@ -71,6 +76,10 @@ class Benchmark(ABC):
     extra_cameras: tuple[str, ...] = ()  # the other cameras it can render (their frames: Observation.extra_images)
     # environments one evaluation process holds at once, which their memory decides: Meta-World's 200 take ~4 GB
     max_envs: int = 200
+    # the distinct ways its experts do every task, where it was built to have several (the via-point variant), and
+    # the share of demonstrations that take each: an episode's path is scored against them (mode coverage)
+    path_modes: tuple[str, ...] = ()
+    path_mode_weights: tuple[float, ...] = ()
 
     @property
     @abstractmethod

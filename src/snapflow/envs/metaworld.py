@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from snapflow.envs.base import Benchmark, Environment, Observation
-from snapflow.envs.via_points import ViaPointExpert, ViaPointTracker
+from snapflow.envs.via_points import VIA_POINT_MODE_WEIGHTS, VIA_POINT_MODES, ViaPointExpert, ViaPointTracker
 from snapflow.errors import InvalidInputError
 
 INSTRUCTIONS: dict[str, str] = {  # every Meta-World 3 task, in MT50's order
@@ -178,6 +178,10 @@ class MetaWorldEnv(Environment):
         success = task_success and visited
         return self._observe(state, render), success, task_success or self.steps >= MAX_EPISODE_STEPS
 
+    def path_mode(self) -> int | None:
+        """In the via-point variant, the via-point the hand passed first (0 left, 1 right, -1 neither yet)."""
+        return None if self._via_points is None else self._via_points.first
+
     def close(self) -> None:
         self._env.close()
 
@@ -213,6 +217,8 @@ class MetaWorld(Benchmark):
         self.via_points = via_points
         self.name = "metaworld-via-points" if via_points else "metaworld"
         self.title = "Meta-World"
+        if via_points:
+            self.path_modes, self.path_mode_weights = VIA_POINT_MODES, VIA_POINT_MODE_WEIGHTS
 
     @property
     def tasks(self) -> tuple[str, ...]:

@@ -58,23 +58,44 @@ class ViaPointExpert:
         return np.concatenate([np.clip(APPROACH_GAIN * offset, -1.0, 1.0), action[3:]]).astype(np.float32)
 
 
+#: the two ways every task is demonstrated, in the order of :func:`via_points`, and the experts' share of each
+VIA_POINT_MODES = ("left via-point", "right via-point")
+VIA_POINT_MODE_WEIGHTS = (0.5, 0.5)
+
+
 class ViaPointTracker:
-    """Records whether the hand has passed within ``VIA_POINT_RADIUS`` of either via-point this episode."""
+    """Records whether the hand has passed within ``VIA_POINT_RADIUS`` of either via-point this episode, and which
+    it passed first (``first``: 0 left, 1 right, -1 neither yet): the mode of the episode's path."""
 
     def __init__(self) -> None:
         self.points: np.ndarray | None = None
-        self.visited = False
+        self.first = -1
+
+    @property
+    def visited(self) -> bool:
+        return self.first >= 0
 
     def reset(self, state: np.ndarray) -> None:
         self.points = via_points(hand_position(state))
-        self.visited = False
+        self.first = -1
 
     def update(self, state: np.ndarray) -> bool:
         if self.points is None:
             raise RuntimeError("call reset(state) at the start of every episode")
-        distances = np.linalg.norm(self.points - hand_position(state), axis=1)
-        self.visited = self.visited or bool((distances < VIA_POINT_RADIUS).any())
+        if self.first < 0:
+            distances = np.linalg.norm(self.points - hand_position(state), axis=1)
+            if (distances < VIA_POINT_RADIUS).any():
+                self.first = int(np.argmin(distances))
         return self.visited
 
 
-__all__ = ["VIA_POINT_OFFSET", "VIA_POINT_RADIUS", "ViaPointExpert", "ViaPointTracker", "hand_position", "via_points"]
+__all__ = [
+    "VIA_POINT_MODES",
+    "VIA_POINT_MODE_WEIGHTS",
+    "VIA_POINT_OFFSET",
+    "VIA_POINT_RADIUS",
+    "ViaPointExpert",
+    "ViaPointTracker",
+    "hand_position",
+    "via_points",
+]

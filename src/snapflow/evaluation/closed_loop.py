@@ -220,7 +220,7 @@ class ClosedLoopEvaluator:
                 replans = not queues[i] if rtc is None else len(queues[i]) == delay
                 observations[i], success, done = envs[i].step(action, render=replans)
                 if done or envs[i].steps == self.max_episode_steps:
-                    results[i] = EpisodeResult(*self.slots[slots[i]], success, envs[i].steps)
+                    results[i] = EpisodeResult(*self.slots[slots[i]], success, envs[i].steps, envs[i].path_mode())
                     finished()
         return [results[i] for i in range(len(envs))]
 

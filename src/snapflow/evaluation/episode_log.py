@@ -12,7 +12,7 @@ from __future__ import annotations
 import base64
 import json
 import os
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +34,7 @@ class FinishedWave:
 
     def to_dict(self) -> dict[str, Any]:
         state = base64.b64encode(self.generator_state.numpy().tobytes()).decode("ascii")
-        return {"episodes": [asdict(e) for e in self.episodes], "seconds": self.seconds, "generator_state": state}
+        return {"episodes": [e.to_dict() for e in self.episodes], "seconds": self.seconds, "generator_state": state}
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> FinishedWave:

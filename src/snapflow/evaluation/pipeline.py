@@ -22,7 +22,7 @@ from snapflow.evaluation.closed_loop import ClosedLoopEvaluator, check_rtc
 from snapflow.evaluation.config import N_ACT, OFFLINE_SAMPLES
 from snapflow.evaluation.episode_log import EpisodeLog
 from snapflow.evaluation.offline import offline_metrics
-from snapflow.evaluation.results import EvaluationReport, EvaluationRow, success_by_task
+from snapflow.evaluation.results import EvaluationReport, EvaluationRow, path_modes_by_task, success_by_task
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.realtime import RealTimeChunking
 from snapflow.policies.loaded import OpenedPolicy
@@ -165,6 +165,7 @@ def evaluate(
                 mode.num_steps,
                 success_by_task(episodes),
                 earlier + time.perf_counter() - started,
+                path_modes=path_modes_by_task(episodes, len(benchmark.path_modes)),
             )
             if demonstrations is not None:
                 if loaded.path not in held_out:

@@ -13,10 +13,20 @@ from snapflow.reporting.statistics import paired_difference, wilson_interval
 
 @dataclass(frozen=True)
 class EpisodeResult:
+    """One episode; ``mode``: which of the benchmark's path modes its path took (-1 none), where it has modes."""
+
     task: str
     variation: int
     success: bool
     steps: int
+    mode: int | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """As an episode log holds it: ``mode`` only where the benchmark has modes (the logs written before it)."""
+        episode = asdict(self)
+        if self.mode is None:
+            del episode["mode"]
+        return episode
 
 
 @dataclass(frozen=True)
@@ -43,6 +53,17 @@ def success_by_task(results: list[EpisodeResult]) -> dict[str, SuccessCount]:
     return table
 
 
+def path_modes_by_task(results: list[EpisodeResult], num_modes: int) -> dict[str, list[int]] | None:
+    """Per task, how many episodes took each of ``num_modes`` path modes, the last column none of them; ``None``
+    where the episodes record no mode (a benchmark without modes)."""
+    if not num_modes or any(result.mode is None for result in results):
+        return None
+    counts: dict[str, list[int]] = {}
+    for result in results:
+        counts.setdefault(result.task, [0] * (num_modes + 1))[result.mode if result.mode >= 0 else num_modes] += 1
+    return counts
+
+
 @dataclass(frozen=True)
 class OfflineMetrics:
     """Per-sample MSE of predicted chunks (normalised actions) summarised, and the mean cosine similarity."""
@@ -66,11 +87,13 @@ class EvaluationRow:
     success: dict[str, SuccessCount]
     closed_loop_s: float
     offline: OfflineMetrics | None = None
+    path_modes: dict[str, list[int]] | None = None  # per task, episodes per path mode (path_modes_by_task)
 
     def to_dict(self) -> dict[str, Any]:
         row = asdict(self)
-        if self.offline is None:
-            del row["offline"]
+        for optional in ("offline", "path_modes"):  # written only where measured, as before path modes existed
+            if row[optional] is None:
+                del row[optional]
         return row
 
     @classmethod
@@ -82,6 +105,7 @@ class EvaluationRow:
             {task: SuccessCount(**entry) for task, entry in data["success"].items()},
             data["closed_loop_s"],
             OfflineMetrics(**data["offline"]) if "offline" in data else None,
+            data.get("path_modes"),
         )
 
 
@@ -150,4 +174,12 @@ class EvaluationReport:
         return report
 
 
-__all__ = ["EpisodeResult", "SuccessCount", "success_by_task", "OfflineMetrics", "EvaluationRow", "EvaluationReport"]
+__all__ = [
+    "EpisodeResult",
+    "SuccessCount",
+    "success_by_task",
+    "path_modes_by_task",
+    "OfflineMetrics",
+    "EvaluationRow",
+    "EvaluationReport",
+]

@@ -9,8 +9,10 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
+import torch
 
 from snapflow.envs.factory import make_benchmark
+from snapflow.evaluation.distances import coverage_error
 from snapflow.evaluation.results import EvaluationRow
 from snapflow.jobs.runner import is_recorded, read_record
 from snapflow.jobs.sweep.planning import eval_job, train_job
@@ -29,6 +31,20 @@ class OfflineSummary:
     mse_p95: float
     cosine: float
     samples: int
+
+
+@dataclass(frozen=True)
+class ModeCoverage:
+    """Which way a row's executed paths went, on a benchmark whose experts do every task in several ways (the
+    via-point variant): ``shares``, percent of all episodes (every seed and task) per mode of ``names``, the last
+    none of them; ``coverage_error``, the mean over tasks of the total variation distance between a task's shares
+    (its episodes of every seed pooled) and the experts' mode weights, with none weighted 0 (0: every mode taken as
+    often as the experts take it)."""
+
+    names: list[str]
+    shares: list[float]
+    coverage_error: float
+    episodes: int
 
 
 @dataclass(frozen=True)
@@ -110,12 +126,13 @@ class SweepRow:
     difference: Difference | None = None  # against the table's reference row (None for the reference itself)
     sweep: str | None = None  # the sweep whose run the row evaluates, when not the table's own
     per_set: dict[str, SetSummary] | None = None  # on each named set of the tasks, where the table asks for it
+    path_modes: ModeCoverage | None = None  # where the benchmark's tasks have several modes
 
     def to_dict(self) -> dict[str, Any]:
         """As results.json holds it (the interval a list; what a row lacks left out), so that
         ``from_dict(d).to_dict() == d``."""
         row = asdict(self)
-        for optional in ("offline", "success_interval", "difference", "sweep", "per_set"):
+        for optional in ("offline", "success_interval", "difference", "sweep", "per_set", "path_modes"):
             if row[optional] is None:
                 del row[optional]
         if "success_interval" in row:
@@ -137,6 +154,7 @@ class SweepRow:
                     if "per_set" in data
                     else None
                 ),
+                "path_modes": ModeCoverage(**data["path_modes"]) if "path_modes" in data else None,
             }
         )
 
@@ -237,6 +255,21 @@ def _set_summaries(
     return summaries
 
 
+def _mode_coverage(config: SweepConfig, tasks: tuple[str, ...], evals: list[EvaluationRow]) -> ModeCoverage | None:
+    """A row's path modes over its seeds, where every evaluation recorded them (see :class:`ModeCoverage`)."""
+    if any(e.path_modes is None for e in evals):
+        return None
+    benchmark = make_benchmark(config.data.env)
+    per_task = np.array([np.sum([e.path_modes[task] for e in evals], axis=0) for task in tasks], dtype=float)
+    shares = torch.from_numpy(per_task / per_task.sum(axis=1, keepdims=True))
+    weights = torch.tensor(benchmark.path_mode_weights, dtype=torch.float64).expand(len(tasks), -1)
+    error = float(coverage_error(shares, weights))
+    pooled = per_task.sum(axis=0)
+    return ModeCoverage(
+        list(benchmark.path_modes), [float(x) for x in 100 * pooled / pooled.sum()], error, int(pooled.sum())
+    )
+
+
 def table_results(config: SweepConfig, table: TableSpec) -> TableResult:
     """The table's rows from the cached evaluations; a FileNotFoundError names the first one not done."""
     rows = []
@@ -286,6 +319,7 @@ def table_results(config: SweepConfig, table: TableSpec) -> TableResult:
                 difference=difference,
                 sweep=None if row.sweep is None else row.sweep.name,
                 per_set=per_set,
+                path_modes=_mode_coverage(config, tasks, evals),
             )
         )
     contrasts = [
@@ -312,4 +346,13 @@ def table_results(config: SweepConfig, table: TableSpec) -> TableResult:
     )
 
 
-__all__ = ["OfflineSummary", "Difference", "SetSummary", "Contrast", "SweepRow", "TableResult", "table_results"]
+__all__ = [
+    "OfflineSummary",
+    "ModeCoverage",
+    "Difference",
+    "SetSummary",
+    "Contrast",
+    "SweepRow",
+    "TableResult",
+    "table_results",
+]
