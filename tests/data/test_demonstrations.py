@@ -114,6 +114,24 @@ def test_bad_demonstrations_are_rejected_with_the_reason(changes, message):
         _demonstrations(**changes)
 
 
+def test_selected_episodes_come_alone_in_the_order_given_with_their_frames():
+    """Three episodes of lengths 2, 1, 2 (steps numbered 0-4): episodes 2 then 0 are steps 3, 4, 0, 1."""
+    steps = np.arange(5, dtype=np.float32)[:, None]
+    whole = _demonstrations(
+        states=np.repeat(steps, 3, axis=1),
+        actions=np.repeat(steps, 2, axis=1),
+        episode_index=np.array([0, 0, 1, 2, 2]),
+        episodes=[Episode("reach-v3", 0, 0, 2), Episode("reach-v3", 1, 2, 1), Episode("reach-v3", 2, 3, 2)],
+        images=np.arange(5, dtype=np.uint8).reshape(5, 1, 1, 1).repeat(3, axis=3),
+        extra_images={"wrist": np.arange(5, 10, dtype=np.uint8).reshape(5, 1, 1, 1).repeat(3, axis=3)},
+    )
+    chosen = whole.select([2, 0])
+    assert chosen.states[:, 0].tolist() == [3, 4, 0, 1] and chosen.images[:, 0, 0, 0].tolist() == [3, 4, 0, 1]
+    assert chosen.extra_images["wrist"][:, 0, 0, 0].tolist() == [8, 9, 5, 6]
+    assert chosen.episodes == [Episode("reach-v3", 2, 0, 2), Episode("reach-v3", 0, 2, 2)]
+    assert chosen.episode_index.tolist() == [0, 0, 1, 1]
+
+
 def test_the_benchmark_name_travels_with_the_demonstrations(tmp_path):
     """The env field is saved and loaded; an env that is not a name is refused."""
     demonstrations = _demonstrations(env="metaworld-via-points")

@@ -14,8 +14,9 @@ import pytest
 
 from snapflow.adapters.lerobot_types import lerobot_loads_plugins
 from snapflow.cli import main
+from snapflow.data.demonstrations import Demonstrations
 from snapflow.jobs.sweep import load_sweep
-from snapflow.jobs.sweep.data_jobs import PACKED, PART
+from snapflow.jobs.sweep.data_jobs import PACKED, PART, held_out_with_frames
 from snapflow.jobs.sweep.planning import data_job, train_job
 from tests.reporting.test_archive import REPOSITORY, SNAPFLOW, git
 
@@ -127,6 +128,15 @@ def test_a_fresh_clone_restores_the_kept_collections_and_collects_nothing(tmp_pa
     (camera,) = kept[0]
     trained_on = training_frames(dataset.directory, camera)
     assert np.array_equal(trained_on, np.concatenate([frames[camera] for frames in kept])), "the kept frames, as PNG"
+    # the offline metrics' held-out episodes: the whole set's split, with their kept frames decoded
+    whole = Demonstrations.load(dataset.data.directory)
+    held_out = Demonstrations.load(held_out_with_frames(dataset.data, 0.5))
+    _, val = whole.split(0.5)
+    assert [(e.task, e.variation) for e in held_out.episodes] == [
+        (whole.episodes[e].task, whole.episodes[e].variation) for e in val
+    ]
+    assert np.array_equal(held_out.actions, whole.actions[whole.rows(val)])
+    assert np.array_equal(held_out.images, np.concatenate([frames[camera] for frames in kept])[whole.rows(val)])
     for task in TASKS:
         record = json.loads((records / task / "job.json").read_text())
         (error,) = record["frame_error"].values()

@@ -116,6 +116,23 @@ class Demonstrations:
             [np.arange(self.episodes[e].start, self.episodes[e].start + self.episodes[e].length) for e in episodes]
         )
 
+    def select(self, episodes: list[int]) -> Demonstrations:
+        """The given episodes alone, in the order given, with their frames."""
+        rows = self.rows(episodes)
+        chosen, start = [], 0
+        for e in episodes:
+            chosen.append(replace(self.episodes[e], start=start))
+            start += self.episodes[e].length
+        return replace(
+            self,
+            states=self.states[rows],
+            actions=self.actions[rows],
+            episode_index=np.repeat(np.arange(len(episodes)), [episode.length for episode in chosen]),
+            episodes=chosen,
+            images=None if self.images is None else self.images[rows],
+            extra_images={name: frames[rows] for name, frames in self.extra_images.items()},
+        )
+
     def split(self, val_fraction: float) -> tuple[list[int], list[int]]:
         """Hold out the last ``val_fraction`` of each task's episodes (:func:`split_episodes`)."""
         return split_episodes([episode.task for episode in self.episodes], val_fraction)

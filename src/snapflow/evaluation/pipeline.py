@@ -100,6 +100,7 @@ def evaluate(
     max_episode_steps: int | None = None,
     kept_logs: str | Path | None = None,
     rtc: RealTimeChunking | None = None,
+    data_held_out: bool = False,
 ) -> EvaluationReport:
     """Closed-loop success, offline metrics (when ``data`` is given) and, with ``timing``, batch-1 latency for each
     (label, policy, mode); latency speedups are relative to the first entry. A jump mode (``snapflow-N``) on a
@@ -110,6 +111,8 @@ def evaluate(
     task's episodes a policy's training held out, or ``val_fraction`` where given (a trainer that records none).
     ``max_episode_steps`` ends every episode there, short of the benchmark's own limit (a quick check). With
     ``kept_logs``, a whole copy of each episode log is kept there after each wave (a sweep's committed progress).
+    With ``data_held_out``, ``data`` holds only held-out episodes (a video sweep's, their frames decoded): every one
+    is scored.
     With ``rtc``, every run's chunks are planned under an inference delay and continue each other
     (:meth:`ClosedLoopEvaluator.run`), each run checked before any runs."""
     for _, loaded, mode in runs:
@@ -172,6 +175,8 @@ def evaluate(
                     _, val_episodes = demonstrations.split(
                         loaded.val_fraction if val_fraction is None else val_fraction
                     )
+                    if data_held_out:
+                        val_episodes = list(range(len(demonstrations.episodes)))
                     held_out[loaded.path] = (
                         ChunkData(demonstrations, val_episodes, loaded.processor) if val_episodes else None
                     )

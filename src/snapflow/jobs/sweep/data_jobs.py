@@ -229,6 +229,29 @@ class LeRobotDatasetJob(FolderJob):
         return f"{self.sweep}: demonstrations as a LeRobotDataset"
 
 
+def held_out_with_frames(data: DataJob, val_fraction: float) -> Path:
+    """A video sweep's held-out demonstrations (each task's last ``val_fraction`` of episodes, as
+    :meth:`~snapflow.data.demonstrations.Demonstrations.split` holds them out of the whole set) with their frames
+    decoded from each task's kept video, written once beside the sweep's demonstrations, which hold no frames: what
+    an evaluation's offline metrics read (the whole set's frames decoded would take ~12 GB for the four LIBERO suites,
+    its held-out ones a tenth of that)."""
+    from snapflow.adapters.lerobot.dataset import with_decoded_frames
+
+    directory = data.directory.with_name(f"{data.directory.name}-held-out-{val_fraction:g}")
+    if (directory / META_FILE).is_file():
+        return directory
+    benchmark = make_benchmark(data.data.env)
+    cameras = list(benchmark.check_cameras(data.data.extra_cameras))
+    parts = []
+    for part in data.parts:  # a task a part, so its split is the whole set's on that task
+        demonstrations = Demonstrations.load(part.directory)
+        _, held_out = demonstrations.split(val_fraction)
+        decoded = with_decoded_frames(demonstrations, part.directory / PART, benchmark.camera, cameras)
+        parts.append(decoded.select(held_out))
+    Demonstrations.concatenate(parts).save(directory)  # its meta written last: a cut write is written again
+    return directory
+
+
 def _write_part(env: str, extra_cameras: tuple[str, ...] | None, collected: Path, part: Path) -> None:
     """One task's kept collection, its frames decoded from its video, written as a LeRobotDataset at ``part``."""
     from snapflow.adapters.lerobot.dataset import with_decoded_frames, write_lerobot_dataset
@@ -239,4 +262,14 @@ def _write_part(env: str, extra_cameras: tuple[str, ...] | None, collected: Path
     write_lerobot_dataset(demonstrations, part, LEROBOT_REPO_ID, benchmark.fps, benchmark.camera, False)
 
 
-__all__ = ["RECORD", "LEROBOT_REPO_ID", "PART", "PACKED", "FolderJob", "CollectJob", "DataJob", "LeRobotDatasetJob"]
+__all__ = [
+    "RECORD",
+    "LEROBOT_REPO_ID",
+    "PART",
+    "PACKED",
+    "FolderJob",
+    "CollectJob",
+    "DataJob",
+    "LeRobotDatasetJob",
+    "held_out_with_frames",
+]

@@ -13,6 +13,7 @@ from snapflow.evaluation.config import OFFLINE_SAMPLES
 from snapflow.evaluation.pipeline import evaluate
 from snapflow.flow.modes import SamplingMode
 from snapflow.jobs.runner import Job, holds_record_of, record
+from snapflow.jobs.sweep.data_jobs import held_out_with_frames
 from snapflow.jobs.sweep.specs import EVALUATORS
 from snapflow.jobs.sweep.training_jobs import TrainJob
 from snapflow.reporting.files import write_json, write_text
@@ -92,6 +93,12 @@ class EvalJob(Job):
             return self._run_lerobot_eval()
         collected = self.policy.data
         loaded = open_policy(str(self.policy.policy_path))
+        # lerobot-train records no held-out share: it trained on its teacher's split, every run's here
+        val_fraction = VAL_FRACTION if self.policy.trainer == "lerobot-train" else None
+        data, data_held_out = collected.directory, False
+        if collected.data.video is not None and loaded.processor.image_size:  # frames kept as video alone
+            held_out = loaded.val_fraction if val_fraction is None else val_fraction
+            data, data_held_out = held_out_with_frames(collected, held_out), True
         # the runner clears the log of a run with other settings, so what is left is this evaluation's to resume
         report = evaluate(
             [(self.mode.name, loaded, self.mode)],
@@ -99,7 +106,7 @@ class EvalJob(Job):
             self.task_names,
             self.episodes_per_task,
             self.n_act,
-            collected.directory,
+            data,
             seed=self.policy.seed,
             progress=False,
             timing=False,
@@ -107,9 +114,9 @@ class EvalJob(Job):
             resume=True,
             first_variation=self.first_variation,
             max_episode_steps=self.max_episode_steps,
-            # lerobot-train records no held-out share: it trained on its teacher's split, every run's here
-            val_fraction=VAL_FRACTION if self.policy.trainer == "lerobot-train" else None,
+            val_fraction=val_fraction,
             kept_logs=self._claim_kept_progress(),
+            data_held_out=data_held_out,
         )
         return report.rows[self.mode.name].to_dict()
 
