@@ -9,6 +9,8 @@ import torch
 
 from snapflow.errors import InvalidInputError
 from snapflow.evaluation.closed_loop import ClosedLoopEvaluator
+from snapflow.evaluation.episode_log import EpisodeLog
+from snapflow.evaluation.switches import switch_smoothness
 from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, TEACHER_10
 from snapflow.flow.realtime import RealTimeChunking, sample_chunk_continuing
 from snapflow.flow.solver import sample_actions
@@ -90,6 +92,22 @@ def test_guided_and_inpainted_runs_go_to_the_end_of_each_episode(scripted, runs)
     assert [r.steps for r in plain] == [r.steps for r in delayed] == [EPISODE_STEPS] * 4
 
 
+def test_each_episode_measures_its_chunk_switches_and_a_resumed_run_reads_them_back(scripted, runs, tmp_path):
+    """With ``switches`` each episode's result holds the jump and jerk of the actions it executed (the scripted
+    environments record them), and its episode log keeps them for a resumed run."""
+    _, teacher, _ = runs
+    evaluator = ClosedLoopEvaluator(scripted, list(SYNTHETIC_TASKS), 2)
+    log = EpisodeLog(tmp_path / "log.jsonl", {"run": 1}, resume=False)
+    rtc = RealTimeChunking(1, "guided")
+    results = evaluator.run(
+        teacher.policy, teacher.processor, TEACHER_10, n_act=2, progress=False, log=log, rtc=rtc, switches=True
+    )
+    evaluator.close()
+    for env, result in zip(scripted.envs, results, strict=True):
+        assert result.switches == switch_smoothness(np.stack(env.actions), 2) and result.switches.switches == 2
+    assert [e for wave in EpisodeLog(log.path, {"run": 1}, resume=True).finished for e in wave.episodes] == results
+
+
 def test_settings_the_evaluator_cannot_run_are_refused(scripted, runs):
     _, teacher, student = runs
     evaluator = ClosedLoopEvaluator(scripted, ["reach-v3"], 1)
@@ -123,7 +141,9 @@ def test_the_pipeline_records_the_setting_each_run_resolved_and_resumes_only_the
     assert student.known_prefix_delay == 0 == teacher.known_prefix_delay, "distilled without known prefixes"
     report = delayed(RealTimeChunking(1))
     assert report.to_dict()["rtc"] == RealTimeChunking(1).to_dict()
-    assert "Inference delay of 1 action(s)" in markdown_report(report)
+    rendered = markdown_report(report)
+    assert "Inference delay of 1 action(s)" in rendered and "## How smoothly the chunks joined" in rendered
+    assert "| teacher 10-NFE | 2 |" in rendered
     kinds = [
         json.loads(path.read_text().splitlines()[0])["identity"]["rtc"]["kind"] for path in sorted(tmp_path.iterdir())
     ]
@@ -133,3 +153,4 @@ def test_the_pipeline_records_the_setting_each_run_resolved_and_resumes_only_the
     with pytest.raises(InvalidInputError, match="steers Euler steps"):
         delayed(RealTimeChunking(1, "guided"))
     assert "rtc" not in evaluate(labelled[:1], scripted, ["reach-v3"], 1, progress=False, timing=False).to_dict()
+    assert all(row.switches.switches == 2 for row in report.rows.values()), "an episode of 6 steps, 2 a chunk"

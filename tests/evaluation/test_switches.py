@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from snapflow.errors import InvalidInputError
-from snapflow.evaluation.switches import switch_smoothness, switch_steps
+from snapflow.evaluation.switches import SwitchSmoothness, mean_smoothness, switch_smoothness, switch_steps
 
 
 def test_switches_are_every_n_act_steps_after_the_first_chunk():
@@ -31,3 +31,12 @@ def test_a_step_at_each_switch_is_measured_there_and_nowhere_else():
     smooth = switch_smoothness(np.stack([np.sin(steps / 3), np.cos(steps / 3)], axis=1), 4)
     assert smooth.jump_at_switches == pytest.approx(smooth.jump_elsewhere, rel=0.2)
     assert math.isnan(switch_smoothness(actions[:4], 4).jump_at_switches), "no switch, no mean"
+
+
+def test_episodes_smoothness_averages_each_measure_over_the_episodes_that_have_it():
+    first = SwitchSmoothness(2, 1.0, 0.5, 4.0, math.nan)
+    second = SwitchSmoothness(1, 3.0, 1.5, 2.0, 1.0)
+    assert mean_smoothness([first, second]) == SwitchSmoothness(3, 2.0, 1.0, 3.0, 1.0)
+    assert first.to_dict()["jerk_elsewhere"] is None and math.isnan(
+        SwitchSmoothness.from_dict(first.to_dict()).jerk_elsewhere
+    )

@@ -18,6 +18,7 @@ from snapflow.envs.base import Benchmark, Environment, Observation
 from snapflow.errors import InvalidInputError
 from snapflow.evaluation.episode_log import EpisodeLog, FinishedWave
 from snapflow.evaluation.results import EpisodeResult
+from snapflow.evaluation.switches import switch_smoothness
 from snapflow.flow.known_prefix import per_action_times_refusal
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.realtime import RealTimeChunking, sample_chunk_continuing
@@ -110,6 +111,7 @@ class ClosedLoopEvaluator:
         record: Callable[[int, Observation, np.ndarray], None] | None = None,
         log: EpisodeLog | None = None,
         rtc: RealTimeChunking | None = None,
+        switches: bool = False,
     ) -> list[EpisodeResult]:
         """Roll out every slot to success or the step limit, re-planning a chunk every ``n_act`` actions;
         ``record(slot, observation, action)`` is called before each step (to trace episodes). With ``log``, each
@@ -121,7 +123,8 @@ class ClosedLoopEvaluator:
         that moment, continuing the previous chunk's unexecuted (normalised) actions, whose first d are executed
         while it is computed, and the queue goes on with its actions d..d+n_act-1 (so d <= n_act and
         n_act + d <= the chunk length). Either way each chunk executes n_act actions: an episode's chunk switches
-        are at its steps n_act, 2 n_act, ... (the step whose action ``record`` is given first of a new chunk)."""
+        are at its steps n_act, 2 n_act, ... (the step whose action ``record`` is given first of a new chunk). With
+        ``switches``, each episode's result holds how smoothly its chunks joined there (:mod:`.switches`)."""
         if not 1 <= n_act <= processor.chunk_length:
             raise InvalidInputError(
                 f"n_act must be in [1, {processor.chunk_length}] (the policy's chunk length), got {n_act}"
@@ -156,6 +159,7 @@ class ClosedLoopEvaluator:
                         bar.update,
                         record,
                         rtc,
+                        switches,
                     )
                     if log is not None:
                         log.append(FinishedWave(finished, time.perf_counter() - started, generator.get_state()))
@@ -174,6 +178,7 @@ class ClosedLoopEvaluator:
         finished: Callable[[], object],
         record: Callable[[int, Observation, np.ndarray], None] | None,
         rtc: RealTimeChunking | None = None,
+        switches: bool = False,
     ) -> list[EpisodeResult]:
         observations = [env.reset(self.slots[slot][1]) for env, slot in zip(envs, slots, strict=True)]
         queues: list[deque] = [deque() for _ in envs]
@@ -182,6 +187,7 @@ class ClosedLoopEvaluator:
         sources: list[deque] = [deque() for _ in envs]
         rests: list[tuple[torch.Tensor, int] | None] = [None for _ in envs]
         results: dict[int, EpisodeResult] = {}
+        executed: list[list[np.ndarray]] = [[] for _ in envs]  # each episode's actions, where switches are measured
         delay = None if rtc is None else rtc.delay
         while len(results) < len(envs):
             alive = [i for i in range(len(envs)) if i not in results]
@@ -216,11 +222,16 @@ class ClosedLoopEvaluator:
                     rests[i] = (chunk, index + 1)
                 if record is not None:
                     record(slots[i], observations[i], action)
+                if switches:
+                    executed[i].append(action)
                 # render only where the next step re-plans: the image is needed nowhere else
                 replans = not queues[i] if rtc is None else len(queues[i]) == delay
                 observations[i], success, done = envs[i].step(action, render=replans)
                 if done or envs[i].steps == self.max_episode_steps:
-                    results[i] = EpisodeResult(*self.slots[slots[i]], success, envs[i].steps, envs[i].path_mode())
+                    smoothness = switch_smoothness(np.stack(executed[i]), n_act) if switches else None
+                    results[i] = EpisodeResult(
+                        *self.slots[slots[i]], success, envs[i].steps, envs[i].path_mode(), smoothness
+                    )
                     finished()
         return [results[i] for i in range(len(envs))]
 

@@ -39,7 +39,7 @@ class FinishedWave:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> FinishedWave:
         state = torch.frombuffer(bytearray(base64.b64decode(data["generator_state"])), dtype=torch.uint8)
-        return cls([EpisodeResult(**e) for e in data["episodes"]], data["seconds"], state)
+        return cls([EpisodeResult.from_dict(e) for e in data["episodes"]], data["seconds"], state)
 
 
 class EpisodeLog:

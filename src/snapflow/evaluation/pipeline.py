@@ -23,6 +23,7 @@ from snapflow.evaluation.config import N_ACT, OFFLINE_SAMPLES
 from snapflow.evaluation.episode_log import EpisodeLog
 from snapflow.evaluation.offline import offline_metrics
 from snapflow.evaluation.results import EvaluationReport, EvaluationRow, path_modes_by_task, success_by_task
+from snapflow.evaluation.switches import mean_smoothness
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.realtime import RealTimeChunking
 from snapflow.policies.loaded import OpenedPolicy
@@ -114,7 +115,8 @@ def evaluate(
     With ``data_held_out``, ``data`` holds only held-out episodes (a video sweep's, their frames decoded): every one
     is scored.
     With ``rtc``, every run's chunks are planned under an inference delay and continue each other
-    (:meth:`ClosedLoopEvaluator.run`), each run checked before any runs."""
+    (:meth:`ClosedLoopEvaluator.run`), each run checked before any runs, and each row holds how smoothly its
+    episodes' chunks joined (the action jump and jerk at the switches, :mod:`snapflow.evaluation.switches`)."""
     for _, loaded, mode in runs:
         loaded.check_mode(mode)
         if rtc is not None:
@@ -161,7 +163,9 @@ def evaluate(
                 log = EpisodeLog(Path(episode_logs) / name, identity, resume, kept)
             earlier = sum(wave.seconds for wave in log.finished) if log is not None else 0.0
             started = time.perf_counter()
-            episodes = evaluator.run(loaded.policy, loaded.processor, mode, n_act, seed, progress, log=log, rtc=rtc)
+            episodes = evaluator.run(
+                loaded.policy, loaded.processor, mode, n_act, seed, progress, log=log, rtc=rtc, switches=rtc is not None
+            )
             row = EvaluationRow(
                 recorded_path(loaded.path),
                 mode.name,
@@ -169,6 +173,7 @@ def evaluate(
                 success_by_task(episodes),
                 earlier + time.perf_counter() - started,
                 path_modes=path_modes_by_task(episodes, len(benchmark.path_modes)),
+                switches=None if rtc is None else mean_smoothness([episode.switches for episode in episodes]),
             )
             if demonstrations is not None:
                 if loaded.path not in held_out:

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from snapflow.envs.factory import make_benchmark
 from snapflow.evaluation.results import EvaluationReport
+from snapflow.evaluation.switches import SWITCHES_NOTE, markdown_switches
 from snapflow.flow.modes import SamplingMode
 from snapflow.reporting.figures import pyplot, save_figure
 from snapflow.reporting.files import write_json, write_text
@@ -71,6 +72,9 @@ def markdown_report(report: EvaluationReport) -> str:
         markdown_table(["task", *labels], success_rows),
         _intervals_markdown(report),
     ]
+    switches = {label: row.switches for label, row in report.rows.items() if row.switches is not None}
+    if switches:
+        sections += ["## How smoothly the chunks joined", markdown_switches(switches), SWITCHES_NOTE]
     offline = {label: row.offline for label, row in report.rows.items() if row.offline is not None}
     if offline:
         samples = next(iter(offline.values())).samples

@@ -8,25 +8,36 @@ from typing import Any
 import numpy as np
 
 from snapflow.benchmark.latency import LatencyRow
+from snapflow.evaluation.switches import SwitchSmoothness
 from snapflow.reporting.statistics import paired_difference, wilson_interval
 
 
 @dataclass(frozen=True)
 class EpisodeResult:
-    """One episode; ``mode``: which of the benchmark's path modes its path took (-1 none), where it has modes."""
+    """One episode; ``mode``: which of the benchmark's path modes its path took (-1 none), where it has modes;
+    ``switches``: how smoothly its chunks joined, where measured (under real-time chunking)."""
 
     task: str
     variation: int
     success: bool
     steps: int
     mode: int | None = None
+    switches: SwitchSmoothness | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """As an episode log holds it: ``mode`` only where the benchmark has modes (the logs written before it)."""
+        """As an episode log holds it: what was not measured left out (the logs written before either existed)."""
         episode = asdict(self)
-        if self.mode is None:
-            del episode["mode"]
+        for optional in ("mode", "switches"):
+            if episode[optional] is None:
+                del episode[optional]
+        if self.switches is not None:
+            episode["switches"] = self.switches.to_dict()
         return episode
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> EpisodeResult:
+        switches = SwitchSmoothness.from_dict(data["switches"]) if "switches" in data else None
+        return cls(**{**data, "switches": switches})
 
 
 @dataclass(frozen=True)
@@ -88,12 +99,15 @@ class EvaluationRow:
     closed_loop_s: float
     offline: OfflineMetrics | None = None
     path_modes: dict[str, list[int]] | None = None  # per task, episodes per path mode (path_modes_by_task)
+    switches: SwitchSmoothness | None = None  # the episodes' chunk switches (under real-time chunking)
 
     def to_dict(self) -> dict[str, Any]:
         row = asdict(self)
-        for optional in ("offline", "path_modes"):  # written only where measured, as before path modes existed
+        for optional in ("offline", "path_modes", "switches"):  # written only where measured, as before they existed
             if row[optional] is None:
                 del row[optional]
+        if self.switches is not None:
+            row["switches"] = self.switches.to_dict()
         return row
 
     @classmethod
@@ -106,6 +120,7 @@ class EvaluationRow:
             data["closed_loop_s"],
             OfflineMetrics(**data["offline"]) if "offline" in data else None,
             data.get("path_modes"),
+            SwitchSmoothness.from_dict(data["switches"]) if "switches" in data else None,
         )
 
 

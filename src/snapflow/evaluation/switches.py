@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from snapflow.errors import InvalidInputError
+from snapflow.reporting.tables import markdown_table
 
 
 def switch_steps(episode_steps: int, n_act: int) -> list[int]:
@@ -37,7 +38,41 @@ class SwitchSmoothness:
     jerk_elsewhere: float
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """As JSON holds it: nan (no such step) as None."""
+        return {
+            key: None if isinstance(value, float) and math.isnan(value) else value
+            for key, value in asdict(self).items()
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> SwitchSmoothness:
+        return cls(**{key: math.nan if value is None else value for key, value in data.items()})
+
+
+def mean_smoothness(parts: list[SwitchSmoothness]) -> SwitchSmoothness:
+    """Several episodes' (or seeds') smoothness as one: the switches summed, each measure the mean of the parts' that
+    have it."""
+    if not parts:
+        raise ValueError("no smoothness to average")
+    measures = ("jump_at_switches", "jump_elsewhere", "jerk_at_switches", "jerk_elsewhere")
+    means = {key: _mean([v for part in parts if not math.isnan(v := getattr(part, key))]) for key in measures}
+    return SwitchSmoothness(sum(part.switches for part in parts), **means)
+
+
+#: what the tables of chunk switches say beneath them
+SWITCHES_NOTE = (
+    "At a switch k (the first action of a new chunk) the jump |a_k - a_k-1| and the jerk |a_k+1 - 3 a_k + 3 a_k-1 - "
+    "a_k-2| of the executed (unnormalised) actions, the mean over each episode's switches, then over episodes; "
+    "elsewhere: the same at every other step."
+)
+
+
+def markdown_switches(rows: dict[str, SwitchSmoothness]) -> str:
+    """Each labelled row's jump and jerk at its chunk switches and at its other steps, as a Markdown table."""
+    header = ["row", "switches", "jump at switches", "jump elsewhere", "jerk at switches", "jerk elsewhere"]
+    measures = ("jump_at_switches", "jump_elsewhere", "jerk_at_switches", "jerk_elsewhere")
+    cells = [[label, row.switches, *(f"{getattr(row, key):.4f}" for key in measures)] for label, row in rows.items()]
+    return markdown_table(header, cells)
 
 
 def _mean(values: list[float]) -> float:
@@ -64,4 +99,11 @@ def switch_smoothness(actions: np.ndarray, n_act: int) -> SwitchSmoothness:
     )
 
 
-__all__ = ["SwitchSmoothness", "switch_smoothness", "switch_steps"]
+__all__ = [
+    "SWITCHES_NOTE",
+    "SwitchSmoothness",
+    "markdown_switches",
+    "mean_smoothness",
+    "switch_smoothness",
+    "switch_steps",
+]
