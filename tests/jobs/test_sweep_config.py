@@ -10,10 +10,11 @@ from pathlib import Path
 import pytest
 
 from snapflow.cli import main
+from snapflow.flow.realtime_settings import RealTimeChunking
 from snapflow.jobs.sweep import EvalJob, TrainJob, jobs, load_sweep, plan, replace_block
 from snapflow.jobs.sweep.aggregate import TableResult
 from snapflow.jobs.sweep.markdown import markdown_blocks, tables_markdown
-from snapflow.jobs.sweep.planning import train_job
+from snapflow.jobs.sweep.planning import eval_job, train_job
 from snapflow.jobs.sweep.results import write_results
 from tests.jobs.tiny_sweep import ROOT, TINY_TRAIN, write_config
 
@@ -150,6 +151,23 @@ def test_rebuilding_some_tables_keeps_the_others_results_as_they_are(tmp_path, m
             '[runs.teacher]\n[[tables]]\nname = "t"\nrows = [{ label = "x", run = "teacher", mode = "naive", n_act = 0 }]\n',
             "row 'x': n_act must be an integer of at least 1, got 0",
         ),
+        (
+            '[runs.teacher]\n[[tables]]\nname = "t"\nrows = [{ label = "x", run = "teacher", mode = "naive", rtc = { kind = "guided" } }]\n',
+            "row 'x': rtc: missing key(s) ['delay']",
+        ),
+        (
+            '[runs.teacher]\n[[tables]]\nname = "t"\nrows = [{ label = "x", run = "teacher", mode = "naive", rtc = { delay = -1 } }]\n',
+            "row 'x': rtc: an inference delay is a whole number of actions, 0 or more, got -1",
+        ),
+        (
+            '[runs.teacher]\n[runs.s]\nteacher = "teacher"\n[[tables]]\nname = "t"\n'
+            'rows = [{ label = "x", run = "s", mode = "snapflow-1", rtc = { delay = 2, kind = "guided" } }]\n',
+            "row 'x': rtc: guided real-time chunking steers Euler steps; snapflow-1 jumps",
+        ),
+        (
+            '[runs.teacher]\n[[tables]]\nname = "t"\nrows = [{ label = "x", run = "teacher", mode = "naive", rtc = { delay = 1, lag = 2 } }]\n',
+            "row 'x': rtc: unknown key(s) ['lag']",
+        ),
     ],
 )
 def test_a_bad_sweep_config_is_refused_with_its_section_named(tmp_path, capsys, mistake, message):
@@ -244,6 +262,22 @@ def test_a_row_that_reads_another_sweep_is_refused_on_other_tasks_an_unknown_run
         assert main(["sweep", str(path), "--report-only", "--no-progress"]) == 2
         error = capsys.readouterr().err
         assert message in error and "Traceback" not in error, (message, error)
+
+
+def test_a_row_under_real_time_chunking_is_an_evaluation_of_its_own_that_records_its_setting(tmp_path):
+    """The delay sweep's rows: each (mode, delay, kind) its own record, named by its delay and kind; a row without
+    rtc keeps the name and settings evaluations had before rows could set it."""
+    config = load_sweep(ROOT / "configs" / "sweeps" / "mt10-delay.toml")
+    (table,) = config.tables
+    jobs = [eval_job(config, table, row, 0) for row in table.rows]
+    assert len({job.path for job in jobs}) == 9
+    trained = jobs[-1]
+    assert trained.path.name.startswith("snapflow-1_nact4_eps50_rtc-d4-trained-")
+    assert trained.settings()["rtc"] == {**RealTimeChunking(4, "trained").to_dict()}
+    assert "delay 4, rtc trained" in trained.describe()
+    assert config.runs["snapflow-rtc"].distill.rtc_max_delay == 4
+    plain = eval_job(config, table, replace(table.rows[0], rtc=None), 0)
+    assert plain.path.name == "teacher-10_nact4_eps50.json" and "rtc" not in plain.settings()
 
 
 def test_replace_block_appends_a_missing_block_and_replaces_an_existing_one():

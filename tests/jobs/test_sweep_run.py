@@ -15,6 +15,10 @@ from snapflow.jobs.sweep.planning import train_job
 from snapflow.jobs.sweep.results import write_results
 from tests.jobs.tiny_sweep import write_config
 
+# the teacher under an inference delay of 2 actions, its chunks continuing each other by guided real-time chunking
+DELAYED_ROW = (
+    '\n  { label = "teacher 10-NFE, d 2", run = "teacher", mode = "teacher-10", rtc = { delay = 2, kind = "guided" } },'
+)
 CUT = 20  # steps an episode: the tiny policies succeeded in none of 28 episodes run to Meta-World's 500 either
 
 
@@ -22,7 +26,7 @@ CUT = 20  # steps an episode: the tiny policies succeeded in none of 28 episodes
 # table) then its cache and rerun rules on the same folders; each part is at its smallest.
 @pytest.mark.slow
 def test_a_sweep_runs_caches_reruns_a_changed_student_and_writes_its_tables_into_the_document(tmp_path, capsys):
-    config_path = write_config(tmp_path, max_episode_steps=CUT)
+    config_path = write_config(tmp_path, extra_rows=DELAYED_ROW, max_episode_steps=CUT)
     document = tmp_path / "RESULTS.md"
     document.write_text(
         "# Results\n\nProse before.\n\n<!-- sweep:tiny/headline -->\nold table\n<!-- /sweep:tiny/headline -->\n\nProse after.\n"
@@ -30,7 +34,7 @@ def test_a_sweep_runs_caches_reruns_a_changed_student_and_writes_its_tables_into
     assert main(["sweep", str(config_path), "--workers", "2", "--document", str(document), "--no-progress"]) == 0
     results = json.loads((tmp_path / "results" / "results.json").read_text())
     headline = results["tables"]["headline"]["rows"]
-    assert [row["label"] for row in headline] == ["teacher 10-NFE", "SnapFlow 1-NFE"]
+    assert [row["label"] for row in headline] == ["teacher 10-NFE", "SnapFlow 1-NFE", "teacher 10-NFE, d 2"]
     for row in headline:
         assert row["episodes"] == 2 * 2 * 2  # tasks x episodes per task x seeds
         assert len(row["success_per_seed"]) == 2 and row["success_mean"] == pytest.approx(
@@ -38,7 +42,10 @@ def test_a_sweep_runs_caches_reruns_a_changed_student_and_writes_its_tables_into
         )
         assert 0 <= row["offline"]["mse"] and -1 <= row["offline"]["cosine"] <= 1
         assert all(seconds > 0 for seconds in row["training_s"])
-    teacher_row, student_row = headline
+    teacher_row, student_row, delayed_row = headline
+    assert "switches" not in teacher_row, "the chunk switches are measured under real-time chunking"
+    switches = delayed_row["switches"]  # 20 steps, a chunk every 4: switches at 4, 8, 12, 16 of every episode
+    assert switches["switches"] == 4 * 8 and switches["jump_at_switches"] > 0 and switches["jerk_elsewhere"] > 0
     assert "difference" not in teacher_row, "the first row is the reference"
     assert student_row["difference"]["reference"] == "teacher 10-NFE" and student_row["difference"]["cells"] == 4
     for row in headline:  # the interval brackets the pooled rate
@@ -83,6 +90,7 @@ def test_a_sweep_runs_caches_reruns_a_changed_student_and_writes_its_tables_into
     text = document.read_text()
     assert "Prose before." in text and "Prose after." in text and "old table" not in text
     assert "| SnapFlow 1-NFE | 1 | 4 |" in text and "<!-- sweep:tiny/nfe -->" in text
+    assert "How smoothly the chunks joined" in text and "| teacher 10-NFE, d 2 | 32 |" in text
     assert "](results/headline.png)" in text and "seeds 0, 1" in text and f"every episode cut at {CUT} steps" in text
     assert plan(load_sweep(config_path)) == []  # everything is cached: a second run does nothing
 
@@ -90,7 +98,12 @@ def test_a_sweep_runs_caches_reruns_a_changed_student_and_writes_its_tables_into
     for run in ("teacher", "meanflow"):
         (runs / run / "seed-0" / "left-over.txt").write_text("made with the old settings")
     records = {path: path.stat().st_mtime_ns for path in runs.rglob("*.json")}
-    write_config(tmp_path, meanflow_distill='{ method = "meanflow", alpha = 0.7 }', max_episode_steps=CUT)
+    write_config(
+        tmp_path,
+        extra_rows=DELAYED_ROW,
+        meanflow_distill='{ method = "meanflow", alpha = 0.7 }',
+        max_episode_steps=CUT,
+    )
     times = run_sweeps([load_sweep(config_path)], workers=2, progress=False)
     assert set(times) == {"tiny: train meanflow seed 0", "tiny: evaluate meanflow seed 0 (snapflow-1; n_act 4)"}
     rewritten = {

@@ -14,6 +14,7 @@ import torch
 from snapflow.envs.factory import make_benchmark
 from snapflow.evaluation.distances import coverage_error
 from snapflow.evaluation.results import EvaluationRow
+from snapflow.evaluation.switches import SwitchSmoothness, mean_smoothness
 from snapflow.jobs.runner import is_recorded, read_record
 from snapflow.jobs.sweep.planning import eval_job, train_job
 from snapflow.jobs.sweep.specs import RowSpec, SweepConfig, TableSpec
@@ -127,14 +128,17 @@ class SweepRow:
     sweep: str | None = None  # the sweep whose run the row evaluates, when not the table's own
     per_set: dict[str, SetSummary] | None = None  # on each named set of the tasks, where the table asks for it
     path_modes: ModeCoverage | None = None  # where the benchmark's tasks have several modes
+    switches: SwitchSmoothness | None = None  # under real-time chunking: its chunk switches, mean over seeds
 
     def to_dict(self) -> dict[str, Any]:
         """As results.json holds it (the interval a list; what a row lacks left out), so that
         ``from_dict(d).to_dict() == d``."""
         row = asdict(self)
-        for optional in ("offline", "success_interval", "difference", "sweep", "per_set", "path_modes"):
+        for optional in ("offline", "success_interval", "difference", "sweep", "per_set", "path_modes", "switches"):
             if row[optional] is None:
                 del row[optional]
+        if self.switches is not None:
+            row["switches"] = self.switches.to_dict()
         if "success_interval" in row:
             row["success_interval"] = list(row["success_interval"])
         if self.per_set is not None:
@@ -155,6 +159,7 @@ class SweepRow:
                     else None
                 ),
                 "path_modes": ModeCoverage(**data["path_modes"]) if "path_modes" in data else None,
+                "switches": SwitchSmoothness.from_dict(data["switches"]) if "switches" in data else None,
             }
         )
 
@@ -320,6 +325,9 @@ def table_results(config: SweepConfig, table: TableSpec) -> TableResult:
                 sweep=None if row.sweep is None else row.sweep.name,
                 per_set=per_set,
                 path_modes=_mode_coverage(config, tasks, evals),
+                switches=(
+                    mean_smoothness([e.switches for e in evals]) if all(e.switches is not None for e in evals) else None
+                ),
             )
         )
     contrasts = [

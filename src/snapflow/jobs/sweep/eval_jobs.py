@@ -12,6 +12,7 @@ from snapflow.envs.factory import make_benchmark
 from snapflow.evaluation.config import OFFLINE_SAMPLES
 from snapflow.evaluation.pipeline import evaluate
 from snapflow.flow.modes import SamplingMode
+from snapflow.flow.realtime_settings import RealTimeChunking
 from snapflow.jobs.runner import Job, holds_record_of, record
 from snapflow.jobs.sweep.data_jobs import held_out_with_frames
 from snapflow.jobs.sweep.specs import EVALUATORS
@@ -41,6 +42,7 @@ class EvalJob(Job):
     evaluator: str = EVALUATORS[0]  # snapflow's evaluator, or LeRobot's lerobot-eval (no offline metrics)
     tasks: tuple[str, ...] = ()  # a subset of the data's tasks (empty: every one)
     max_episode_steps: int | None = None  # every episode cut there (None: the benchmark's own limit)
+    rtc: RealTimeChunking | None = None  # chunks planned under an inference delay, continuing each other
 
     @property
     def by_lerobot_eval(self) -> bool:
@@ -59,6 +61,7 @@ class EvalJob(Job):
             **({"evaluator": self.evaluator} if self.by_lerobot_eval else {}),
             **({"tasks": list(self.tasks)} if self.tasks else {}),
             **({"max_episode_steps": self.max_episode_steps} if self.max_episode_steps is not None else {}),
+            **({"rtc": self.rtc.to_dict()} if self.rtc is not None else {}),
         }
 
     @property
@@ -116,6 +119,7 @@ class EvalJob(Job):
             max_episode_steps=self.max_episode_steps,
             val_fraction=val_fraction,
             kept_logs=self._claim_kept_progress(),
+            rtc=self.rtc,
             data_held_out=data_held_out,
         )
         return report.rows[self.mode.name].to_dict()
@@ -183,9 +187,10 @@ class EvalJob(Job):
         by = f", by {self.evaluator}" if self.by_lerobot_eval else ""
         # named only where it is not the first, so that the descriptions of every committed sweep read as they did
         start = f"; from variation {self.first_variation}" if self.first_variation else ""
+        delay = f"; delay {self.rtc.delay}, rtc {self.rtc.kind}" if self.rtc is not None else ""
         return (
             f"{policy.sweep}: evaluate {policy.run_name} seed {policy.seed} "
-            f"({self.mode.name}; n_act {self.n_act}{start}{by})"
+            f"({self.mode.name}; n_act {self.n_act}{start}{by}{delay})"
         )
 
 

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from snapflow.evaluation.switches import SWITCHES_NOTE, markdown_switches
 from snapflow.jobs.sweep.aggregate import SetSummary, SweepRow, TableResult
 from snapflow.jobs.sweep.specs import SweepConfig
 from snapflow.reporting.tables import markdown_table
@@ -188,6 +189,10 @@ def markdown_blocks(config: SweepConfig, results: dict[str, TableResult], direct
                 "over tasks of the total variation distance between a task's shares (its episodes of every seed) and "
                 "the experts' (their demonstrations' shares, none in neither):\n\n"
                 + markdown_path_modes(results[table.name])
+            )
+        if any(row.switches is not None for row in results[table.name].rows):
+            body += f"\n\nHow smoothly the chunks joined (mean over seeds). {SWITCHES_NOTE}\n\n" + markdown_switches(
+                {row.label: row.switches for row in results[table.name].rows if row.switches}
             )
         blocks[key] = f"{body}\n\n![{key}]({link}/{table.name}.png)"
     return blocks

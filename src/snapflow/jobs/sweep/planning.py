@@ -63,10 +63,11 @@ def eval_job(config: SweepConfig, table: TableSpec, row: RowSpec, seed: int) -> 
     another's."""
     owner = row.owner(config)
     first, evaluator, tasks, cut = table.first_variation, table.evaluator, table.tasks, table.max_episode_steps
-    path = owner.eval_path(row.run, seed, row.mode, row.n_act, table.episodes_per_task, first, evaluator, tasks, cut)
+    episodes = table.episodes_per_task
+    path = owner.eval_path(row.run, seed, row.mode, row.n_act, episodes, first, evaluator, tasks, cut, row.rtc)
     policy = train_job(owner, row.run, seed)
     ledger = owner.ledger_path(path)
-    return EvalJob(policy, row.mode, row.n_act, table.episodes_per_task, path, ledger, first, evaluator, tasks, cut)
+    return EvalJob(policy, row.mode, row.n_act, episodes, path, ledger, first, evaluator, tasks, cut, row.rtc)
 
 
 def jobs(config: SweepConfig) -> list[Job]:

@@ -15,6 +15,7 @@ from snapflow.errors import InvalidInputError
 from snapflow.evaluation.config import N_ACT
 from snapflow.families import FAMILIES, family_of
 from snapflow.flow.modes import SamplingMode
+from snapflow.flow.realtime_settings import RealTimeChunking
 from snapflow.jobs.demo import EVAL_EPISODES
 from snapflow.jobs.sweep.specs import (
     EVALUATORS,
@@ -170,6 +171,17 @@ def _other_sweep(section: str, path: Path, name: Any, data: DataSpec, loading: t
     return other
 
 
+def _rtc(section: str, entry: Any, mode: SamplingMode) -> RealTimeChunking:
+    """A row's ``rtc = { delay = D, kind = ..., ... }``: :class:`RealTimeChunking`'s fields, checked for its mode."""
+    checked_table(f"{section}: rtc", entry, field_names(RealTimeChunking), frozenset({"delay"}))
+    try:
+        rtc = RealTimeChunking(**entry)
+        rtc.check_mode(mode)
+    except (InvalidInputError, TypeError) as error:
+        raise InvalidInputError(f"{section}: rtc: {error}") from None
+    return rtc
+
+
 def _tables(
     path: Path, raw: Any, seeds: tuple[int, ...], runs: dict[str, RunSpec], data: DataSpec, loading: tuple[Path, ...]
 ) -> tuple[TableSpec, ...]:
@@ -189,7 +201,7 @@ def _tables(
             checked_table(
                 f"{section} row",
                 row,
-                {"label", "run", "mode", "n_act", "series", "x", "sweep"},
+                {"label", "run", "mode", "n_act", "series", "x", "sweep", "rtc"},
                 frozenset({"label", "run", "mode"}),
             )
             other = None
@@ -222,7 +234,8 @@ def _tables(
             n_act = checked_count(
                 f"{section}: row {row['label']!r}", "n_act", row.get("n_act", entry.get("n_act", N_ACT))
             )
-            rows.append(RowSpec(row["label"], row["run"], mode, n_act, row.get("series"), row.get("x"), other))
+            rtc = _rtc(f"{section}: row {row['label']!r}", row["rtc"], mode) if "rtc" in row else None
+            rows.append(RowSpec(row["label"], row["run"], mode, n_act, row.get("series"), row.get("x"), other, rtc))
         labels = [row.label for row in rows]
         reference = entry.get("reference")
         if reference is not None and reference not in labels:
@@ -251,6 +264,10 @@ def _tables(
             else None,
         )
         if table.evaluator != EVALUATORS[0]:
+            if any(row.rtc is not None for row in rows):
+                raise InvalidInputError(
+                    f"{section}: real-time chunking (a row's rtc) runs on snapflow's evaluator only"
+                )
             check_lerobot_eval(section, table, runs, data)
         tables.append(table)
     return tuple(tables)

@@ -12,6 +12,7 @@ from snapflow.data.collect import EPISODES_PER_TASK
 from snapflow.envs.factory import DEFAULT_BENCHMARK
 from snapflow.errors import InvalidInputError
 from snapflow.flow.modes import SamplingMode
+from snapflow.flow.realtime_settings import RealTimeChunking
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.reporting.records import added_option
 from snapflow.training.config import TrainConfig
@@ -74,6 +75,8 @@ class RowSpec:
     # the sweep whose run the row evaluates, when not the table's own (same benchmark and tasks, so its cells pair
     # with the table's on the same initial states): read from that sweep's records, never run from this one
     sweep: SweepConfig | None = None
+    # its chunks planned under an inference delay, each continuing the previous one (real-time chunking)
+    rtc: RealTimeChunking | None = None
 
     def owner(self, config: SweepConfig) -> SweepConfig:
         """The sweep whose run and evaluations the row reads, in a table of ``config``."""
@@ -160,6 +163,7 @@ class SweepConfig:
         evaluator: str = EVALUATORS[0],
         tasks: tuple[str, ...] = (),
         max_episode_steps: int | None = None,
+        rtc: RealTimeChunking | None = None,
     ) -> Path:
         # from the first variation by snapflow's evaluator on every task, the name evaluations had before any of
         # these could be chosen; a cut one by its step limit; a subset of the tasks is named by its size and a digest of its names
@@ -167,7 +171,13 @@ class SweepConfig:
         by = "" if evaluator == EVALUATORS[0] else f"_{evaluator}"
         subset = f"_{len(tasks)}tasks-{hashlib.sha1(','.join(tasks).encode()).hexdigest()[:8]}" if tasks else ""
         cut = f"_cut{max_episode_steps}" if max_episode_steps is not None else ""
-        name = f"{mode.name}_nact{n_act}_eps{episodes_per_task}{start}{by}{subset}{cut}.json"
+        # under real-time chunking: its delay and kind, and a digest of every setting
+        realtime = (
+            f"_rtc-d{rtc.delay}-{rtc.kind}-{hashlib.sha1(repr(sorted(rtc.to_dict().items())).encode()).hexdigest()[:8]}"
+            if rtc is not None
+            else ""
+        )
+        name = f"{mode.name}_nact{n_act}_eps{episodes_per_task}{start}{by}{subset}{cut}{realtime}.json"
         return self.output_dir / "evals" / run / f"seed-{seed}" / name
 
     def ledger_path(self, record: Path) -> Path:
