@@ -15,6 +15,7 @@ from snapflow.errors import InvalidInputError
 from snapflow.evaluation.closed_loop import ClosedLoopEvaluator
 from snapflow.evaluation.episode_log import EpisodeLog
 from snapflow.evaluation.offline import offline_metrics
+from snapflow.evaluation.path_modes import path_modes_by_task
 from snapflow.evaluation.pipeline import runs_evaluator
 from snapflow.evaluation.report import markdown_report
 from snapflow.evaluation.results import (
@@ -23,7 +24,6 @@ from snapflow.evaluation.results import (
     EvaluationRow,
     OfflineMetrics,
     SuccessCount,
-    path_modes_by_task,
     success_by_task,
 )
 from snapflow.flow.modes import NAIVE_1, SNAPFLOW_1, TEACHER_10
@@ -68,6 +68,25 @@ def test_each_episode_records_the_mode_its_environment_says_its_path_took(runs, 
     assert [
         r.mode for wave in EpisodeLog(log.path, {"run": 1}, resume=True).finished for r in wave.episodes
     ] == expected
+
+
+def test_the_reports_rows_count_the_path_modes_and_show_their_coverage(runs, monkeypatch):
+    """``snapflow eval`` on a benchmark with path modes: each row's counts per task, its shares and coverage error."""
+    from snapflow.envs import factory
+    from snapflow.evaluation.pipeline import evaluate
+
+    monkeypatch.setitem(factory.BENCHMARKS, ModalScriptedBenchmark.name, ModalScriptedBenchmark)
+    _, teacher, _ = runs
+    benchmark = ModalScriptedBenchmark()
+    tasks = list(SYNTHETIC_TASKS)
+    report = evaluate([("naive", teacher, NAIVE_1)], benchmark, tasks, 3, n_act=2, progress=False, timing=False)
+    counts = report.rows["naive"].path_modes
+    expected = {task: [0, 0, 0] for task in tasks}
+    for env in benchmark.envs:
+        expected[env.task][env.path_mode()] += 1
+    assert counts == expected and sum(map(sum, counts.values())) == 3 * len(tasks)
+    rendered = markdown_report(report)
+    assert "## Where the executed paths went" in rendered and "| row | up % | down % | neither % |" in rendered
 
 
 def test_a_report_gives_each_rows_wilson_interval_and_its_paired_difference_from_the_first():

@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
+from snapflow.evaluation.path_modes import ModeCoverage, markdown_path_modes
 from snapflow.evaluation.results import EvaluationRow, SuccessCount
 from snapflow.jobs.sweep import load_sweep
-from snapflow.jobs.sweep.aggregate import ModeCoverage, SweepRow, TableResult, _mode_coverage
-from snapflow.jobs.sweep.markdown import markdown_path_modes
+from snapflow.jobs.sweep.aggregate import SweepRow, _mode_coverage
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -57,6 +57,6 @@ def test_mode_coverage_round_trips_through_results_and_renders_a_column_per_mode
     assert SweepRow.from_dict(row.to_dict()) == row
     plain = SweepRow(**{**row.__dict__, "path_modes": None})
     assert "path_modes" not in plain.to_dict(), "results.json of benchmarks without modes keeps its form"
-    rendered = markdown_path_modes(TableResult("t", "T", 50, [0], None, [row, plain]))
+    rendered = markdown_path_modes({row.label: coverage})
     assert "| row | left via-point % | right via-point % | neither % | coverage error | episodes |" in rendered
     assert "| naive 1-NFE | 40.0 | 35.0 | 25.0 | 0.250 | 100 |" in rendered

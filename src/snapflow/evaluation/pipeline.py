@@ -22,7 +22,8 @@ from snapflow.evaluation.closed_loop import ClosedLoopEvaluator, check_rtc
 from snapflow.evaluation.config import N_ACT, OFFLINE_SAMPLES
 from snapflow.evaluation.episode_log import EpisodeLog
 from snapflow.evaluation.offline import offline_metrics
-from snapflow.evaluation.results import EvaluationReport, EvaluationRow, path_modes_by_task, success_by_task
+from snapflow.evaluation.path_modes import path_modes_by_task
+from snapflow.evaluation.results import EvaluationReport, EvaluationRow, success_by_task
 from snapflow.evaluation.switches import mean_smoothness
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.realtime import RealTimeChunking

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from snapflow.envs.factory import make_benchmark
+from snapflow.evaluation.path_modes import PATH_MODES_NOTE, markdown_path_modes, mode_coverage
 from snapflow.evaluation.results import EvaluationReport
 from snapflow.evaluation.switches import SWITCHES_NOTE, markdown_switches
 from snapflow.flow.modes import SamplingMode
@@ -48,6 +49,23 @@ def _intervals_markdown(report: EvaluationReport) -> str:
     )
 
 
+def _path_and_switch_sections(report: EvaluationReport) -> list[str]:
+    """Where measured: which way each row's executed paths went, and how smoothly its chunks joined."""
+    sections: list[str] = []
+    benchmark = make_benchmark(report.env)
+    counted = {label: row.path_modes for label, row in report.rows.items() if row.path_modes is not None}
+    if counted:
+        coverage = {
+            label: mode_coverage([counts], report.tasks, benchmark.path_modes, benchmark.path_mode_weights)
+            for label, counts in counted.items()
+        }
+        sections += ["## Where the executed paths went", markdown_path_modes(coverage), PATH_MODES_NOTE]
+    switches = {label: row.switches for label, row in report.rows.items() if row.switches is not None}
+    if switches:
+        sections += ["## How smoothly the chunks joined", markdown_switches(switches), SWITCHES_NOTE]
+    return sections
+
+
 def markdown_report(report: EvaluationReport) -> str:
     labels = list(report.rows)
     success_rows = []
@@ -72,9 +90,7 @@ def markdown_report(report: EvaluationReport) -> str:
         markdown_table(["task", *labels], success_rows),
         _intervals_markdown(report),
     ]
-    switches = {label: row.switches for label, row in report.rows.items() if row.switches is not None}
-    if switches:
-        sections += ["## How smoothly the chunks joined", markdown_switches(switches), SWITCHES_NOTE]
+    sections += _path_and_switch_sections(report)
     offline = {label: row.offline for label, row in report.rows.items() if row.offline is not None}
     if offline:
         samples = next(iter(offline.values())).samples

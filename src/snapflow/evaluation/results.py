@@ -64,17 +64,6 @@ def success_by_task(results: list[EpisodeResult]) -> dict[str, SuccessCount]:
     return table
 
 
-def path_modes_by_task(results: list[EpisodeResult], num_modes: int) -> dict[str, list[int]] | None:
-    """Per task, how many episodes took each of ``num_modes`` path modes, the last column none of them; ``None``
-    where the episodes record no mode (a benchmark without modes)."""
-    if not num_modes or any(result.mode is None for result in results):
-        return None
-    counts: dict[str, list[int]] = {}
-    for result in results:
-        counts.setdefault(result.task, [0] * (num_modes + 1))[result.mode if result.mode >= 0 else num_modes] += 1
-    return counts
-
-
 @dataclass(frozen=True)
 class OfflineMetrics:
     """Per-sample MSE of predicted chunks (normalised actions) summarised, and the mean cosine similarity."""
@@ -193,7 +182,6 @@ __all__ = [
     "EpisodeResult",
     "SuccessCount",
     "success_by_task",
-    "path_modes_by_task",
     "OfflineMetrics",
     "EvaluationRow",
     "EvaluationReport",

@@ -9,10 +9,9 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
-import torch
 
 from snapflow.envs.factory import make_benchmark
-from snapflow.evaluation.distances import coverage_error
+from snapflow.evaluation.path_modes import ModeCoverage, mode_coverage
 from snapflow.evaluation.results import EvaluationRow
 from snapflow.evaluation.switches import SwitchSmoothness, mean_smoothness
 from snapflow.jobs.runner import is_recorded, read_record
@@ -32,20 +31,6 @@ class OfflineSummary:
     mse_p95: float
     cosine: float
     samples: int
-
-
-@dataclass(frozen=True)
-class ModeCoverage:
-    """Which way a row's executed paths went, on a benchmark whose experts do every task in several ways (the
-    via-point variant): ``shares``, percent of all episodes (every seed and task) per mode of ``names``, the last
-    none of them; ``coverage_error``, the mean over tasks of the total variation distance between a task's shares
-    (its episodes of every seed pooled) and the experts' mode weights, with none weighted 0 (0: every mode taken as
-    often as the experts take it)."""
-
-    names: list[str]
-    shares: list[float]
-    coverage_error: float
-    episodes: int
 
 
 @dataclass(frozen=True)
@@ -261,18 +246,11 @@ def _set_summaries(
 
 
 def _mode_coverage(config: SweepConfig, tasks: tuple[str, ...], evals: list[EvaluationRow]) -> ModeCoverage | None:
-    """A row's path modes over its seeds, where every evaluation recorded them (see :class:`ModeCoverage`)."""
+    """A row's path modes over its seeds, pooled task by task, where every evaluation recorded them."""
     if any(e.path_modes is None for e in evals):
         return None
     benchmark = make_benchmark(config.data.env)
-    per_task = np.array([np.sum([e.path_modes[task] for e in evals], axis=0) for task in tasks], dtype=float)
-    shares = torch.from_numpy(per_task / per_task.sum(axis=1, keepdims=True))
-    weights = torch.tensor(benchmark.path_mode_weights, dtype=torch.float64).expand(len(tasks), -1)
-    error = float(coverage_error(shares, weights))
-    pooled = per_task.sum(axis=0)
-    return ModeCoverage(
-        list(benchmark.path_modes), [float(x) for x in 100 * pooled / pooled.sum()], error, int(pooled.sum())
-    )
+    return mode_coverage([e.path_modes for e in evals], tasks, benchmark.path_modes, benchmark.path_mode_weights)
 
 
 def table_results(config: SweepConfig, table: TableSpec) -> TableResult:

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from snapflow.evaluation.path_modes import PATH_MODES_NOTE, markdown_path_modes
 from snapflow.evaluation.switches import SWITCHES_NOTE, markdown_switches
 from snapflow.jobs.sweep.aggregate import SetSummary, SweepRow, TableResult
 from snapflow.jobs.sweep.specs import SweepConfig
@@ -139,23 +140,6 @@ def markdown_per_set(result: TableResult) -> str:
     return "\n\n".join(lines)
 
 
-def markdown_path_modes(result: TableResult) -> str:
-    """Each row's executed paths per mode (percent of its episodes) and its coverage error, where measured."""
-    rows = [row for row in result.rows if row.path_modes is not None]
-    names = rows[0].path_modes.names
-    header = ["row", *(f"{name} %" for name in names), "neither %", "coverage error", "episodes"]
-    cells = [
-        [
-            row.label,
-            *(f"{share:.1f}" for share in row.path_modes.shares),
-            f"{row.path_modes.coverage_error:.3f}",
-            row.path_modes.episodes,
-        ]
-        for row in rows
-    ]
-    return markdown_table(header, cells)
-
-
 def replace_block(document: str, key: str, body: str) -> str:
     """Put ``body`` between the ``<!-- sweep:KEY -->`` and ``<!-- /sweep:KEY -->`` markers (appended if absent)."""
     start, end = f"<!-- sweep:{key} -->", f"<!-- /sweep:{key} -->"
@@ -183,13 +167,9 @@ def markdown_blocks(config: SweepConfig, results: dict[str, TableResult], direct
                 "the set's (seed, task) cells (95% bootstrap interval):\n\n" + markdown_per_set(results[table.name])
             )
         if any(row.path_modes is not None for row in results[table.name].rows):
-            body += (
-                "\n\nWhere the executed paths went: each episode's mode as its environment tells it (the via-point "
-                "variant: the via-point the hand passed first), neither where it took none; coverage error: the mean "
-                "over tasks of the total variation distance between a task's shares (its episodes of every seed) and "
-                "the experts' (their demonstrations' shares, none in neither):\n\n"
-                + markdown_path_modes(results[table.name])
-            )
+            modes = {row.label: row.path_modes for row in results[table.name].rows if row.path_modes}
+            body += f"\n\nWhere the executed paths went (every seed's episodes). {PATH_MODES_NOTE}\n\n"
+            body += markdown_path_modes(modes)
         if any(row.switches is not None for row in results[table.name].rows):
             body += f"\n\nHow smoothly the chunks joined (mean over seeds). {SWITCHES_NOTE}\n\n" + markdown_switches(
                 {row.label: row.switches for row in results[table.name].rows if row.switches}
@@ -210,7 +190,6 @@ __all__ = [
     "markdown_rows",
     "markdown_per_task",
     "markdown_per_set",
-    "markdown_path_modes",
     "replace_block",
     "markdown_blocks",
     "tables_markdown",
