@@ -267,8 +267,8 @@ def test_a_row_that_reads_another_sweep_is_refused_on_other_tasks_an_unknown_run
 def test_a_row_under_real_time_chunking_is_an_evaluation_of_its_own_that_records_its_setting(tmp_path):
     """The delay sweep's rows: each (mode, delay, kind) its own record, named by its delay and kind; a row without
     rtc keeps the name and settings evaluations had before rows could set it."""
-    config = load_sweep(ROOT / "configs" / "sweeps" / "mt10-delay.toml")
-    (table,) = config.tables
+    config = load_sweep(ROOT / "configs" / "sweeps" / "mt10-state.toml")
+    (table,) = config.only(["delay"]).tables
     jobs = [eval_job(config, table, row, 0) for row in table.rows]
     assert len({job.path for job in jobs}) == 9
     trained = jobs[-1]
