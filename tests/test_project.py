@@ -1,8 +1,9 @@
 """Project wiring: CI runs exactly the README's test command, no layer outside the policy registry knows MiniVLA,
-and the distribution has one name."""
+the distribution has one name, and no file or function outgrows the size the code is kept at."""
 
 from __future__ import annotations
 
+import ast
 import re
 import subprocess
 import sys
@@ -96,3 +97,28 @@ def test_the_simulator_extras_pin_the_versions_the_tests_and_results_run_under()
         pins = dict(requirement.split("==") for requirement in extras[extra] if "==" in requirement)
         assert set(names) <= set(pins), extra
         assert {name: version(name) for name in names} == {name: pins[name] for name in names}, extra
+
+
+MAX_FILE_LINES, MAX_FUNCTION_LINES = 400, 100
+
+
+def _python_files() -> list[Path]:
+    tracked = subprocess.run(["git", "ls-files", "*.py"], cwd=ROOT, capture_output=True, text=True, check=True)
+    return [ROOT / name for name in tracked.stdout.split()]
+
+
+def test_no_python_file_is_over_400_lines_and_no_function_over_100():
+    """The house rule, checked on every tracked Python file: a long one is split where its parts are apart."""
+    files = _python_files()
+    assert len(files) > 100, "git lists the tracked files"
+    too_long = []
+    for path in files:
+        text = path.read_text()
+        if len(text.splitlines()) > MAX_FILE_LINES:
+            too_long.append(f"{path.relative_to(ROOT)}: {len(text.splitlines())} lines")
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                length = node.end_lineno - node.lineno + 1
+                if length > MAX_FUNCTION_LINES:
+                    too_long.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.name}: {length} lines")
+    assert not too_long, too_long

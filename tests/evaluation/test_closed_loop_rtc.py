@@ -154,3 +154,29 @@ def test_the_pipeline_records_the_setting_each_run_resolved_and_resumes_only_the
         delayed(RealTimeChunking(1, "guided"))
     assert "rtc" not in evaluate(labelled[:1], scripted, ["reach-v3"], 1, progress=False, timing=False).to_dict()
     assert all(row.switches.switches == 2 for row in report.rows.values()), "an episode of 6 steps, 2 a chunk"
+
+
+def test_a_log_written_before_switches_were_measured_resumes_to_a_row_without_them(scripted, runs, tmp_path):
+    import json
+
+    from snapflow.evaluation.pipeline import evaluate
+
+    _, teacher, _ = runs
+
+    def delayed(resume: bool):
+        report = evaluate(
+            [("teacher 10-NFE", teacher, TEACHER_10)], scripted, ["reach-v3"], 1, n_act=2, progress=False,
+            timing=False, episode_logs=tmp_path, resume=resume, rtc=RealTimeChunking(1),
+        )  # fmt: skip
+        return report.rows["teacher 10-NFE"]
+
+    assert delayed(resume=False).switches is not None
+    (log,) = tmp_path.iterdir()
+    header, *waves = log.read_text().splitlines()
+    older = [json.loads(wave) for wave in waves]
+    for wave in older:
+        for episode in wave["episodes"]:
+            del episode["switches"]
+    log.write_text("\n".join([header, *map(json.dumps, older)]) + "\n")
+    resumed = delayed(resume=True)
+    assert resumed.switches is None and resumed.success["mean"].episodes == 1

@@ -64,9 +64,9 @@ def test_each_episode_records_the_mode_its_environment_says_its_path_took(runs, 
     results = evaluator.run(teacher.policy, teacher.processor, NAIVE_1, n_act=2, seed=1, progress=False, log=log)
     evaluator.close()
     expected = [env.path_mode() for env in benchmark.envs]
-    assert [result.mode for result in results] == expected and set(expected) <= {-1, 0, 1}
+    assert [result.path_mode for result in results] == expected and set(expected) <= {-1, 0, 1}
     assert [
-        r.mode for wave in EpisodeLog(log.path, {"run": 1}, resume=True).finished for r in wave.episodes
+        r.path_mode for wave in EpisodeLog(log.path, {"run": 1}, resume=True).finished for r in wave.episodes
     ] == expected
 
 
@@ -266,6 +266,26 @@ def test_offline_metrics_summarise_the_per_chunk_errors_of_fixed_draws(runs):
     assert metrics.mse_p95 == pytest.approx(torch.quantile(errors, 0.95).item()) and metrics.mse_p90 <= metrics.mse_p95
     assert offline_metrics(teacher.policy, chunks, TEACHER_10, max_samples=15, seed=4) == metrics
     assert offline_metrics(teacher.policy, chunks, NAIVE_1, max_samples=15, seed=4) != metrics
+
+
+def test_held_out_demonstrations_alone_are_scored_whole(scripted, runs, tmp_path):
+    """A video sweep hands the evaluation its held-out episodes alone (their frames decoded): every one is scored,
+    the same chunks as the policy's split of the whole set; split again, one episode a task would leave none."""
+    from snapflow.evaluation.pipeline import evaluate
+
+    data, teacher, _ = runs
+    whole = Demonstrations.load(data)
+    _, val_episodes = whole.split(teacher.val_fraction)
+    whole.select(val_episodes).save(tmp_path / "held-out")
+    run = [("teacher", teacher, TEACHER_10)]
+
+    def offline(**options):
+        report = evaluate(run, scripted, ["reach-v3"], 1, offline_samples=15, progress=False, timing=False, **options)
+        return report.rows["teacher"].offline
+
+    expected = offline_metrics(teacher.policy, ChunkData(whole, val_episodes, teacher.processor), TEACHER_10, 15, 0)
+    assert offline(data=tmp_path / "held-out", data_held_out=True) == expected == offline(data=data)
+    assert offline(data=tmp_path / "held-out") is None
 
 
 def test_more_tasks_than_environments_run_a_group_of_tasks_at_a_time_every_slot_once(scripted, runs):

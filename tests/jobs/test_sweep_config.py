@@ -168,6 +168,15 @@ def test_rebuilding_some_tables_keeps_the_others_results_as_they_are(tmp_path, m
             '[runs.teacher]\n[[tables]]\nname = "t"\nrows = [{ label = "x", run = "teacher", mode = "naive", rtc = { delay = 1, lag = 2 } }]\n',
             "row 'x': rtc: unknown key(s) ['lag']",
         ),
+        (
+            '[runs.teacher]\n[[tables]]\nname = "t"\nrows = [{ label = "x", run = "teacher", mode = "naive", rtc = { delay = 5 } }]\n',
+            "row 'x': rtc: a delay of 5 needs delay <= n_act, got n_act 4",
+        ),
+        (
+            '[runs.teacher]\n[runs.s]\nteacher = "teacher"\n[[tables]]\nname = "t"\n'
+            'rows = [{ label = "x", run = "s", mode = "snapflow-1", rtc = { delay = 2, kind = "trained" } }]\n',
+            "row 'x': rtc: 'trained' at a delay of 2 needs run 's' distilled with rtc_max_delay at least 2, got 0",
+        ),
     ],
 )
 def test_a_bad_sweep_config_is_refused_with_its_section_named(tmp_path, capsys, mistake, message):
@@ -272,7 +281,14 @@ def test_a_row_under_real_time_chunking_is_an_evaluation_of_its_own_that_records
     jobs = [eval_job(config, table, row, 0) for row in table.rows]
     assert len({job.path for job in jobs}) == 9
     trained = jobs[-1]
-    assert trained.path.name.startswith("snapflow-1_nact4_eps50_rtc-d4-trained-")
+    assert trained.path.name == "snapflow-1_nact4_eps50_rtc-d4-trained.json", "default settings: delay and kind"
+    steered = replace(table.rows[1], rtc=RealTimeChunking(2, "guided", max_guidance_weight=5))
+    same = replace(table.rows[1], rtc=RealTimeChunking(2, "guided", max_guidance_weight=5.0))
+    named = eval_job(config, table, steered, 0).path.name
+    assert (
+        named.startswith("teacher-10_nact4_eps50_rtc-d2-guided-")
+        and named == eval_job(config, table, same, 0).path.name
+    )
     assert trained.settings()["rtc"] == {**RealTimeChunking(4, "trained").to_dict()}
     assert "delay 4, rtc trained" in trained.describe()
     assert config.runs["snapflow-rtc"].distill.rtc_max_delay == 4

@@ -24,12 +24,18 @@ def test_a_rows_mode_coverage_pools_its_seeds_per_task_and_scores_each_task_agai
     config = load_sweep(ROOT / "configs" / "sweeps" / "mt10-via-points.toml")
     # two seeds, four episodes a task: task a goes left 4, right 3, neither 1; task b left 8
     evals = [_row({"a": [2, 2, 0], "b": [4, 0, 0]}), _row({"a": [2, 1, 1], "b": [4, 0, 0]})]
-    coverage = _mode_coverage(config, ("a", "b"), evals)
+    coverage = _mode_coverage(config, "row", ("a", "b"), evals)
     assert coverage.names == ["left via-point", "right via-point"]
     assert coverage.shares == pytest.approx([75.0, 18.75, 6.25]) and coverage.episodes == 16
     # task a: shares (1/2, 3/8, 1/8) against (1/2, 1/2, 0): TV 1/8; task b: (1, 0, 0): TV 1/2; mean 5/16
     assert coverage.coverage_error == pytest.approx(5 / 16)
-    assert _mode_coverage(config, ("a", "b"), [evals[0], _row(None)]) is None, "a seed without modes: none shown"
+    with pytest.warns(UserWarning, match="row 'row' has an evaluation that records no path modes"):
+        assert _mode_coverage(config, "row", ("a", "b"), [evals[0], _row(None)]) is None, "a seed without: none"
+    # a task one seed never ran, and one no seed ran, count in neither the shares nor the error
+    sparse = _mode_coverage(
+        config, "row", ("a", "b", "c"), [_row({"a": [2, 2, 0]}), _row({"a": [0, 0, 0], "b": [4, 0, 0]})]
+    )
+    assert sparse.shares == pytest.approx([75.0, 25.0, 0.0]) and sparse.coverage_error == pytest.approx((0 + 0.5) / 2)
 
 
 def test_mode_coverage_round_trips_through_results_and_renders_a_column_per_mode():

@@ -48,46 +48,10 @@ def test_a_built_in_policy_trains_saves_loads_and_evaluates_through_the_same_com
         demonstrations.tasks == list(TASKS) and len(demonstrations.episodes) == 6 and demonstrations.env == "metaworld"
     )
     teacher, student = tmp_path / "teacher", tmp_path / "student"
-    assert (
-        main(
-            [
-                "train",
-                "--policy-type",
-                policy,
-                "--data",
-                str(data),
-                "--output",
-                str(teacher),
-                "--steps",
-                "4",
-                "--batch-size",
-                "8",
-                "--chunk-length",
-                "4",
-                "--no-progress",
-            ]
-        )
-        == 0
-    )
-    assert (
-        main(
-            [
-                "distill",
-                "--teacher",
-                str(teacher),
-                "--data",
-                str(data),
-                "--output",
-                str(student),
-                "--steps",
-                "2",
-                "--batch-size",
-                "8",
-                "--no-progress",
-            ]
-        )
-        == 0
-    )
+    flags = f"--policy-type {policy} --steps 4 --batch-size 8 --chunk-length 4 --no-progress".split()
+    assert main(["train", "--data", str(data), "--output", str(teacher), *flags]) == 0
+    flags = "--steps 2 --batch-size 8 --no-progress".split()
+    assert main(["distill", "--teacher", str(teacher), "--data", str(data), "--output", str(student), *flags]) == 0
 
     assert demonstrations.split(0.1) == ([0, 1, 3, 4], [2, 5])
     entry = POLICIES[policy]
@@ -106,31 +70,9 @@ def test_a_built_in_policy_trains_saves_loads_and_evaluates_through_the_same_com
     assert json.loads((student / "history.json").read_text())["step"] == 2
 
     output = tmp_path / "eval"
-    assert (
-        main(
-            [
-                "eval",
-                "--policy",
-                str(student),
-                "--env",
-                "metaworld",
-                "--modes",
-                "snapflow-1,teacher-2",
-                "--tasks",
-                EVAL_TASK,
-                "--episodes",
-                "1",
-                "--n-act",
-                "4",
-                "--data",
-                str(data),
-                "--output",
-                str(output),
-                "--no-progress",
-            ]
-        )
-        == 0
-    )
+    flags = f"--env metaworld --modes snapflow-1,teacher-2 --tasks {EVAL_TASK} --episodes 1 --n-act 4 --no-progress"
+    arguments = ["eval", "--policy", str(student), "--data", str(data), "--output", str(output), *flags.split()]
+    assert main(arguments) == 0
     report = json.loads((output / "report.json").read_text())
     assert (report["env"], report["tasks"], report["episodes_per_task"], report["n_act"]) == (
         "metaworld",
@@ -159,23 +101,8 @@ def test_a_built_in_policy_trains_saves_loads_and_evaluates_through_the_same_com
     assert "## Offline action error" in (output / "report.md").read_text() and "snapflow-1" in capsys.readouterr().out
 
     bench = tmp_path / "bench"
-    assert (
-        main(
-            [
-                "bench",
-                "--policy",
-                str(student),
-                "--warmup",
-                "1",
-                "--repeats",
-                "2",
-                "--no-profile",
-                "--output",
-                str(bench),
-            ]
-        )
-        == 0
-    )
+    flags = "--warmup 1 --repeats 2 --no-profile".split()
+    assert main(["bench", "--policy", str(student), "--output", str(bench), *flags]) == 0
     timed = json.loads((bench / "bench.json").read_text())
     assert timed["subject"] == f"{policy} ({recorded_path(student)})" and timed["details"]["policy_type"] == policy
     assert timed["details"]["config"] == load_policy(student).processor.config.to_dict()

@@ -112,9 +112,9 @@ class Demonstrations:
         return NormalizationStats.from_arrays(self.states[rows, :state_dim], self.actions[rows])
 
     def rows(self, episodes: list[int]) -> np.ndarray:
-        return np.concatenate(
-            [np.arange(self.episodes[e].start, self.episodes[e].start + self.episodes[e].length) for e in episodes]
-        )
+        """The steps of the given episodes, in the order given."""
+        ranges = [np.arange(self.episodes[e].start, self.episodes[e].start + self.episodes[e].length) for e in episodes]
+        return np.concatenate(ranges) if ranges else np.zeros(0, dtype=np.int64)
 
     def select(self, episodes: list[int]) -> Demonstrations:
         """The given episodes alone, in the order given, with their frames."""

@@ -21,18 +21,19 @@ if TYPE_CHECKING:
 PATH_MODES_NOTE = (
     "Each episode's mode as its environment tells it (the via-point variant: the via-point the hand passed first), "
     "neither where it took none; coverage error: the mean over tasks of the total variation distance between a task's "
-    "shares and the experts' (their demonstrations' shares, none in neither)."
+    "shares and the experts' draw (the via-point variant: each way with probability 0.5, none in neither)."
 )
 
 
 def path_modes_by_task(results: list[EpisodeResult], num_modes: int) -> dict[str, list[int]] | None:
     """Per task, how many episodes took each of ``num_modes`` path modes, the last column none of them; ``None``
     where the episodes record no mode (a benchmark without modes)."""
-    if not num_modes or any(result.mode is None for result in results):
+    if not num_modes or any(result.path_mode is None for result in results):
         return None
     counts: dict[str, list[int]] = {}
     for result in results:
-        counts.setdefault(result.task, [0] * (num_modes + 1))[result.mode if result.mode >= 0 else num_modes] += 1
+        mode = result.path_mode if result.path_mode >= 0 else num_modes
+        counts.setdefault(result.task, [0] * (num_modes + 1))[mode] += 1
     return counts
 
 
@@ -52,10 +53,15 @@ def mode_coverage(
     counts: Sequence[dict[str, list[int]]], tasks: Sequence[str], names: Sequence[str], weights: Sequence[float]
 ) -> ModeCoverage:
     """The coverage of ``counts`` (per task, episodes per mode, as :func:`path_modes_by_task`; several of them, say a
-    row's seeds, pooled task by task) against the experts' ``weights`` of the modes ``names``."""
-    per_task = np.array([np.sum([count[task] for count in counts], axis=0) for task in tasks], dtype=float)
+    row's seeds, pooled task by task) against the experts' ``weights`` of the modes ``names``. A task with no
+    episode in any of them counts in neither the shares nor the error."""
+    none = [0] * (len(names) + 1)
+    per_task = np.array([np.sum([count.get(task, none) for count in counts], axis=0) for task in tasks], dtype=float)
+    per_task = per_task[per_task.sum(axis=1) > 0]
+    if not len(per_task):
+        raise ValueError("no episode to count the path modes of")
     shares = torch.from_numpy(per_task / per_task.sum(axis=1, keepdims=True))
-    truth = torch.tensor(weights, dtype=torch.float64).expand(len(tasks), -1)
+    truth = torch.tensor(weights, dtype=torch.float64).expand(len(per_task), -1)
     pooled = per_task.sum(axis=0)
     return ModeCoverage(
         list(names),

@@ -9,6 +9,7 @@ import re
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -136,29 +137,16 @@ def evaluate(
         max_episode_steps=max_episode_steps,
         rtc=None if rtc is None else rtc.to_dict(),
     )
+    # what every run's episodes depend on beside its own policy and mode
+    settings = {"episodes_per_task": episodes_per_task, "n_act": n_act, "seed": seed}
+    settings |= {"first_variation": first_variation, "max_episode_steps": max_episode_steps, "rtc": rtc}
     try:
         for index, (label, loaded, mode) in enumerate(runs):
             log = None
             if episode_logs is not None:
                 if loaded.path not in digests:
                     digests[loaded.path] = weights_digest(loaded.policy)
-                identity = {  # what the run's episodes depend on: its log is resumed only by the same run
-                    "label": label,
-                    "policy": recorded_path(loaded.path),  # as given where relative: a kept log is committed
-                    "weights": digests[loaded.path],
-                    "mode": mode.name,
-                    "tasks": tasks,
-                    "episodes_per_task": episodes_per_task,
-                    "envs_per_task": evaluator.envs_per_task,
-                    # only where the tasks run in groups (more of them than environments at once): the waves' order
-                    **({"task_groups": len(evaluator.task_groups)} if len(evaluator.task_groups) > 1 else {}),
-                    "n_act": n_act,
-                    "seed": seed,
-                    # only where set: a log written before the option existed is one of the first variations
-                    **({"first_variation": first_variation} if first_variation else {}),
-                    **({"max_episode_steps": max_episode_steps} if max_episode_steps else {}),
-                    **({"rtc": rtc.for_mode(mode).to_dict()} if rtc is not None else {}),
-                }
+                identity = _log_identity(label, loaded, digests[loaded.path], mode, tasks, evaluator, settings)
                 name = _log_name(index, label)
                 kept = None if kept_logs is None else Path(kept_logs) / name
                 log = EpisodeLog(Path(episode_logs) / name, identity, resume, kept)
@@ -174,18 +162,17 @@ def evaluate(
                 success_by_task(episodes),
                 earlier + time.perf_counter() - started,
                 path_modes=path_modes_by_task(episodes, len(benchmark.path_modes)),
-                switches=None if rtc is None else mean_smoothness([episode.switches for episode in episodes]),
+                # a log written before switches were measured holds none for its waves: the row has none either
+                switches=(
+                    mean_smoothness([episode.switches for episode in episodes])
+                    if rtc is not None and all(episode.switches is not None for episode in episodes)
+                    else None
+                ),
             )
             if demonstrations is not None:
                 if loaded.path not in held_out:
-                    _, val_episodes = demonstrations.split(
-                        loaded.val_fraction if val_fraction is None else val_fraction
-                    )
-                    if data_held_out:
-                        val_episodes = list(range(len(demonstrations.episodes)))
-                    held_out[loaded.path] = (
-                        ChunkData(demonstrations, val_episodes, loaded.processor) if val_episodes else None
-                    )
+                    fraction = loaded.val_fraction if val_fraction is None else val_fraction
+                    held_out[loaded.path] = _held_out_chunks(demonstrations, data_held_out, fraction, loaded)
                 if held_out[loaded.path] is not None:
                     row.offline = offline_metrics(loaded.policy, held_out[loaded.path], mode, offline_samples, seed)
             report.rows[label] = row
@@ -194,6 +181,49 @@ def evaluate(
     if timing:
         report.latency = checkpoint_latency(runs)
     return report
+
+
+def _log_identity(
+    label: str,
+    loaded: OpenedPolicy,
+    weights: str,
+    mode: SamplingMode,
+    tasks: list[str],
+    evaluator: ClosedLoopEvaluator,
+    settings: dict[str, Any],
+) -> dict[str, Any]:
+    """What a run's episodes depend on: its log is resumed only by the same run. ``settings``: the evaluation's
+    episodes a task, n_act, seed, first variation, step limit and real-time chunking."""
+    first, cut, rtc = settings["first_variation"], settings["max_episode_steps"], settings["rtc"]
+    return {
+        "label": label,
+        "policy": recorded_path(loaded.path),  # as given where relative: a kept log is committed
+        "weights": weights,
+        "mode": mode.name,
+        "tasks": tasks,
+        "episodes_per_task": settings["episodes_per_task"],
+        "envs_per_task": evaluator.envs_per_task,
+        # only where the tasks run in groups (more of them than environments at once): the waves' order
+        **({"task_groups": len(evaluator.task_groups)} if len(evaluator.task_groups) > 1 else {}),
+        "n_act": settings["n_act"],
+        "seed": settings["seed"],
+        # only where set: a log written before the option existed is one of the first variations
+        **({"first_variation": first} if first else {}),
+        **({"max_episode_steps": cut} if cut else {}),
+        **({"rtc": rtc.for_mode(mode).to_dict()} if rtc is not None else {}),
+    }
+
+
+def _held_out_chunks(
+    demonstrations: Demonstrations, all_held_out: bool, val_fraction: float, loaded: OpenedPolicy
+) -> ChunkData | None:
+    """The chunks a policy's offline metrics score: every episode where ``demonstrations`` are held-out ones alone,
+    else the share ``val_fraction`` of each task's episodes its training held out (None where that is none)."""
+    if all_held_out:
+        episodes = list(range(len(demonstrations.episodes)))
+    else:
+        _, episodes = demonstrations.split(val_fraction)
+    return ChunkData(demonstrations, episodes, loaded.processor) if episodes else None
 
 
 def _check_rtc_run(rtc: RealTimeChunking, loaded: OpenedPolicy, mode: SamplingMode, n_act: int) -> None:

@@ -9,35 +9,34 @@ import numpy as np
 
 from snapflow.benchmark.latency import LatencyRow
 from snapflow.evaluation.switches import SwitchSmoothness
+from snapflow.reporting.records import without_unset
 from snapflow.reporting.statistics import paired_difference, wilson_interval
 
 
 @dataclass(frozen=True)
 class EpisodeResult:
-    """One episode; ``mode``: which of the benchmark's path modes its path took (-1 none), where it has modes;
+    """One episode; ``path_mode``: which of the benchmark's path modes its path took (-1 none), where it has modes;
     ``switches``: how smoothly its chunks joined, where measured (under real-time chunking)."""
 
     task: str
     variation: int
     success: bool
     steps: int
-    mode: int | None = None
+    path_mode: int | None = None
     switches: SwitchSmoothness | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """As an episode log holds it: what was not measured left out (the logs written before either existed)."""
-        episode = asdict(self)
-        for optional in ("mode", "switches"):
-            if episode[optional] is None:
-                del episode[optional]
-        if self.switches is not None:
-            episode["switches"] = self.switches.to_dict()
-        return episode
+        """As an episode log holds it (the path mode as ``mode``): what was not measured left out, as in the logs
+        written before either could be."""
+        episode = {**asdict(self), "mode": self.path_mode, "switches": self.switches and self.switches.to_dict()}
+        del episode["path_mode"]
+        return without_unset(episode, ("mode", "switches"))
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> EpisodeResult:
         switches = SwitchSmoothness.from_dict(data["switches"]) if "switches" in data else None
-        return cls(**{**data, "switches": switches})
+        episode = {key: value for key, value in data.items() if key not in ("mode", "switches")}
+        return cls(**episode, path_mode=data.get("mode"), switches=switches)
 
 
 @dataclass(frozen=True)
@@ -91,13 +90,8 @@ class EvaluationRow:
     switches: SwitchSmoothness | None = None  # the episodes' chunk switches (under real-time chunking)
 
     def to_dict(self) -> dict[str, Any]:
-        row = asdict(self)
-        for optional in ("offline", "path_modes", "switches"):  # written only where measured, as before they existed
-            if row[optional] is None:
-                del row[optional]
-        if self.switches is not None:
-            row["switches"] = self.switches.to_dict()
-        return row
+        row = {**asdict(self), "switches": self.switches and self.switches.to_dict()}
+        return without_unset(row, ("offline", "path_modes", "switches"))
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> EvaluationRow:

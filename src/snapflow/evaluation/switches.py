@@ -27,6 +27,10 @@ def switch_steps(episode_steps: int, n_act: int) -> list[int]:
     return list(range(n_act, episode_steps, n_act))
 
 
+#: the measures of :class:`SwitchSmoothness`, each a mean over steps
+MEASURES = ("jump_at_switches", "jump_elsewhere", "jerk_at_switches", "jerk_elsewhere")
+
+
 @dataclass(frozen=True)
 class SwitchSmoothness:
     """Mean jump and jerk at an episode's chunk switches and at its other steps (nan where there is none)."""
@@ -54,8 +58,7 @@ def mean_smoothness(parts: list[SwitchSmoothness]) -> SwitchSmoothness:
     have it."""
     if not parts:
         raise ValueError("no smoothness to average")
-    measures = ("jump_at_switches", "jump_elsewhere", "jerk_at_switches", "jerk_elsewhere")
-    means = {key: _mean([v for part in parts if not math.isnan(v := getattr(part, key))]) for key in measures}
+    means = {key: _mean([v for part in parts if not math.isnan(v := getattr(part, key))]) for key in MEASURES}
     return SwitchSmoothness(sum(part.switches for part in parts), **means)
 
 

@@ -35,4 +35,10 @@ def as_record(instance: Any) -> dict[str, Any]:
     }
 
 
-__all__ = ["added_option", "as_record"]
+def without_unset(record: dict[str, Any], optional: tuple[str, ...]) -> dict[str, Any]:
+    """``record`` without those of its ``optional`` keys that are None: a result written only where measured, as the
+    results written before it could be keep their form."""
+    return {key: value for key, value in record.items() if key not in optional or value is not None}
+
+
+__all__ = ["added_option", "as_record", "without_unset"]

@@ -5,6 +5,7 @@ differences against the table's reference row)."""
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -18,6 +19,7 @@ from snapflow.jobs.runner import is_recorded, read_record
 from snapflow.jobs.sweep.planning import eval_job, train_job
 from snapflow.jobs.sweep.specs import RowSpec, SweepConfig, TableSpec
 from snapflow.reporting.machine import warn_simulator_differences
+from snapflow.reporting.records import without_unset
 from snapflow.reporting.statistics import mean_std, paired_difference, wilson_interval
 from snapflow.training.trainer import HISTORY
 
@@ -118,12 +120,9 @@ class SweepRow:
     def to_dict(self) -> dict[str, Any]:
         """As results.json holds it (the interval a list; what a row lacks left out), so that
         ``from_dict(d).to_dict() == d``."""
-        row = asdict(self)
-        for optional in ("offline", "success_interval", "difference", "sweep", "per_set", "path_modes", "switches"):
-            if row[optional] is None:
-                del row[optional]
-        if self.switches is not None:
-            row["switches"] = self.switches.to_dict()
+        row = {**asdict(self), "switches": self.switches and self.switches.to_dict()}
+        optional = ("offline", "success_interval", "difference", "sweep", "per_set", "path_modes", "switches")
+        row = without_unset(row, optional)
         if "success_interval" in row:
             row["success_interval"] = list(row["success_interval"])
         if self.per_set is not None:
@@ -245,11 +244,19 @@ def _set_summaries(
     return summaries
 
 
-def _mode_coverage(config: SweepConfig, tasks: tuple[str, ...], evals: list[EvaluationRow]) -> ModeCoverage | None:
+def _mode_coverage(
+    config: SweepConfig, label: str, tasks: tuple[str, ...], evals: list[EvaluationRow]
+) -> ModeCoverage | None:
     """A row's path modes over its seeds, pooled task by task, where every evaluation recorded them."""
-    if any(e.path_modes is None for e in evals):
-        return None
     benchmark = make_benchmark(config.data.env)
+    if any(e.path_modes is None for e in evals):
+        if benchmark.path_modes:  # a record made before path modes were counted: evaluate it again to see them
+            warnings.warn(
+                f"{config.name}: row {label!r} has an evaluation that records no path modes (made before they were "
+                "counted): it shows none until evaluated again",
+                stacklevel=2,
+            )
+        return None
     return mode_coverage([e.path_modes for e in evals], tasks, benchmark.path_modes, benchmark.path_mode_weights)
 
 
@@ -302,7 +309,7 @@ def table_results(config: SweepConfig, table: TableSpec) -> TableResult:
                 difference=difference,
                 sweep=None if row.sweep is None else row.sweep.name,
                 per_set=per_set,
-                path_modes=_mode_coverage(config, tasks, evals),
+                path_modes=_mode_coverage(config, row.label, tasks, evals),
                 switches=(
                     mean_smoothness([e.switches for e in evals]) if all(e.switches is not None for e in evals) else None
                 ),

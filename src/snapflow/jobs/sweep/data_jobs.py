@@ -26,7 +26,7 @@ from snapflow.envs.factory import make_benchmark
 from snapflow.jobs.runner import Job, record
 from snapflow.jobs.sweep.specs import DataSpec
 from snapflow.reporting.archive import restore_if_archived
-from snapflow.reporting.files import write_json
+from snapflow.reporting.files import write_json, write_text
 from snapflow.reporting.packed import pack_folder, unpack_folder
 from snapflow.reporting.records import as_record
 
@@ -36,6 +36,7 @@ PART = "lerobot"  # a video collection's part of the LeRobotDataset, inside its 
 RENDERED = "rendered"  # a video collection's demonstrations with their rendered frames, until encoded
 PACKED = "demonstrations.tar"  # a video collection kept, packed, beside its ledger record
 COLLECTED = "collected.json"  # inside a kept collection: the record of the job that made it
+HELD_OUT_FROM = "made_from.json"  # inside a video sweep's held-out frames: the record of the demonstrations they are of
 COLLECTING = "collecting.json"  # inside a collection: how long its experts ran
 
 
@@ -229,25 +230,33 @@ class LeRobotDatasetJob(FolderJob):
         return f"{self.sweep}: demonstrations as a LeRobotDataset"
 
 
-def held_out_with_frames(data: DataJob, val_fraction: float) -> Path:
+def held_out_with_frames(data: DataJob, val_fraction: float) -> Path | None:
     """A video sweep's held-out demonstrations (each task's last ``val_fraction`` of episodes, as
     :meth:`~snapflow.data.demonstrations.Demonstrations.split` holds them out of the whole set) with their frames
     decoded from each task's kept video, written once beside the sweep's demonstrations, which hold no frames: what
     an evaluation's offline metrics read (the whole set's frames decoded would take ~12 GB for the four LIBERO suites,
-    its held-out ones a tenth of that)."""
+    its held-out ones a tenth of that). Written anew where the demonstrations were made again since; None where no
+    episode is held out."""
     from snapflow.adapters.lerobot.dataset import with_decoded_frames
 
     directory = data.directory.with_name(f"{data.directory.name}-held-out-{val_fraction:g}")
-    if (directory / META_FILE).is_file():
-        return directory
+    made_from = (data.directory / RECORD).read_text()  # the demonstrations' record: which ones these came from
+    if (directory / META_FILE).is_file() and (directory / HELD_OUT_FROM).is_file():
+        if (directory / HELD_OUT_FROM).read_text() == made_from:
+            return directory
+    shutil.rmtree(directory, ignore_errors=True)
     benchmark = make_benchmark(data.data.env)
     cameras = list(benchmark.check_cameras(data.data.extra_cameras))
     parts = []
     for part in data.parts:  # a task a part, so its split is the whole set's on that task
         demonstrations = Demonstrations.load(part.directory)
         _, held_out = demonstrations.split(val_fraction)
-        decoded = with_decoded_frames(demonstrations, part.directory / PART, benchmark.camera, cameras)
-        parts.append(decoded.select(held_out))
+        if held_out:
+            decoded = with_decoded_frames(demonstrations, part.directory / PART, benchmark.camera, cameras)
+            parts.append(decoded.select(held_out))
+    if not parts:
+        return None
+    write_text(directory / HELD_OUT_FROM, made_from)
     Demonstrations.concatenate(parts).save(directory)  # its meta written last: a cut write is written again
     return directory
 

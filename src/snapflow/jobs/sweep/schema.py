@@ -171,14 +171,23 @@ def _other_sweep(section: str, path: Path, name: Any, data: DataSpec, loading: t
     return other
 
 
-def _rtc(section: str, entry: Any, mode: SamplingMode) -> RealTimeChunking:
-    """A row's ``rtc = { delay = D, kind = ..., ... }``: :class:`RealTimeChunking`'s fields, checked for its mode."""
+def _rtc(section: str, entry: Any, mode: SamplingMode, n_act: int, run: RunSpec) -> RealTimeChunking:
+    """A row's ``rtc = { delay = D, kind = ..., ... }``: :class:`RealTimeChunking`'s fields, checked for its mode, its
+    actions a chunk and, for ``trained``, the known prefixes its run was distilled with, before anything trains."""
     checked_table(f"{section}: rtc", entry, field_names(RealTimeChunking), frozenset({"delay"}))
     try:
         rtc = RealTimeChunking(**entry)
         rtc.check_mode(mode)
     except (InvalidInputError, TypeError) as error:
         raise InvalidInputError(f"{section}: rtc: {error}") from None
+    if rtc.delay > n_act:
+        raise InvalidInputError(f"{section}: rtc: a delay of {rtc.delay} needs delay <= n_act, got n_act {n_act}")
+    trained_for = run.distill.rtc_max_delay if run.distill is not None else 0
+    if rtc.kind == "trained" and rtc.delay > trained_for:
+        raise InvalidInputError(
+            f"{section}: rtc: 'trained' at a delay of {rtc.delay} needs run {run.name!r} distilled with rtc_max_delay "
+            f"at least {rtc.delay}, got {trained_for}"
+        )
     return rtc
 
 
@@ -234,7 +243,7 @@ def _tables(
             n_act = checked_count(
                 f"{section}: row {row['label']!r}", "n_act", row.get("n_act", entry.get("n_act", N_ACT))
             )
-            rtc = _rtc(f"{section}: row {row['label']!r}", row["rtc"], mode) if "rtc" in row else None
+            rtc = _rtc(f"{section}: row {row['label']!r}", row["rtc"], mode, n_act, run) if "rtc" in row else None
             rows.append(RowSpec(row["label"], row["run"], mode, n_act, row.get("series"), row.get("x"), other, rtc))
         labels = [row.label for row in rows]
         reference = entry.get("reference")

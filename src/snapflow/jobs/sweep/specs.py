@@ -64,6 +64,19 @@ class RunSpec:
     trainer: str = TRAINERS[0]  # a student: which of its teacher's family's trainers distils it
 
 
+def _rtc_name(rtc: RealTimeChunking) -> str:
+    """An evaluation's name under real-time chunking: its delay and kind, then a digest of its other settings where
+    any differs from its default (numbers as floats: 10 and 10.0 are one setting)."""
+    defaults = RealTimeChunking(rtc.delay).to_dict()
+    others = {
+        key: float(value) if isinstance(value, int | float) and not isinstance(value, bool) else value
+        for key, value in rtc.to_dict().items()
+        if key not in ("delay", "kind") and value != defaults[key]
+    }
+    digest = f"-{hashlib.sha1(repr(sorted(others.items())).encode()).hexdigest()[:8]}" if others else ""
+    return f"_rtc-d{rtc.delay}-{rtc.kind}{digest}"
+
+
 @dataclass(frozen=True)
 class RowSpec:
     label: str
@@ -171,12 +184,7 @@ class SweepConfig:
         by = "" if evaluator == EVALUATORS[0] else f"_{evaluator}"
         subset = f"_{len(tasks)}tasks-{hashlib.sha1(','.join(tasks).encode()).hexdigest()[:8]}" if tasks else ""
         cut = f"_cut{max_episode_steps}" if max_episode_steps is not None else ""
-        # under real-time chunking: its delay and kind, and a digest of every setting
-        realtime = (
-            f"_rtc-d{rtc.delay}-{rtc.kind}-{hashlib.sha1(repr(sorted(rtc.to_dict().items())).encode()).hexdigest()[:8]}"
-            if rtc is not None
-            else ""
-        )
+        realtime = "" if rtc is None else _rtc_name(rtc)
         name = f"{mode.name}_nact{n_act}_eps{episodes_per_task}{start}{by}{subset}{cut}{realtime}.json"
         return self.output_dir / "evals" / run / f"seed-{seed}" / name
 
