@@ -80,11 +80,11 @@ def test_jobs_never_measured_are_counted_one_by_one_and_each_reads_as_its_own(tm
     from snapflow.jobs.sweep.status import format_status, sweep_status
 
     config = load_sweep(
-        Path(__file__).resolve().parents[2] / "configs" / "sweeps" / "mt10-state-time-distribution.toml"
+        Path(__file__).resolve().parents[2] / "configs" / "sweeps" / "mt10-camera-time-distribution.toml"
     )
     config = replace(config, output_dir=tmp_path / "runs", results_dir=tmp_path / "results")  # nothing run yet
     lines = format_status(config, sweep_status(config)).splitlines()
-    assert lines[0] == "mt10-state-time-distribution: 83 jobs: 0 done, 0 kept, 0 running, 83 missing"
+    assert lines[0] == "mt10-camera-time-distribution: 83 jobs: 0 done, 0 kept, 0 running, 83 missing"
     assert lines[-1] == "machine time left: ~0.0 h for 0 jobs, and 83 of kinds never measured here"
     assert len(set(lines[1:-1])) == 83, "two jobs read alike"
     assert any("(teacher-10; n_act 4; from variation 20)" in line for line in lines)
