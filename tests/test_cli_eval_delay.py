@@ -39,6 +39,9 @@ def test_eval_runs_a_trained_student_under_an_inference_delay_and_records_the_se
     (log,) = (output / "episodes").iterdir()
     assert json.loads(log.read_text().splitlines()[0])["identity"]["rtc"]["kind"] == "trained"
     assert "Inference delay of 2 action(s)" in result.stdout
+    switches = report["rows"]["snapflow-1"]["switches"]  # 10 steps, a chunk every 4: switches at steps 4 and 8
+    assert switches["switches"] == 2 and switches["jump_at_switches"] >= 0
+    assert "## How smoothly the chunks joined" in (output / "report.md").read_text()
     past = [argument if argument != "2" else "3" for argument in command]  # the delay, past the trained prefixes
     refused = subprocess.run(past, capture_output=True, text=True, timeout=600)
     assert refused.returncode == 2 and "at most 2 actions of a previous chunk" in refused.stderr, refused.stderr
