@@ -88,3 +88,20 @@ def test_jobs_never_measured_are_counted_one_by_one_and_each_reads_as_its_own(tm
     assert lines[-1] == "machine time left: ~0.0 h for 0 jobs, and 83 of kinds never measured here"
     assert len(set(lines[1:-1])) == 83, "two jobs read alike"
     assert any("(teacher-10; n_act 4; from variation 20)" in line for line in lines)
+
+
+def test_an_evaluation_of_a_kind_never_measured_is_estimated_per_episode_from_the_others(tmp_path):
+    """A row of one suite's 100 episodes is not a row of four suites' 400: an evaluation of another kind estimates it
+    by its time per episode (a run's training, by the run's time)."""
+    from snapflow.jobs.sweep.status import sweep_status
+
+    config = load_sweep(write_config(tmp_path, seeds="[0]"))
+    (headline,) = [table for table in config.tables if table.name == "headline"]
+    measured = eval_job(config, headline, headline.rows[0], 0)  # 2 tasks x 2 episodes
+    write_record(measured, {"closed_loop_s": 400.0})
+    statuses = {status.job: status.seconds for status in sweep_status(config)}
+    assert statuses[measured] == 400.0
+    longer = replace(headline, name="longer", episodes_per_task=3)
+    config = replace(config, tables=(*config.tables, longer))
+    statuses = {status.job: status.seconds for status in sweep_status(config)}
+    assert statuses[eval_job(config, longer, longer.rows[1], 0)] == pytest.approx(400.0 / 4 * 6)

@@ -45,6 +45,11 @@ def kind_of(job: Job) -> tuple[object, ...]:
     return (job.kind,)
 
 
+def _units(job: Job) -> int:
+    """What a job's time grows with, where jobs of its type but of other kinds estimate it: an evaluation's episodes."""
+    return len(job.task_names) * job.episodes_per_task if isinstance(job, EvalJob) else 1
+
+
 def measured_seconds(job: Job) -> float | None:
     """What a finished job's record says it took, if it says."""
     try:
@@ -67,16 +72,19 @@ def sweep_status(config: SweepConfig) -> list[JobStatus]:
             seconds[job] = measured_seconds(job)
         else:
             states[job] = "running" if running and started[job] else "missing"
-    # each measured time counts for its kind and, where a kind has none yet, for every job of its type
+    # each measured time counts for its kind and, where a kind has none yet, for every job of its type: per episode
+    # for evaluations (a row of one suite's 100 episodes against one of four suites' 400)
     by_kind: dict[tuple[object, ...], list[float]] = defaultdict(list)
     for job, value in seconds.items():
         if value is not None:
             by_kind[kind_of(job)].append(value)
-            by_kind[kind_of(job)[:1]].append(value)
+            by_kind[kind_of(job)[:1]].append(value / _units(job))
 
     def estimate(job: Job) -> float | None:
-        measured = by_kind.get(kind_of(job)) or by_kind.get(kind_of(job)[:1])
-        return median(measured) if measured else None
+        if measured := by_kind.get(kind_of(job)):
+            return median(measured)
+        measured = by_kind.get(kind_of(job)[:1])
+        return median(measured) * _units(job) if measured else None
 
     return [
         JobStatus(
