@@ -45,8 +45,14 @@ def watch_writes(run: Path, record: Path, rank: int) -> None:
                 if absolute != run and absolute.is_relative_to(run):
                     writes.append(f"{event} {absolute.relative_to(run)}")
 
+    def write_record() -> None:
+        # whole or absent: the launcher may kill this process while it writes (its reader once saw an empty file)
+        partial = Path(f"{record}-{rank}.json.partial")
+        partial.write_text(json.dumps(writes))
+        os.replace(partial, f"{record}-{rank}.json")
+
     sys.addaudithook(audit)
-    atexit.register(lambda: Path(f"{record}-{rank}.json").write_text(json.dumps(writes)))
+    atexit.register(write_record)
 
 
 def kill_after_checkpoint(command: str, step: int) -> None:
