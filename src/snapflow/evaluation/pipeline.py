@@ -171,7 +171,7 @@ def evaluate(
             )
             if demonstrations is not None:
                 if loaded.path not in held_out:
-                    fraction = loaded.val_fraction if val_fraction is None else val_fraction
+                    fraction = loaded.held_out_share(val_fraction)
                     held_out[loaded.path] = _held_out_chunks(demonstrations, data_held_out, fraction, loaded)
                 if held_out[loaded.path] is not None:
                     row.offline = offline_metrics(loaded.policy, held_out[loaded.path], mode, offline_samples, seed)

@@ -110,6 +110,11 @@ class OpenedPolicy(ABC):
         """What its training recorded of its demonstrations (``env``, ``path``, ``val_fraction``), where it did."""
         return {}
 
+    def held_out_share(self, given: float | None = None) -> float:
+        """The share of each task's demonstration episodes its training held out: ``given`` where given (a trainer
+        that records none, such as lerobot-train), else its own record."""
+        return self.val_fraction if given is None else given
+
     @property
     def known_prefix_delay(self) -> int:
         """The most actions of a previous chunk it was distilled to be given (``DistillSettings.rtc_max_delay``; 0:

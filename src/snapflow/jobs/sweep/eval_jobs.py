@@ -100,8 +100,7 @@ class EvalJob(Job):
         val_fraction = VAL_FRACTION if self.policy.trainer == "lerobot-train" else None
         data, data_held_out = collected.directory, False
         if collected.data.video is not None and loaded.processor.image_size:  # frames kept as video alone
-            held_out = loaded.val_fraction if val_fraction is None else val_fraction
-            data, data_held_out = held_out_with_frames(collected, held_out), True
+            data, data_held_out = held_out_with_frames(collected, loaded.held_out_share(val_fraction)), True
         # the runner clears the log of a run with other settings, so what is left is this evaluation's to resume
         report = evaluate(
             [(self.mode.name, loaded, self.mode)],
