@@ -45,7 +45,7 @@ train = {TINY_TRAIN}
 [runs.lerobot-train]
 teacher = "teacher"
 trainer = "lerobot-train"
-train = {{ steps = 2, batch_size = 4, warmup_steps = 1, log_every = 1, checkpoint_every = 2 }}
+train = {{ steps = 4, batch_size = 4, warmup_steps = 1, log_every = 1, checkpoint_every = 2 }}
 commit_checkpoint = true
 {runs}
 [[tables]]
@@ -171,6 +171,7 @@ def test_a_tiny_smolvla_sweep_trains_distils_by_both_trainers_and_evaluates_ever
     assert kept_config.pop("vlm_model_name") == BUNDLED_VLM, "the SmolVLM travels inside the kept folder"
     assert (kept / BUNDLED_VLM / "tokenizer.json").is_file() and (kept / "model.safetensors").is_file()
     assert kept_config == {key: value for key, value in student.items() if key != "vlm_model_name"}
+    resumed_on_another_machine(tmp_path, load_sweep(config_path))
     # the teacher is kept as the policy folder it exported, which opens where the run folder is gone
     teacher = tmp_path / "results/records/teacher/seed-0/checkpoint"
     assert json.loads((teacher / "kept.json").read_text())["checkpoint"] == "lerobot_policy"
@@ -183,6 +184,29 @@ def test_a_tiny_smolvla_sweep_trains_distils_by_both_trainers_and_evaluates_ever
     assert [row["episodes"] for row in headline] == [2, 2, 2, 2, 2]
     for row in headline:
         assert 0 <= row["success_mean"] <= 100 and row["offline"]["mse"] >= 0
+
+
+def resumed_on_another_machine(tmp_path: Path, config) -> None:
+    """A lerobot-train run cut after its step-2 checkpoint on a machine that is then gone: its run folder lost, its
+    progress kept as the keeper keeps it (each checkpoint as it is saved), the student folder's path as a placeholder.
+    Run again, it goes on from step 2 (LeRobot's log starts at step 3), and keeps its finished policy in the end."""
+    from snapflow.training.lerobot_progress import STUDENT_FOLDER, keep_lerobot_checkpoint
+
+    run_folder = tmp_path / "runs/lerobot-train/seed-0"
+    kept_in = tmp_path / "results/records/lerobot-train/seed-0/checkpoint"
+    kept = keep_lerobot_checkpoint(run_folder / "lerobot-train/checkpoints/000002", kept_in, run_folder / "student")
+    assert json.loads((kept_in / "kept.json").read_text()) == {"checkpoint": "step_000002"}
+    kept_config = (kept / "pretrained_model/config.json").read_text()
+    assert STUDENT_FOLDER in kept_config and str(tmp_path) not in kept_config, "no path of this machine is kept"
+    shutil.rmtree(run_folder)
+    train_job(config, "lerobot-train", 0).run()
+    log = (run_folder / "lerobot-train.log").read_text()
+    assert "step:3 " in log and "step:1 " not in log, "resumed at step 2, not from the start"
+    last = run_folder / "lerobot-train/checkpoints/last"
+    assert json.loads((last / "training_state/training_step.json").read_text())["step"] == 4
+    assert str(run_folder / "student") in (last / "pretrained_model/config.json").read_text()
+    assert json.loads((kept_in / "kept.json").read_text())["checkpoint"] == "pretrained_model"
+    assert not kept.exists(), "the finished policy replaces the progress kept"
 
 
 LEROBOT_EVAL_TABLE = """

@@ -175,7 +175,8 @@ class LeRobotFamily(PolicyFamily):
 
     def _distill_by_lerobot_train(self, run: StudentRun) -> dict[str, Any]:
         """The teacher written as its student type, then ``lerobot-train`` on the training episodes of the
-        demonstrations' split (the teacher's held-out ones stay out); it resumes from its own last checkpoint."""
+        demonstrations' split (the teacher's held-out ones stay out); it resumes from its own last checkpoint, or
+        from the one its progress keeps (each checkpoint kept there as it is saved)."""
         import torch
 
         from snapflow.data.demonstrations import Demonstrations
@@ -200,6 +201,7 @@ class LeRobotFamily(PolicyFamily):
             training_episodes,
             "cuda" if torch.cuda.is_available() else "cpu",
             torch.get_num_threads(),
+            run.progress.keep_progress,
         )
         return {"step": run.train.steps, "wall_time_s": time.perf_counter() - began}
 

@@ -168,12 +168,13 @@ def keep_checkpoint(
     note: dict[str, Any],
     policy_only: bool = False,
     prepare: Callable[[Path], Any] | None = None,
+    name: str | None = None,
 ) -> Path:
     """Make a copy of ``checkpoint`` the one checkpoint kept in ``directory`` (a folder to commit or carry to another
     machine), with ``note`` recorded beside it (:func:`read_kept` returns both); the previous one is removed only
     once the copy and its note are whole, so a kill at any moment leaves a checkpoint that the note names.
-    ``prepare``: as :func:`copy_checkpoint`'s."""
-    kept = copy_checkpoint(checkpoint, Path(directory) / Path(checkpoint).name, policy_only, prepare)
+    ``prepare``: as :func:`copy_checkpoint`'s; ``name``: the copy's (default: the checkpoint's own)."""
+    kept = copy_checkpoint(checkpoint, Path(directory) / (name or Path(checkpoint).name), policy_only, prepare)
     write_json(Path(directory) / KEPT, {"checkpoint": kept.name, **note})
     for other in Path(directory).glob("step_*"):
         if other != kept:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import shutil
 import sys
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +21,7 @@ from snapflow.objective.settings import DistillSettings
 from snapflow.policies.loaded import CheckpointError
 from snapflow.sources import open_policy
 from snapflow.training.config import TrainConfig
+from snapflow.training.lerobot_progress import CheckpointKeeper, install_kept_progress
 
 
 def write_student(
@@ -104,22 +106,30 @@ def run_lerobot_train(
     training_episodes: list[int] | None = None,
     device: str = "cpu",
     threads: int | None = None,
+    keep_progress: Path | None = None,
 ) -> Path:
     """Distil the student folder ``student`` (:func:`write_student`'s) with LeRobot's own ``lerobot-train``, run as a
     subprocess of this interpreter's environment, into ``output``; an interrupted run resumes from its last
     checkpoint. Returns the distilled policy's folder (``output/checkpoints/last/pretrained_model``). ``threads``:
-    the torch threads of the subprocess (``OMP_NUM_THREADS``)."""
+    the torch threads of the subprocess (``OMP_NUM_THREADS``). ``keep_progress``: a folder that keeps a copy of each
+    checkpoint as it is saved (:mod:`snapflow.training.lerobot_progress`), to commit or carry to another machine; a
+    run folder without a checkpoint continues from the one kept there."""
     from snapflow.adapters.lerobot_types import PLUGIN_LEROBOT, lerobot_loads_plugins
 
     if not lerobot_loads_plugins():
         raise InvalidInputError(f"lerobot-train imports snapflow's student types from lerobot {PLUGIN_LEROBOT} on")
     output = Path(output)
     last = output / LAST_CHECKPOINT
-    if (last / "train_config.json").is_file():  # LeRobot's own resume: its saved config, optimiser and step
-        arguments = [f"--config_path={last / 'train_config.json'}", "--resume=true"]
-    else:
+    if not (last / "train_config.json").is_file():
         if output.exists():  # started, but stopped before its first checkpoint: nothing to resume
             shutil.rmtree(output)
+        if keep_progress is not None:
+            install_kept_progress(keep_progress, output, student)
+    if (last / "train_config.json").is_file():  # LeRobot's own resume: its saved config, optimiser and step
+        # where the run is now, not where its config says it was (a checkpoint kept on another machine)
+        arguments = [f"--config_path={last / 'train_config.json'}", "--resume=true", f"--output_dir={output}"]
+        arguments.append(f"--dataset.root={dataset_root}")
+    else:
         arguments = [
             f"--policy.path={student}",
             f"--dataset.repo_id={repo_id}",
@@ -132,13 +142,14 @@ def run_lerobot_train(
             "--policy.push_to_hub=false",
             *lerobot_train_arguments(config, training_episodes),
         ]
-    run_lerobot_command(
-        "lerobot-train",
-        [str(Path(sys.executable).with_name("lerobot-train")), *arguments],
-        output.parent / f"{output.name}.log",  # beside the run: lerobot-train refuses an output_dir that exists
-        threads,
-        append=True,  # a resumed run's lines follow the interrupted one's
-    )
+    with CheckpointKeeper(output, keep_progress, student) if keep_progress is not None else nullcontext():
+        run_lerobot_command(
+            "lerobot-train",
+            [str(Path(sys.executable).with_name("lerobot-train")), *arguments],
+            output.parent / f"{output.name}.log",  # beside the run: lerobot-train refuses an output_dir that exists
+            threads,
+            append=True,  # a resumed run's lines follow the interrupted one's
+        )
     return last
 
 

@@ -1,0 +1,118 @@
+"""A ``lerobot-train`` run's progress kept where it can be committed, and put back on another machine.
+
+lerobot-train saves a checkpoint (``checkpoints/<step>/``: the policy folder and its training state) every
+``save_freq`` steps, then points ``checkpoints/last`` at it, and resumes from ``last`` where its run folder is still
+there. A machine's end takes the run folder with it. :class:`CheckpointKeeper` copies each checkpoint marked last into
+a kept folder as it appears (the previous copy removed only once the new one is whole), and
+:func:`install_kept_progress` puts the kept one back into an empty run folder, so that lerobot-train resumes from it
+on any clone. The student folder's absolute path, which its config names (a local VLM), is kept as a placeholder: a
+kept file names no path of the machine that wrote it."""
+
+from __future__ import annotations
+
+import os
+import threading
+from pathlib import Path
+from types import TracebackType
+
+from snapflow.training.checkpoint import copy_checkpoint, keep_checkpoint, read_kept
+
+#: what stands for the student folder's absolute path in a kept checkpoint's files
+STUDENT_FOLDER = "${STUDENT_FOLDER}"
+#: a kept checkpoint's name: this, then lerobot-train's step folder's (``step_004000``)
+KEPT_PREFIX = "step_"
+#: how often a running lerobot-train's ``checkpoints/last`` is looked at, in seconds
+POLL_SECONDS = 5.0
+
+
+def newest_checkpoint(output: Path) -> Path | None:
+    """The checkpoint lerobot-train's run folder ``output`` marks last (whole: it marks one once saved), or None."""
+    last = Path(output) / "checkpoints" / "last"
+    if not last.is_symlink():
+        return None
+    checkpoint = last.parent / os.readlink(last)
+    return checkpoint if (checkpoint / "training_state").is_dir() else None
+
+
+def keep_lerobot_checkpoint(checkpoint: Path, kept: Path, student: Path) -> Path:
+    """Make ``checkpoint`` (``checkpoints/<step>``) the one kept in ``kept``, ``student``'s path a placeholder."""
+    absolute = str(Path(student).resolve())
+    return keep_checkpoint(
+        checkpoint,
+        kept,
+        {},
+        prepare=lambda copy: _replace_in_json(copy, absolute, STUDENT_FOLDER),
+        name=f"{KEPT_PREFIX}{Path(checkpoint).name}",
+    )
+
+
+def install_kept_progress(kept: Path, output: Path, student: Path) -> bool:
+    """Put the checkpoint kept in ``kept`` into lerobot-train's run folder ``output`` (which holds none) as its last,
+    naming ``student`` where the placeholder stands; False where ``kept`` holds no progress (nothing, or a finished
+    run's policy)."""
+    found = read_kept(Path(kept))
+    if found is None or found[1].get("finished") or not found[0].name.startswith(KEPT_PREFIX):
+        return False
+    step = found[0].name.removeprefix(KEPT_PREFIX)
+    installed = copy_checkpoint(found[0], Path(output) / "checkpoints" / step)
+    _replace_in_json(installed, STUDENT_FOLDER, str(Path(student).resolve()))
+    (installed.parent / "last").symlink_to(step)
+    return True
+
+
+class CheckpointKeeper:
+    """While a lerobot-train run writes into ``output``, keep each checkpoint it marks last in ``kept`` (looked for
+    every :data:`POLL_SECONDS`), and the last one once more as it stops; an error in keeping is raised on exit."""
+
+    def __init__(self, output: Path, kept: Path, student: Path) -> None:
+        self.output, self.kept, self.student = Path(output), Path(kept), Path(student)
+        found = read_kept(self.kept)
+        self._kept_step = found[0].name.removeprefix(KEPT_PREFIX) if found and not found[1].get("finished") else None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._watch, name="lerobot-train checkpoint keeper", daemon=True)
+        self._error: BaseException | None = None
+
+    def keep_newest(self) -> None:
+        """Keep the checkpoint marked last, where it is not the one kept already."""
+        newest = newest_checkpoint(self.output)
+        if newest is not None and newest.name != self._kept_step:
+            keep_lerobot_checkpoint(newest, self.kept, self.student)
+            self._kept_step = newest.name
+
+    def _watch(self) -> None:
+        try:
+            while not self._stop.wait(POLL_SECONDS):
+                self.keep_newest()
+        except BaseException as error:  # raised in the main thread on exit, not lost with this one
+            self._error = error
+
+    def __enter__(self) -> CheckpointKeeper:
+        self._thread.start()
+        return self
+
+    def __exit__(
+        self, kind: type[BaseException] | None, error: BaseException | None, traceback: TracebackType | None
+    ) -> None:
+        self._stop.set()
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        self.keep_newest()
+
+
+def _replace_in_json(folder: Path, old: str, new: str) -> None:
+    """Replace ``old`` by ``new`` in every JSON file under ``folder`` (a path as JSON writes it: no escaping)."""
+    for path in Path(folder).rglob("*.json"):
+        text = path.read_text()
+        if old in text:
+            path.write_text(text.replace(old, new))
+
+
+__all__ = [
+    "KEPT_PREFIX",
+    "STUDENT_FOLDER",
+    "CheckpointKeeper",
+    "install_kept_progress",
+    "keep_lerobot_checkpoint",
+    "newest_checkpoint",
+]

@@ -1,0 +1,73 @@
+"""A lerobot-train run's progress kept as it goes and put back on another machine
+(:mod:`snapflow.training.lerobot_progress`), on run folders laid out as lerobot-train 0.6.1 lays them out: a
+``checkpoints/<step>/`` folder (``pretrained_model/``, ``training_state/``) saved whole, then ``checkpoints/last``
+pointed at it. ``tests/jobs/test_sweep_lerobot.py`` resumes a real lerobot-train run from what is kept."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from snapflow.training.checkpoint import keep_checkpoint
+from snapflow.training.lerobot_progress import (
+    STUDENT_FOLDER,
+    CheckpointKeeper,
+    install_kept_progress,
+    newest_checkpoint,
+)
+
+
+def save(output: Path, step: int, student: Path) -> Path:
+    """A checkpoint as lerobot-train saves one: whole first, then marked last."""
+    checkpoint = output / "checkpoints" / f"{step:06d}"
+    (checkpoint / "training_state").mkdir(parents=True)
+    (checkpoint / "training_state" / "training_step.json").write_text(json.dumps({"step": step}))
+    (checkpoint / "pretrained_model").mkdir()
+    config = {"type": "snapflow_smolvla", "vlm_model_name": str(student.resolve() / "smolvlm")}
+    (checkpoint / "pretrained_model" / "config.json").write_text(json.dumps(config))
+    (checkpoint / "pretrained_model" / "model.safetensors").write_bytes(bytes([step]) * 16)
+    last = output / "checkpoints" / "last"
+    if last.is_symlink():
+        last.unlink()
+    last.symlink_to(checkpoint.name)
+    return checkpoint
+
+
+def test_each_checkpoint_marked_last_is_kept_and_a_lost_run_folder_gets_the_newest_back(tmp_path):
+    here, kept = tmp_path / "machine-1" / "run", tmp_path / "records" / "checkpoint"
+    output, student = here / "lerobot-train", here / "student"
+    assert newest_checkpoint(output) is None
+    with CheckpointKeeper(output, kept, student) as keeper:
+        save(output, 2, student)
+        keeper.keep_newest()  # what its watch does every few seconds
+        assert json.loads((kept / "kept.json").read_text()) == {"checkpoint": "step_000002"}
+        save(output, 4, student)
+        (output / "checkpoints" / "000006" / "training_state").mkdir(parents=True)  # being saved: not marked yet
+    # leaving keeps the newest once more: the run's last checkpoint is not lost to the time between two looks
+    assert json.loads((kept / "kept.json").read_text()) == {"checkpoint": "step_000004"}
+    assert sorted(path.name for path in kept.iterdir()) == ["kept.json", "step_000004"], "the previous one removed"
+    kept_config = (kept / "step_000004" / "pretrained_model" / "config.json").read_text()
+    assert str(tmp_path) not in kept_config and f"{STUDENT_FOLDER}/smolvlm" in kept_config, "no path of this machine"
+
+    elsewhere = tmp_path / "machine-2" / "run"  # another clone: the run folder is gone, the student written again
+    assert install_kept_progress(kept, elsewhere / "lerobot-train", elsewhere / "student")
+    installed = newest_checkpoint(elsewhere / "lerobot-train")
+    assert installed == elsewhere / "lerobot-train" / "checkpoints" / "000004"
+    config = json.loads((installed / "pretrained_model" / "config.json").read_text())
+    assert config["vlm_model_name"] == str((elsewhere / "student").resolve() / "smolvlm")
+    assert (installed / "pretrained_model" / "model.safetensors").read_bytes() == bytes([4]) * 16
+    assert json.loads((installed / "training_state" / "training_step.json").read_text()) == {"step": 4}
+    assert os.readlink(elsewhere / "lerobot-train" / "checkpoints" / "last") == "000004"
+
+
+def test_a_finished_runs_kept_policy_or_nothing_kept_installs_nothing(tmp_path):
+    output, student, kept = tmp_path / "run" / "lerobot-train", tmp_path / "run" / "student", tmp_path / "kept"
+    assert not install_kept_progress(kept, output, student)
+    policy = save(tmp_path / "finished", 8, student) / "pretrained_model"
+    keep_checkpoint(policy, kept, {"job": {}, "finished": True})
+    assert not install_kept_progress(kept, output, student)
+    assert not output.exists()
+    with CheckpointKeeper(output, kept, student):
+        pass  # a run that saved nothing leaves the finished policy kept as it was
+    assert json.loads((kept / "kept.json").read_text())["checkpoint"] == "pretrained_model"
