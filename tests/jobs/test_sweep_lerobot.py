@@ -191,15 +191,18 @@ def resumed_on_another_machine(tmp_path: Path, config) -> None:
     progress kept as the keeper keeps it (each checkpoint as it is saved), the student folder's path as a placeholder.
     Run again, it goes on from step 2 (LeRobot's log starts at step 3), and keeps its finished policy in the end."""
     from snapflow.training.lerobot_progress import STUDENT_FOLDER, keep_lerobot_checkpoint
+    from snapflow.training.lerobot_student import lerobot_train_run
 
-    run_folder = tmp_path / "runs/lerobot-train/seed-0"
-    kept_in = tmp_path / "results/records/lerobot-train/seed-0/checkpoint"
-    kept = keep_lerobot_checkpoint(run_folder / "lerobot-train/checkpoints/000002", kept_in, run_folder / "student")
-    assert json.loads((kept_in / "kept.json").read_text()) == {"checkpoint": "step_000002"}
+    run_folder, job = tmp_path / "runs/lerobot-train/seed-0", train_job(config, "lerobot-train", 0)
+    kept_in, step_2 = job.kept, run_folder / "lerobot-train/checkpoints/000002"
+    episodes = json.loads((step_2 / "pretrained_model/train_config.json").read_text())["dataset"]["episodes"]
+    run = lerobot_train_run(run_folder / "student", job.train, episodes)
+    kept = keep_lerobot_checkpoint(step_2, kept_in, run_folder / "student", run)
+    assert json.loads((kept_in / "kept.json").read_text()) == {"checkpoint": "step_000002", "run": run}
     kept_config = (kept / "pretrained_model/config.json").read_text()
     assert STUDENT_FOLDER in kept_config and str(tmp_path) not in kept_config, "no path of this machine is kept"
     shutil.rmtree(run_folder)
-    train_job(config, "lerobot-train", 0).run()
+    job.run()
     log = (run_folder / "lerobot-train.log").read_text()
     assert "step:3 " in log and "step:1 " not in log, "resumed at step 2, not from the start"
     last = run_folder / "lerobot-train/checkpoints/last"

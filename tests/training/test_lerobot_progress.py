@@ -34,24 +34,30 @@ def save(output: Path, step: int, student: Path) -> Path:
     return checkpoint
 
 
+RUN = {"flags": ["--steps=8"], "distill": {"alpha": 0.5}, "weights": "digest"}  # what lerobot_train_run says
+
+
 def test_each_checkpoint_marked_last_is_kept_and_a_lost_run_folder_gets_the_newest_back(tmp_path):
     here, kept = tmp_path / "machine-1" / "run", tmp_path / "records" / "checkpoint"
     output, student = here / "lerobot-train", here / "student"
     assert newest_checkpoint(output) is None
-    with CheckpointKeeper(output, kept, student) as keeper:
+    with CheckpointKeeper(output, kept, student, RUN) as keeper:
         save(output, 2, student)
         keeper.keep_newest()  # what its watch does every few seconds
-        assert json.loads((kept / "kept.json").read_text()) == {"checkpoint": "step_000002"}
+        assert json.loads((kept / "kept.json").read_text()) == {"checkpoint": "step_000002", "run": RUN}
         save(output, 4, student)
         (output / "checkpoints" / "000006" / "training_state").mkdir(parents=True)  # being saved: not marked yet
     # leaving keeps the newest once more: the run's last checkpoint is not lost to the time between two looks
-    assert json.loads((kept / "kept.json").read_text()) == {"checkpoint": "step_000004"}
+    assert json.loads((kept / "kept.json").read_text()) == {"checkpoint": "step_000004", "run": RUN}
     assert sorted(path.name for path in kept.iterdir()) == ["kept.json", "step_000004"], "the previous one removed"
     kept_config = (kept / "step_000004" / "pretrained_model" / "config.json").read_text()
     assert str(tmp_path) not in kept_config and f"{STUDENT_FOLDER}/smolvlm" in kept_config, "no path of this machine"
 
     elsewhere = tmp_path / "machine-2" / "run"  # another clone: the run folder is gone, the student written again
-    assert install_kept_progress(kept, elsewhere / "lerobot-train", elsewhere / "student")
+    other_run = {**RUN, "flags": ["--steps=16"]}
+    assert not install_kept_progress(kept, elsewhere / "lerobot-train", elsewhere / "student", other_run)
+    assert not (elsewhere / "lerobot-train").exists(), "another run's progress is never resumed"
+    assert install_kept_progress(kept, elsewhere / "lerobot-train", elsewhere / "student", RUN)
     installed = newest_checkpoint(elsewhere / "lerobot-train")
     assert installed == elsewhere / "lerobot-train" / "checkpoints" / "000004"
     config = json.loads((installed / "pretrained_model" / "config.json").read_text())
@@ -63,11 +69,11 @@ def test_each_checkpoint_marked_last_is_kept_and_a_lost_run_folder_gets_the_newe
 
 def test_a_finished_runs_kept_policy_or_nothing_kept_installs_nothing(tmp_path):
     output, student, kept = tmp_path / "run" / "lerobot-train", tmp_path / "run" / "student", tmp_path / "kept"
-    assert not install_kept_progress(kept, output, student)
+    assert not install_kept_progress(kept, output, student, RUN)
     policy = save(tmp_path / "finished", 8, student) / "pretrained_model"
     keep_checkpoint(policy, kept, {"job": {}, "finished": True})
-    assert not install_kept_progress(kept, output, student)
+    assert not install_kept_progress(kept, output, student, RUN)
     assert not output.exists()
-    with CheckpointKeeper(output, kept, student):
+    with CheckpointKeeper(output, kept, student, RUN):
         pass  # a run that saved nothing leaves the finished policy kept as it was
     assert json.loads((kept / "kept.json").read_text())["checkpoint"] == "pretrained_model"

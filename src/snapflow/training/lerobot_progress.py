@@ -14,6 +14,7 @@ import os
 import threading
 from pathlib import Path
 from types import TracebackType
+from typing import Any
 
 from snapflow.training.checkpoint import copy_checkpoint, keep_checkpoint, read_kept
 
@@ -34,24 +35,25 @@ def newest_checkpoint(output: Path) -> Path | None:
     return checkpoint if (checkpoint / "training_state").is_dir() else None
 
 
-def keep_lerobot_checkpoint(checkpoint: Path, kept: Path, student: Path) -> Path:
-    """Make ``checkpoint`` (``checkpoints/<step>``) the one kept in ``kept``, ``student``'s path a placeholder."""
+def keep_lerobot_checkpoint(checkpoint: Path, kept: Path, student: Path, run: dict[str, Any]) -> Path:
+    """Make ``checkpoint`` (``checkpoints/<step>``) the one kept in ``kept``, noted as the progress of ``run`` (what
+    the run is: only a run of the same resumes from it), ``student``'s path a placeholder."""
     absolute = str(Path(student).resolve())
     return keep_checkpoint(
         checkpoint,
         kept,
-        {},
+        {"run": run},
         prepare=lambda copy: _replace_in_json(copy, absolute, STUDENT_FOLDER),
         name=f"{KEPT_PREFIX}{Path(checkpoint).name}",
     )
 
 
-def install_kept_progress(kept: Path, output: Path, student: Path) -> bool:
+def install_kept_progress(kept: Path, output: Path, student: Path, run: dict[str, Any]) -> bool:
     """Put the checkpoint kept in ``kept`` into lerobot-train's run folder ``output`` (which holds none) as its last,
-    naming ``student`` where the placeholder stands; False where ``kept`` holds no progress (nothing, or a finished
-    run's policy)."""
+    naming ``student`` where the placeholder stands; False where ``kept`` holds no progress of ``run`` (nothing, a
+    finished run's policy, or another run's progress, which the new run's checkpoints then replace)."""
     found = read_kept(Path(kept))
-    if found is None or found[1].get("finished") or not found[0].name.startswith(KEPT_PREFIX):
+    if found is None or found[1] != {"run": run} or not found[0].name.startswith(KEPT_PREFIX):
         return False
     step = found[0].name.removeprefix(KEPT_PREFIX)
     installed = copy_checkpoint(found[0], Path(output) / "checkpoints" / step)
@@ -62,12 +64,13 @@ def install_kept_progress(kept: Path, output: Path, student: Path) -> bool:
 
 class CheckpointKeeper:
     """While a lerobot-train run writes into ``output``, keep each checkpoint it marks last in ``kept`` (looked for
-    every :data:`POLL_SECONDS`), and the last one once more as it stops; an error in keeping is raised on exit."""
+    every :data:`POLL_SECONDS`) as the progress of ``run``, and the last one once more as it stops; an error in
+    keeping is raised on exit."""
 
-    def __init__(self, output: Path, kept: Path, student: Path) -> None:
-        self.output, self.kept, self.student = Path(output), Path(kept), Path(student)
+    def __init__(self, output: Path, kept: Path, student: Path, run: dict[str, Any]) -> None:
+        self.output, self.kept, self.student, self.run = Path(output), Path(kept), Path(student), run
         found = read_kept(self.kept)
-        self._kept_step = found[0].name.removeprefix(KEPT_PREFIX) if found and not found[1].get("finished") else None
+        self._kept_step = found[0].name.removeprefix(KEPT_PREFIX) if found and found[1] == {"run": run} else None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._watch, name="lerobot-train checkpoint keeper", daemon=True)
         self._error: BaseException | None = None
@@ -76,7 +79,7 @@ class CheckpointKeeper:
         """Keep the checkpoint marked last, where it is not the one kept already."""
         newest = newest_checkpoint(self.output)
         if newest is not None and newest.name != self._kept_step:
-            keep_lerobot_checkpoint(newest, self.kept, self.student)
+            keep_lerobot_checkpoint(newest, self.kept, self.student, self.run)
             self._kept_step = newest.name
 
     def _watch(self) -> None:

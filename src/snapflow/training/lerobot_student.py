@@ -6,6 +6,8 @@ own trainer, optimiser, Accelerate, logging and hub push (the student type's ``f
 
 from __future__ import annotations
 
+import hashlib
+import json
 import shutil
 import sys
 from contextlib import nullcontext
@@ -97,6 +99,22 @@ def lerobot_train_arguments(config: TrainConfig, training_episodes: list[int] | 
     return arguments
 
 
+def lerobot_train_run(student: str | Path, config: TrainConfig, training_episodes: list[int] | None) -> dict[str, Any]:
+    """What a ``lerobot-train`` run of the student folder ``student`` is, the same on every machine (no path): its
+    training flags, the student's distillation settings and a digest of the weights it starts from (its teacher's).
+    Kept progress resumes only the same run."""
+    distill = json.loads((Path(student) / "config.json").read_text()).get("distill")
+    weights = hashlib.sha256()
+    with (Path(student) / "model.safetensors").open("rb") as file:
+        for block in iter(lambda: file.read(1 << 24), b""):
+            weights.update(block)
+    return {
+        "flags": lerobot_train_arguments(config, training_episodes),
+        "distill": distill,
+        "weights": weights.hexdigest(),
+    }
+
+
 def run_lerobot_train(
     student: str | Path,
     dataset_root: str | Path,
@@ -120,11 +138,12 @@ def run_lerobot_train(
         raise InvalidInputError(f"lerobot-train imports snapflow's student types from lerobot {PLUGIN_LEROBOT} on")
     output = Path(output)
     last = output / LAST_CHECKPOINT
+    run = lerobot_train_run(student, config, training_episodes)
     if not (last / "train_config.json").is_file():
         if output.exists():  # started, but stopped before its first checkpoint: nothing to resume
             shutil.rmtree(output)
         if keep_progress is not None:
-            install_kept_progress(keep_progress, output, student)
+            install_kept_progress(keep_progress, output, student, run)
     if (last / "train_config.json").is_file():  # LeRobot's own resume: its saved config, optimiser and step
         # where the run is now, not where its config says it was (a checkpoint kept on another machine)
         arguments = [f"--config_path={last / 'train_config.json'}", "--resume=true", f"--output_dir={output}"]
@@ -142,7 +161,7 @@ def run_lerobot_train(
             "--policy.push_to_hub=false",
             *lerobot_train_arguments(config, training_episodes),
         ]
-    with CheckpointKeeper(output, keep_progress, student) if keep_progress is not None else nullcontext():
+    with CheckpointKeeper(output, keep_progress, student, run) if keep_progress is not None else nullcontext():
         run_lerobot_command(
             "lerobot-train",
             [str(Path(sys.executable).with_name("lerobot-train")), *arguments],
@@ -156,6 +175,7 @@ def run_lerobot_train(
 __all__ = [
     "LAST_CHECKPOINT",
     "lerobot_train_arguments",
+    "lerobot_train_run",
     "run_lerobot_train",
     "write_student",
 ]
