@@ -21,6 +21,7 @@ from snapflow.policies.loaded import CheckpointError
 from snapflow.reporting.archive import read_manifest, repository_root, restore
 from snapflow.reporting.packed import PACKED_SUFFIX
 from snapflow.sources import LEROBOT_RUN_FORMAT, open_policy
+from snapflow.training.lerobot_progress import KEPT_PREFIX
 
 ROOT = repository_root(Path(__file__))
 #: a string value that starts with an absolute path of a machine: what a committed file must never hold
@@ -32,20 +33,26 @@ def _tracked(*pathspecs: str) -> list[str]:
     return [path for path in listing.stdout.decode().split("\0") if path]
 
 
-def _kept_folders() -> dict[str, bool]:
-    """Each folder that archived weights live in: True where it is a policy (what opens), False where it is a LeRobot
-    run's training checkpoint (what resumes training, and must be refused naming the policy folder)."""
+#: what a folder of archived weights is: a policy (what opens), a LeRobot run's training checkpoint (what resumes
+#: training, and must be refused naming the policy folder), or part of an unfinished lerobot-train run's kept progress
+#: (its policy folder and training state, what lerobot-train resumes from: ``training/lerobot_progress.py``)
+POLICY, RUN_CHECKPOINT, LEROBOT_TRAIN_PROGRESS = "policy", "run checkpoint", "lerobot-train progress"
+
+
+def _kept_folders() -> dict[str, str]:
+    """Each folder that archived weights live in, and what it is."""
     folders = {}
     for entry in read_manifest(ROOT):
         if entry.path.endswith(PACKED_SUFFIX):  # a sweep's kept collection, not weights
             continue
         folder = PurePosixPath(entry.path).parent
-        if (ROOT / folder / "config.json").is_file():
-            folders[str(folder)] = True
+        if folder.parent.name.startswith(KEPT_PREFIX) and folder.name in ("pretrained_model", "training_state"):
+            folders[str(folder)] = LEROBOT_TRAIN_PROGRESS
+        elif (ROOT / folder / "config.json").is_file():
+            folders[str(folder)] = POLICY
         elif (ROOT / folder / "policy.json").is_file():
-            folders[str(folder)] = (
-                json.loads((ROOT / folder / "policy.json").read_text())["format"] != LEROBOT_RUN_FORMAT
-            )
+            run = json.loads((ROOT / folder / "policy.json").read_text())["format"] == LEROBOT_RUN_FORMAT
+            folders[str(folder)] = RUN_CHECKPOINT if run else POLICY
     return folders
 
 
@@ -85,11 +92,12 @@ def test_every_archived_weight_belongs_to_a_kept_folder() -> None:
     weights = [entry for entry in read_manifest(ROOT) if entry not in PACKS]
     stray = [entry.path for entry in weights if str(PurePosixPath(entry.path).parent) not in KEPT]
     assert not stray, f"archived weights in no policy or checkpoint folder: {stray}"
-    assert sum(KEPT.values()) >= 18  # the MiniVLA LIBERO teachers and students, and every SmolVLA seed's
+    # the MiniVLA LIBERO teachers and students, and every SmolVLA seed's
+    assert sum(kind == POLICY for kind in KEPT.values()) >= 18
 
 
 @pytest.mark.lerobot
-@pytest.mark.parametrize("folder", sorted(folder for folder, opens in KEPT.items() if opens))
+@pytest.mark.parametrize("folder", sorted(folder for folder, kind in KEPT.items() if kind == POLICY))
 def test_a_kept_policy_opens_on_a_fresh_clone_and_samples_a_chunk(fresh_copies: Path, folder: str) -> None:
     path = fresh_copies / folder
     if not _lerobot_opens(path):
@@ -130,11 +138,25 @@ def test_a_kept_collection_comes_back_whole_and_is_the_one_its_record_names(tmp_
     assert (folder / "lerobot" / "meta" / "info.json").is_file(), "the frames travel as the task's video part"
 
 
-@pytest.mark.parametrize("folder", sorted(folder for folder, opens in KEPT.items() if not opens))
+@pytest.mark.parametrize("folder", sorted(folder for folder, kind in KEPT.items() if kind == RUN_CHECKPOINT))
 def test_a_kept_training_checkpoint_is_refused_naming_what_to_pass(folder: str) -> None:
     with pytest.raises(CheckpointError, match="training checkpoint of a LeRobot policy.*pass") as refusal:
         open_policy(ROOT / folder)
     assert "\n" not in str(refusal.value)
+
+
+@pytest.mark.parametrize(
+    "folder",
+    sorted({str(PurePosixPath(folder).parent) for folder, kind in KEPT.items() if kind == LEROBOT_TRAIN_PROGRESS}),
+)
+def test_kept_lerobot_train_progress_is_whole_and_names_its_run_not_a_machine(folder: str) -> None:
+    """What a fresh clone's lerobot-train resumes from: the policy folder and the training state of one step, noted
+    in the kept folder as the progress of a run (only the same run resumes it), its student named by a placeholder."""
+    note = json.loads((ROOT / folder).with_name("kept.json").read_text())
+    assert note["checkpoint"] == PurePosixPath(folder).name and set(note["run"]) == {"flags", "distill", "weights"}
+    assert (ROOT / folder / "training_state" / "training_step.json").is_file()
+    config = (ROOT / folder / "pretrained_model" / "config.json").read_text()
+    assert not MACHINE_PATH.search(config)
 
 
 def test_no_committed_record_or_config_names_a_path_of_the_machine_that_wrote_it() -> None:
