@@ -138,7 +138,8 @@ def run_lerobot_train(
         raise InvalidInputError(f"lerobot-train imports snapflow's student types from lerobot {PLUGIN_LEROBOT} on")
     output = Path(output)
     last = output / LAST_CHECKPOINT
-    run = lerobot_train_run(student, config, training_episodes)
+    # what kept progress belongs to: read (a digest of the weights) only where progress is kept
+    run = lerobot_train_run(student, config, training_episodes) if keep_progress is not None else {}
     if not (last / "train_config.json").is_file():
         if output.exists():  # started, but stopped before its first checkpoint: nothing to resume
             shutil.rmtree(output)
