@@ -21,7 +21,7 @@ from snapflow.policies.loaded import CheckpointError
 from snapflow.reporting.archive import read_manifest, repository_root, restore
 from snapflow.reporting.packed import PACKED_SUFFIX
 from snapflow.sources import LEROBOT_RUN_FORMAT, open_policy
-from snapflow.training.lerobot_progress import KEPT_PREFIX
+from snapflow.training.checkpoint import STEP_PREFIX
 
 ROOT = repository_root(Path(__file__))
 #: a string value that starts with an absolute path of a machine: what a committed file must never hold
@@ -46,7 +46,7 @@ def _kept_folders() -> dict[str, str]:
         if entry.path.endswith(PACKED_SUFFIX):  # a sweep's kept collection, not weights
             continue
         folder = PurePosixPath(entry.path).parent
-        if folder.parent.name.startswith(KEPT_PREFIX) and folder.name in ("pretrained_model", "training_state"):
+        if folder.parent.name.startswith(STEP_PREFIX) and folder.name in ("pretrained_model", "training_state"):
             folders[str(folder)] = LEROBOT_TRAIN_PROGRESS
         elif (ROOT / folder / "config.json").is_file():
             folders[str(folder)] = POLICY

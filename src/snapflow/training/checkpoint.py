@@ -35,6 +35,8 @@ from snapflow.reporting.files import write_json
 
 OPTIMIZER_STATE, TRAINER_STATE = "optimizer.safetensors", "trainer_state.json"
 TRAINING_WEIGHTS = "training_weights.safetensors"
+#: the name of a step checkpoint starts with this (``step_0005000``; a kept lerobot-train step, ``step_004000``)
+STEP_PREFIX = "step_"
 KEPT = "kept.json"  # beside a kept checkpoint: its name and what its keeper noted of it
 
 
@@ -176,7 +178,7 @@ def keep_checkpoint(
     ``prepare``: as :func:`copy_checkpoint`'s; ``name``: the copy's (default: the checkpoint's own)."""
     kept = copy_checkpoint(checkpoint, Path(directory) / (name or Path(checkpoint).name), policy_only, prepare)
     write_json(Path(directory) / KEPT, {"checkpoint": kept.name, **note})
-    for other in Path(directory).glob("step_*"):
+    for other in Path(directory).glob(f"{STEP_PREFIX}*"):
         if other != kept:
             shutil.rmtree(other)
     return kept
@@ -207,7 +209,7 @@ def install_checkpoint(checkpoint: Path, run_directory: Path, keep: int) -> Path
 def mark_latest(run_directory: Path, checkpoint: Path, keep: int) -> None:
     """Point ``latest.json`` at ``checkpoint``, then delete all but the ``keep`` newest step checkpoints."""
     write_json(run_directory / LATEST, {"checkpoint": str(checkpoint.relative_to(run_directory))})
-    steps = sorted((run_directory / "checkpoints").glob("step_*"))
+    steps = sorted((run_directory / "checkpoints").glob(f"{STEP_PREFIX}*"))
     for old in steps[: max(len(steps) - keep, 0)]:
         if old != checkpoint:
             shutil.rmtree(old)
@@ -215,6 +217,7 @@ def mark_latest(run_directory: Path, checkpoint: Path, keep: int) -> None:
 
 __all__ = [
     "OPTIMIZER_STATE",
+    "STEP_PREFIX",
     "TRAINER_STATE",
     "TRAINING_WEIGHTS",
     "save_checkpoint",

@@ -16,12 +16,10 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
-from snapflow.training.checkpoint import copy_checkpoint, keep_checkpoint, read_kept
+from snapflow.training.checkpoint import STEP_PREFIX, copy_checkpoint, keep_checkpoint, read_kept
 
 #: what stands for the student folder's absolute path in a kept checkpoint's files
 STUDENT_FOLDER = "${STUDENT_FOLDER}"
-#: a kept checkpoint's name: this, then lerobot-train's step folder's (``step_004000``)
-KEPT_PREFIX = "step_"
 #: how often a running lerobot-train's ``checkpoints/last`` is looked at, in seconds
 POLL_SECONDS = 5.0
 
@@ -44,7 +42,7 @@ def keep_lerobot_checkpoint(checkpoint: Path, kept: Path, student: Path, run: di
         kept,
         {"run": run},
         prepare=lambda copy: _replace_in_json(copy, absolute, STUDENT_FOLDER),
-        name=f"{KEPT_PREFIX}{Path(checkpoint).name}",
+        name=f"{STEP_PREFIX}{Path(checkpoint).name}",
     )
 
 
@@ -53,9 +51,9 @@ def install_kept_progress(kept: Path, output: Path, student: Path, run: dict[str
     naming ``student`` where the placeholder stands; False where ``kept`` holds no progress of ``run`` (nothing, a
     finished run's policy, or another run's progress, which the new run's checkpoints then replace)."""
     found = read_kept(Path(kept))
-    if found is None or found[1] != {"run": run} or not found[0].name.startswith(KEPT_PREFIX):
+    if found is None or found[1] != {"run": run} or not found[0].name.startswith(STEP_PREFIX):
         return False
-    step = found[0].name.removeprefix(KEPT_PREFIX)
+    step = found[0].name.removeprefix(STEP_PREFIX)
     installed = copy_checkpoint(found[0], Path(output) / "checkpoints" / step)
     _replace_in_json(installed, STUDENT_FOLDER, str(Path(student).resolve()))
     (installed.parent / "last").symlink_to(step)
@@ -70,7 +68,7 @@ class CheckpointKeeper:
     def __init__(self, output: Path, kept: Path, student: Path, run: dict[str, Any]) -> None:
         self.output, self.kept, self.student, self.run = Path(output), Path(kept), Path(student), run
         found = read_kept(self.kept)
-        self._kept_step = found[0].name.removeprefix(KEPT_PREFIX) if found and found[1] == {"run": run} else None
+        self._kept_step = found[0].name.removeprefix(STEP_PREFIX) if found and found[1] == {"run": run} else None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._watch, name="lerobot-train checkpoint keeper", daemon=True)
         self._error: BaseException | None = None
@@ -112,7 +110,6 @@ def _replace_in_json(folder: Path, old: str, new: str) -> None:
 
 
 __all__ = [
-    "KEPT_PREFIX",
     "STUDENT_FOLDER",
     "CheckpointKeeper",
     "install_kept_progress",

@@ -21,6 +21,7 @@ from torch import nn
 from snapflow.policies.checkpoint import LATEST, CheckpointError, untied_state
 from snapflow.reporting.records import as_record
 from snapflow.training.checkpoint import (
+    STEP_PREFIX,
     install_checkpoint,
     keep_checkpoint,
     mark_latest,
@@ -166,7 +167,7 @@ def save_run_checkpoint(
         with average.applied() if average is not None else nullcontext() as raw:
             weights, optimizer_state = gathered or (untied_state(policy), optimizer.optimizer.state_dict())
             path = save_checkpoint(
-                run_directory / "checkpoints" / f"step_{step:07d}",
+                run_directory / "checkpoints" / f"{STEP_PREFIX}{step:07d}",
                 weights,
                 metadata,
                 optimizer_state,
