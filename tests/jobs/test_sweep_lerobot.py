@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import time
 from pathlib import Path
 
 import pytest
@@ -189,20 +190,25 @@ def test_a_tiny_smolvla_sweep_trains_distils_by_both_trainers_and_evaluates_ever
 def resumed_on_another_machine(tmp_path: Path, config) -> None:
     """A lerobot-train run cut after its step-2 checkpoint on a machine that is then gone: its run folder lost, its
     progress kept as the keeper keeps it (each checkpoint as it is saved), the student folder's path as a placeholder.
-    Run again, it goes on from step 2 (LeRobot's log starts at step 3), and keeps its finished policy in the end."""
-    from snapflow.training.lerobot_progress import STUDENT_FOLDER, keep_lerobot_checkpoint
+    Run again, it goes on from step 2 (LeRobot's log starts at step 3), counts its training time on from step 2's
+    (the attempt before took 100 s, say), and keeps its finished policy in the end."""
+    from snapflow.reporting.files import write_json
+    from snapflow.training.lerobot_progress import ELAPSED, STUDENT_FOLDER, keep_lerobot_checkpoint
     from snapflow.training.lerobot_student import lerobot_train_run
 
     run_folder, job = tmp_path / "runs/lerobot-train/seed-0", train_job(config, "lerobot-train", 0)
     kept_in, step_2 = job.kept, run_folder / "lerobot-train/checkpoints/000002"
     episodes = json.loads((step_2 / "pretrained_model/train_config.json").read_text())["dataset"]["episodes"]
     run = lerobot_train_run(run_folder / "student", job.train, episodes)
+    write_json(step_2 / "training_state" / ELAPSED, {"seconds": 100.0})
     kept = keep_lerobot_checkpoint(step_2, kept_in, run_folder / "student", run)
     assert json.loads((kept_in / "kept.json").read_text()) == {"checkpoint": "step_000002", "run": run}
     kept_config = (kept / "pretrained_model/config.json").read_text()
     assert STUDENT_FOLDER in kept_config and str(tmp_path) not in kept_config, "no path of this machine is kept"
     shutil.rmtree(run_folder)
-    job.run()
+    began = time.perf_counter()
+    state = job.run()
+    assert 100.0 < state["wall_time_s"] <= 100.0 + time.perf_counter() - began, "the attempts' time, not the last's"
     log = (run_folder / "lerobot-train.log").read_text()
     assert "step:3 " in log and "step:1 " not in log, "resumed at step 2, not from the start"
     last = run_folder / "lerobot-train/checkpoints/last"

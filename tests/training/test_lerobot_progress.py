@@ -7,12 +7,15 @@ from __future__ import annotations
 
 import json
 import os
+import time
 from pathlib import Path
 
 from snapflow.training.checkpoint import keep_checkpoint
 from snapflow.training.lerobot_progress import (
+    ELAPSED,
     STUDENT_FOLDER,
     CheckpointKeeper,
+    elapsed_at,
     install_kept_progress,
     newest_checkpoint,
 )
@@ -77,3 +80,26 @@ def test_a_finished_runs_kept_policy_or_nothing_kept_installs_nothing(tmp_path):
     with CheckpointKeeper(output, kept, student, RUN):
         pass  # a run that saved nothing leaves the finished policy kept as it was
     assert json.loads((kept / "kept.json").read_text())["checkpoint"] == "pretrained_model"
+
+
+def test_a_runs_training_time_counts_every_attempt_on_every_machine(tmp_path):
+    """lerobot-train keeps no time across attempts: each checkpoint is stamped with the run's time up to it, and an
+    attempt resumed from one (here, or installed from what was kept elsewhere) counts on from there."""
+    output, student, kept = tmp_path / "run" / "lerobot-train", tmp_path / "run" / "student", tmp_path / "kept"
+    with CheckpointKeeper(output, kept, student, RUN) as first:
+        first.began -= 100.0  # an attempt that began 100 s ago
+        checkpoint = save(output, 2, student)
+    saved_after = json.loads((checkpoint / "training_state" / ELAPSED).read_text())["seconds"]
+    assert 100.0 <= saved_after < 100.0 + 60.0, "stamped with the attempt's time up to the checkpoint's saving"
+    assert elapsed_at(kept / "step_000002") == saved_after, "the stamp travels with the kept progress"
+
+    elsewhere = tmp_path / "machine-2" / "run"
+    assert install_kept_progress(kept, elsewhere / "lerobot-train", elsewhere / "student", RUN)
+    began = time.time()
+    with CheckpointKeeper(elsewhere / "lerobot-train", None, elsewhere / "student", RUN) as second:
+        assert second.before == saved_after, "the resumed attempt counts on from its checkpoint's time"
+        later = save(elsewhere / "lerobot-train", 4, elsewhere / "student")
+    assert saved_after <= elapsed_at(later) <= saved_after + time.time() - began
+    assert saved_after + time.time() - began >= second.elapsed >= elapsed_at(later)
+    assert not (tmp_path / "machine-2" / "kept").exists(), "no kept folder given: stamped, nothing kept"
+    assert elapsed_at(save(tmp_path / "old", 2, student)) == 0.0, "a checkpoint saved before stamps: time unknown"

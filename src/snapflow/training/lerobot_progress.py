@@ -6,22 +6,29 @@ there. A machine's end takes the run folder with it. :class:`CheckpointKeeper` c
 a kept folder as it appears (the previous copy removed only once the new one is whole), and
 :func:`install_kept_progress` puts the kept one back into an empty run folder, so that lerobot-train resumes from it
 on any clone. The student folder's absolute path, which its config names (a local VLM), is kept as a placeholder: a
-kept file names no path of the machine that wrote it."""
+kept file names no path of the machine that wrote it. lerobot-train records no time across its attempts: each
+checkpoint is stamped with the run's training time up to it (:data:`ELAPSED`), from which a resumed attempt counts on,
+so that a run's recorded time is its whole training's, however many machines it took."""
 
 from __future__ import annotations
 
+import json
 import os
 import threading
+import time
 from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+from snapflow.reporting.files import write_json
 from snapflow.training.checkpoint import STEP_PREFIX, copy_checkpoint, keep_checkpoint, read_kept
 
 #: what stands for the student folder's absolute path in a kept checkpoint's files
 STUDENT_FOLDER = "${STUDENT_FOLDER}"
 #: how often a running lerobot-train's ``checkpoints/last`` is looked at, in seconds
 POLL_SECONDS = 5.0
+#: a checkpoint's training time so far, in its ``training_state/`` (LeRobot reads only its own files there)
+ELAPSED = "snapflow_elapsed.json"
 
 
 def newest_checkpoint(output: Path) -> Path | None:
@@ -31,6 +38,13 @@ def newest_checkpoint(output: Path) -> Path | None:
         return None
     checkpoint = last.parent / os.readlink(last)
     return checkpoint if (checkpoint / "training_state").is_dir() else None
+
+
+def elapsed_at(checkpoint: Path | None) -> float:
+    """The training time, in seconds, of the run up to ``checkpoint``: 0 where there is none, or it was saved before
+    checkpoints were stamped (its time unknown)."""
+    stamp = Path(checkpoint) / "training_state" / ELAPSED if checkpoint is not None else None
+    return json.loads(stamp.read_text())["seconds"] if stamp is not None and stamp.is_file() else 0.0
 
 
 def keep_lerobot_checkpoint(checkpoint: Path, kept: Path, student: Path, run: dict[str, Any]) -> Path:
@@ -61,24 +75,37 @@ def install_kept_progress(kept: Path, output: Path, student: Path, run: dict[str
 
 
 class CheckpointKeeper:
-    """While a lerobot-train run writes into ``output``, keep each checkpoint it marks last in ``kept`` (looked for
-    every :data:`POLL_SECONDS`) as the progress of ``run``, and the last one once more as it stops; an error in
-    keeping is raised on exit."""
+    """While a lerobot-train attempt writes into ``output``, stamp each checkpoint it marks last with the run's
+    training time up to it and, where ``kept`` is given, keep it there (looked for every :data:`POLL_SECONDS`) as
+    the progress of ``run``; the last one once more as the attempt stops. :attr:`elapsed` is the run's training
+    time: the checkpoint it resumed from, then this attempt's. An error in keeping is raised on exit."""
 
-    def __init__(self, output: Path, kept: Path, student: Path, run: dict[str, Any]) -> None:
-        self.output, self.kept, self.student, self.run = Path(output), Path(kept), Path(student), run
-        found = read_kept(self.kept)
+    def __init__(self, output: Path, kept: Path | None, student: Path, run: dict[str, Any]) -> None:
+        self.output, self.kept, self.student, self.run = Path(output), kept, Path(student), run
+        self.began = time.time()  # wall clock: a checkpoint's time is read from its files' modification times
+        self.before = elapsed_at(newest_checkpoint(self.output))
+        found = read_kept(Path(kept)) if kept is not None else None
         self._kept_step = found[0].name.removeprefix(STEP_PREFIX) if found and found[1] == {"run": run} else None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._watch, name="lerobot-train checkpoint keeper", daemon=True)
         self._error: BaseException | None = None
 
+    @property
+    def elapsed(self) -> float:
+        """The run's training time so far, in seconds."""
+        return self.before + time.time() - self.began
+
     def keep_newest(self) -> None:
-        """Keep the checkpoint marked last, where it is not the one kept already."""
+        """Stamp the checkpoint marked last, and keep it, where it is not the one kept already."""
         newest = newest_checkpoint(self.output)
-        if newest is not None and newest.name != self._kept_step:
-            keep_lerobot_checkpoint(newest, self.kept, self.student, self.run)
-            self._kept_step = newest.name
+        if newest is None or newest.name == self._kept_step:
+            return
+        if not (newest / "training_state" / ELAPSED).is_file():  # saved by this attempt: its time is this one's
+            saved = (newest / "training_state" / "training_step.json").stat().st_mtime
+            write_json(newest / "training_state" / ELAPSED, {"seconds": self.before + max(saved - self.began, 0.0)})
+        if self.kept is not None:
+            keep_lerobot_checkpoint(newest, Path(self.kept), self.student, self.run)
+        self._kept_step = newest.name
 
     def _watch(self) -> None:
         try:
@@ -111,7 +138,9 @@ def _replace_in_json(folder: Path, old: str, new: str) -> None:
 
 __all__ = [
     "STUDENT_FOLDER",
+    "ELAPSED",
     "CheckpointKeeper",
+    "elapsed_at",
     "install_kept_progress",
     "keep_lerobot_checkpoint",
     "newest_checkpoint",

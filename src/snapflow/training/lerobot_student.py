@@ -10,7 +10,7 @@ import hashlib
 import json
 import shutil
 import sys
-from contextlib import nullcontext
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -115,6 +115,14 @@ def lerobot_train_run(student: str | Path, config: TrainConfig, training_episode
     }
 
 
+@dataclass(frozen=True)
+class LeRobotTrainResult:
+    """A finished ``lerobot-train`` run: its policy folder and its training time over all its attempts."""
+
+    policy: Path
+    wall_time_s: float
+
+
 def run_lerobot_train(
     student: str | Path,
     dataset_root: str | Path,
@@ -125,10 +133,11 @@ def run_lerobot_train(
     device: str = "cpu",
     threads: int | None = None,
     keep_progress: Path | None = None,
-) -> Path:
+) -> LeRobotTrainResult:
     """Distil the student folder ``student`` (:func:`write_student`'s) with LeRobot's own ``lerobot-train``, run as a
     subprocess of this interpreter's environment, into ``output``; an interrupted run resumes from its last
-    checkpoint. Returns the distilled policy's folder (``output/checkpoints/last/pretrained_model``). ``threads``:
+    checkpoint. Returns the distilled policy's folder (``output/checkpoints/last/pretrained_model``) and the run's
+    training time, the attempts before this one included (each checkpoint stamped with it). ``threads``:
     the torch threads of the subprocess (``OMP_NUM_THREADS``). ``keep_progress``: a folder that keeps a copy of each
     checkpoint as it is saved (:mod:`snapflow.training.lerobot_progress`), to commit or carry to another machine; a
     run folder without a checkpoint continues from the one kept there."""
@@ -162,7 +171,7 @@ def run_lerobot_train(
             "--policy.push_to_hub=false",
             *lerobot_train_arguments(config, training_episodes),
         ]
-    with CheckpointKeeper(output, keep_progress, student, run) if keep_progress is not None else nullcontext():
+    with CheckpointKeeper(output, keep_progress, student, run) as keeper:
         run_lerobot_command(
             "lerobot-train",
             [str(Path(sys.executable).with_name("lerobot-train")), *arguments],
@@ -170,11 +179,12 @@ def run_lerobot_train(
             threads,
             append=True,  # a resumed run's lines follow the interrupted one's
         )
-    return last
+    return LeRobotTrainResult(last, keeper.elapsed)
 
 
 __all__ = [
     "LAST_CHECKPOINT",
+    "LeRobotTrainResult",
     "lerobot_train_arguments",
     "lerobot_train_run",
     "run_lerobot_train",
