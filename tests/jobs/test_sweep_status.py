@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from snapflow.jobs.runner import _start, write_record
+from snapflow.jobs.runner import _start, record, write_record
 from snapflow.jobs.sweep import load_sweep, plan
 from snapflow.jobs.sweep.planning import data_job, eval_job, train_job
 from snapflow.reporting.locks import hold_run_lock
@@ -105,3 +105,41 @@ def test_an_evaluation_of_a_kind_never_measured_is_estimated_per_episode_from_th
     config = replace(config, tables=(*config.tables, longer))
     statuses = {status.job: status.seconds for status in sweep_status(config)}
     assert statuses[eval_job(config, longer, longer.rows[1], 0)] == pytest.approx(400.0 / 4 * 6)
+
+
+def test_an_unfinished_job_shows_how_far_it_came_here_or_elsewhere_and_only_what_is_left_is_estimated(tmp_path):
+    """A row of 400 episodes interrupted at 230 has 170 left, and a run kept at step 1,500 of 4,000 has 2,500: each
+    says so, and the time left counts only that part. The progress is read here (the episode log of an evaluation
+    started here) or from what another machine kept beside the committed records (a fresh clone), and never from
+    another job's."""
+    import torch
+
+    from snapflow.evaluation.episode_log import EpisodeLog, FinishedWave
+    from snapflow.evaluation.results import EpisodeResult
+    from snapflow.jobs.sweep.status import format_status, sweep_status
+    from snapflow.training.checkpoint import keep_checkpoint
+
+    config = load_sweep(write_config(tmp_path, seeds="[0]", commit_checkpoint=True))
+    (headline,) = [table for table in config.tables if table.name == "headline"]
+    measured, evaluation = (eval_job(config, headline, row, 0) for row in headline.rows[:2])
+    write_record(measured, {"closed_loop_s": 400.0})  # 2 tasks x 2 episodes: 100 s an episode
+    _start(evaluation)
+    episodes = [EpisodeResult("reach-v3", variation, True, 10) for variation in range(3)]
+    log = EpisodeLog(evaluation.episodes_dir / "row.jsonl", {"row": "snapflow"}, resume=False)
+    log.append(FinishedWave(episodes, 1.0, torch.zeros(4, dtype=torch.uint8)))
+    with (evaluation.episodes_dir / "row.jsonl").open("a") as file:
+        file.write('{"episodes": [')  # a wave cut short by a kill counts for nothing
+    teacher = train_job(config, "teacher", 0)
+    step = tmp_path / "step_000003"
+    step.mkdir()
+    (step / "model.safetensors").write_bytes(b"weights")
+    keep_checkpoint(step, teacher.kept, {"job": {"another": "job's settings"}, "finished": False})
+    by_job = {status.job: status for status in sweep_status(config)}
+    assert (by_job[evaluation].progress.done, by_job[evaluation].progress.total) == (3, 4)
+    assert by_job[evaluation].seconds == pytest.approx(400.0 / 4), "one episode of four left, at 100 s each"
+    assert by_job[teacher].progress is None, "another job's kept checkpoint is not this one's progress"
+
+    keep_checkpoint(step, teacher.kept, {"job": record(teacher), "finished": False})  # kept by another machine
+    lines = format_status(config, sweep_status(config)).splitlines()
+    assert "(3 of 4 episodes done; goes on from there)" in line_of(lines, evaluation.describe().removeprefix("tiny: "))
+    assert "(3 of 12 steps done; goes on from there)" in line_of(lines, "train teacher seed 0")

@@ -105,4 +105,16 @@ class EpisodeLog:
         self._keep()
 
 
-__all__ = ["EpisodeLog", "FinishedWave"]
+def logged_episodes(folder: str | Path) -> int:
+    """How many episodes the episode logs in ``folder`` hold (their whole waves; a line cut short counts none)."""
+    count = 0
+    for path in Path(folder).glob("*.jsonl") if Path(folder).is_dir() else []:
+        for line in path.read_text().splitlines()[1:]:  # the first line is the run's identity
+            try:
+                count += len(json.loads(line)["episodes"])
+            except (json.JSONDecodeError, KeyError, TypeError):
+                continue
+    return count
+
+
+__all__ = ["EpisodeLog", "FinishedWave", "logged_episodes"]

@@ -147,20 +147,25 @@ def run_lerobot_eval(
     return EvaluationRow(recorded_path(policy), mode.name, mode.num_steps, success_by_task(results), wall_time)
 
 
+def finished_tasks(folder: str | Path) -> list[str]:
+    """The tasks :func:`run_lerobot_eval` finished in ``folder`` (its output, or the folder it keeps them in)."""
+    folder = Path(folder)
+    tasks = sorted(folder.iterdir()) if folder.is_dir() else []
+    return [task.name for task in tasks if (task / EVAL_INFO).is_file() and (task / TIMING).is_file()]
+
+
 def restore_kept_tasks(kept: str | Path, output: str | Path) -> list[str]:
     """Put the tasks that :func:`run_lerobot_eval` finished and kept in ``kept`` (on another machine) into ``output``,
     where it reads them back instead of running them again; the tasks put back."""
-    kept, output = Path(kept), Path(output)
-    restored = []
-    for folder in sorted(kept.iterdir()) if kept.is_dir() else []:
-        if (folder / EVAL_INFO).is_file() and (folder / TIMING).is_file():
-            shutil.copytree(folder, output / folder.name, dirs_exist_ok=True)
-            restored.append(folder.name)
+    restored = finished_tasks(kept)
+    for task in restored:
+        shutil.copytree(Path(kept) / task, Path(output) / task, dirs_exist_ok=True)
     return restored
 
 
 __all__ = [
     "MAX_EPISODES",
+    "finished_tasks",
     "lerobot_eval_arguments",
     "mode_arguments",
     "restore_kept_tasks",

@@ -29,6 +29,7 @@ import shutil
 from abc import ABC, abstractmethod
 from collections.abc import Iterable
 from concurrent.futures import FIRST_COMPLETED, Future, wait
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -38,6 +39,20 @@ from snapflow.errors import InvalidInputError, SnapflowError
 from snapflow.jobs.backends import Backend, LocalBackend, WorkerDied
 from snapflow.reporting.files import write_json
 from snapflow.reporting.machine import versions
+
+
+@dataclass(frozen=True)
+class JobProgress:
+    """How far an unfinished run of a job has come: ``done`` of its ``total`` ``unit`` (steps, episodes)."""
+
+    done: int
+    total: int
+    unit: str
+
+    @property
+    def share(self) -> float:
+        """The share of its work done, from 0 to 1."""
+        return min(self.done / self.total, 1.0) if self.total > 0 else 0.0
 
 
 class Job(ABC):
@@ -86,6 +101,11 @@ class Job(ABC):
         """Put the progress that an unfinished run of this job with its current settings kept on another machine into
         its (empty) outputs, to be continued; False where nothing was kept (the default)."""
         return False
+
+    def progress(self) -> JobProgress | None:
+        """How far a started, unfinished run of this job with its current settings has come, here or in the progress
+        it keeps for another machine; None where it has not begun or it does not say (the default)."""
+        return None
 
     @abstractmethod
     def run(self) -> dict[str, Any]:
@@ -321,6 +341,7 @@ def _failure(job: Job, error: Exception) -> Exception:
 
 
 __all__ = [
+    "JobProgress",
     "Job",
     "record",
     "write_record",

@@ -10,10 +10,11 @@ from typing import Any, ClassVar
 
 from snapflow.envs.factory import make_benchmark
 from snapflow.evaluation.config import OFFLINE_SAMPLES
+from snapflow.evaluation.episode_log import logged_episodes
 from snapflow.evaluation.pipeline import evaluate
 from snapflow.flow.modes import SamplingMode
 from snapflow.flow.realtime_settings import RealTimeChunking
-from snapflow.jobs.runner import Job, holds_record_of, record
+from snapflow.jobs.runner import Job, JobProgress, holds_record_of, is_started, record
 from snapflow.jobs.sweep.data_jobs import held_out_with_frames
 from snapflow.jobs.sweep.specs import EVALUATORS
 from snapflow.jobs.sweep.training_jobs import TrainJob
@@ -145,6 +146,21 @@ class EvalJob(Job):
             shutil.rmtree(kept, ignore_errors=True)
             write_json(kept / KEPT_JOB, record(self))
         return kept
+
+    def progress(self) -> JobProgress | None:
+        """The episodes finished here, or kept by another machine: whichever is further."""
+        folders = ([self.episodes_dir] if is_started(self) else []) + (
+            [self.kept_progress] if self._kept_by_this_job() and self.kept_progress is not None else []
+        )
+        if not folders:
+            return None
+        if self.by_lerobot_eval:
+            from snapflow.evaluation.lerobot_eval import finished_tasks
+
+            done = max(len(finished_tasks(folder)) * self.episodes_per_task for folder in folders)
+        else:
+            done = max(logged_episodes(folder) for folder in folders)
+        return JobProgress(done, len(self.task_names) * self.episodes_per_task, "episodes")
 
     def restore_progress(self) -> bool:
         if not self._kept_by_this_job():

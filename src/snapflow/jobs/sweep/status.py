@@ -9,7 +9,7 @@ from collections import defaultdict
 from dataclasses import dataclass
 from statistics import median
 
-from snapflow.jobs.runner import Job, is_done, is_recorded, is_started, read_record
+from snapflow.jobs.runner import Job, JobProgress, is_done, is_recorded, is_started, read_record
 from snapflow.jobs.sweep.data_jobs import CollectJob
 from snapflow.jobs.sweep.eval_jobs import EvalJob
 from snapflow.jobs.sweep.planning import jobs
@@ -30,6 +30,7 @@ class JobStatus:
     state: str
     seconds: float | None
     started: bool = False  # begun and not finished (running, or interrupted: it goes on from where it stopped)
+    progress: JobProgress | None = None  # how far an unfinished one has come, here or kept elsewhere
 
 
 def kind_of(job: Job) -> tuple[object, ...]:
@@ -86,15 +87,15 @@ def sweep_status(config: SweepConfig) -> list[JobStatus]:
         measured = by_kind.get(kind_of(job)[:1])
         return median(measured) * _units(job) if measured else None
 
-    return [
-        JobStatus(
-            job,
-            states[job],
-            seconds[job] if job in seconds else estimate(job),
-            started[job] and states[job] in ("running", "missing"),
-        )
-        for job in planned
-    ]
+    statuses = []
+    for job in planned:
+        progress = job.progress() if states[job] in ("running", "missing") else None
+        left = seconds[job] if job in seconds else estimate(job)
+        if progress is not None and left is not None:  # what is left of it
+            left *= 1.0 - progress.share
+        started_here = started[job] and states[job] in ("running", "missing")
+        statuses.append(JobStatus(job, states[job], left, started_here, progress))
+    return statuses
 
 
 def format_status(config: SweepConfig, statuses: list[JobStatus], workers: int = 1) -> str:
@@ -107,7 +108,12 @@ def format_status(config: SweepConfig, statuses: list[JobStatus], workers: int =
         took = "" if status.seconds is None else f"{status.seconds / 60:.1f} min"
         if status.state in ("running", "missing"):
             took = f"~{took}" if took else "no job of its kind measured"
-        note = " (started; goes on from where it stopped)" if status.started and status.state == "missing" else ""
+        note = ""
+        if status.progress is not None:
+            done = f"{status.progress.done} of {status.progress.total} {status.progress.unit}"
+            note = f" ({done} done; goes on from there)" if status.state == "missing" else f" ({done} done)"
+        elif status.started and status.state == "missing":
+            note = " (started; goes on from where it stopped)"
         lines.append(f"  {status.state:8s} {status.job.describe().removeprefix(config.name + ': '):60s} {took}{note}")
     left = [status for status in statuses if status.state in ("running", "missing")]
     estimated = sum(status.seconds for status in left if status.seconds is not None)

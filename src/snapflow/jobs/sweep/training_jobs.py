@@ -9,12 +9,12 @@ from typing import Any, ClassVar
 
 from snapflow.adapters.lerobot_config import LeRobotSpec
 from snapflow.families import PolicyFamily, Progress, Source, StudentRun, TeacherRun, family_of
-from snapflow.jobs.runner import Job, record
+from snapflow.jobs.runner import Job, JobProgress, is_started, record
 from snapflow.jobs.sweep.data_jobs import LEROBOT_REPO_ID, DataJob, FolderJob, LeRobotDatasetJob
 from snapflow.jobs.sweep.specs import TRAINERS
 from snapflow.policies.configuration import PolicyConfig
 from snapflow.reporting.records import as_record
-from snapflow.training.checkpoint import install_checkpoint, keep_checkpoint, read_kept
+from snapflow.training.checkpoint import STEP_PREFIX, install_checkpoint, keep_checkpoint, read_kept
 from snapflow.training.config import VAL_FRACTION, TrainConfig
 from snapflow.training.recipes import DistillSettings
 
@@ -110,6 +110,19 @@ class TrainJob(FolderJob):
         if kept is None or kept[1] != {"job": record(self), "finished": finished}:
             return None
         return kept[0]
+
+    def progress(self) -> JobProgress | None:
+        """The step of the checkpoint its progress keeps (each one as it is saved): a built-in run's when kept by
+        this job, a LeRobot trainer's (which names its run by its own note) when this job has started here."""
+        try:
+            kept = read_kept(self.kept) if self.kept is not None else None
+        except FileNotFoundError:  # its weights archived and not restored: a status reads no progress from it
+            return None
+        if kept is None or not kept[0].name.startswith(STEP_PREFIX):
+            return None
+        if kept[1] != {"job": record(self), "finished": False} and not ("run" in kept[1] and is_started(self)):
+            return None
+        return JobProgress(int(kept[0].name.removeprefix(STEP_PREFIX)), self.train.steps, "steps")
 
     def restore_outputs(self) -> bool:
         checkpoint = self._kept_checkpoint(finished=True)
