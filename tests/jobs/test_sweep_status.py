@@ -63,14 +63,16 @@ def test_the_status_names_each_jobs_state_and_estimates_the_time_left_from_measu
     assert "~60.0 min" in line_of(lines, "train meanflow seed 0")
 
     evaluation = eval_job(config, config.tables[0], config.tables[0].rows[0], 0)
-    _start(evaluation)
-    with hold_run_lock(config.output_dir, "snapflow sweep"):
+    with hold_run_lock(config.output_dir, "snapflow sweep"):  # a sweep now runs, and has started the evaluation
+        _start(evaluation)
         lines = status(config_path, elsewhere, "--workers", "2")
-    assert line_of(lines, "train snapflow seed 0").startswith("  running")
     assert line_of(lines, evaluation.describe().removeprefix("tiny: ")).startswith("  running")
+    assert line_of(lines, "train snapflow seed 0").startswith("  missing") and "started" in line_of(
+        lines, "train snapflow seed 0"
+    ), "interrupted before this sweep began: not running, though the sweep could go on with it"
     counts = lines[0].split(": ")[-1]
-    missing = len(plan(config)) - 2  # neither running job is missing
-    assert counts.startswith("2 done, 1 kept, 2 running") and f"{missing - 1} missing" in counts
+    missing = len(plan(config)) - 2  # the running job is not missing
+    assert counts.startswith("2 done, 1 kept, 1 running") and f"{missing} missing" in counts
     assert "on 2 workers" in lines[-1] and "of kinds never measured here" in lines[-1], "no evaluation measured"
 
 

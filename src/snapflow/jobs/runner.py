@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import shutil
 from abc import ABC, abstractmethod
 from collections.abc import Iterable
@@ -189,6 +190,12 @@ def is_started(job: Job) -> bool:
     return holds_record_of(_pending_path(job), job) and not is_done(job)
 
 
+def started_since(job: Job, moment: float) -> bool:
+    """Whether ``job`` is started and its current run began at ``moment`` (a time stamp) or later: under a sweep that
+    holds its folder since then, the job is running, not one an earlier run left interrupted."""
+    return is_started(job) and _pending_path(job).stat().st_mtime >= moment
+
+
 def _remove(path: Path) -> None:
     if path.is_dir():
         shutil.rmtree(path)
@@ -204,6 +211,7 @@ def _start(job: Job) -> None:
             _remove(path)
         job.restore_progress()
         write_json(_pending_path(job), record(job))
+    os.utime(_pending_path(job))  # when this run began (:func:`started_since`), a resumed one's too
 
 
 def _restored(job: Job) -> bool:
@@ -349,6 +357,7 @@ __all__ = [
     "is_done",
     "is_recorded",
     "is_started",
+    "started_since",
     "to_run",
     "run_jobs",
 ]

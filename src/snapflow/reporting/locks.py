@@ -83,6 +83,12 @@ def hold_run_lock(directory: str | Path, command: str, remedy: str = _CHOOSE_ANO
                 os.close(_held.pop(key)[0])  # releases the lock
 
 
+def held_since(directory: str | Path) -> float | None:
+    """When the live process that holds ``directory`` took it (a time stamp: its holder writes the lock file as it
+    takes it), or None where none holds it."""
+    return (Path(directory) / LOCK_FILE).stat().st_mtime if lock_holder(directory) is not None else None
+
+
 def lock_holder(directory: str | Path) -> str | None:
     """Who holds ``directory`` (``pid N, command``), or None where no live process does: a look that takes nothing
     (a shared lock tried and let go at once)."""
@@ -102,4 +108,4 @@ def lock_holder(directory: str | Path) -> str | None:
     return None
 
 
-__all__ = ["LOCK_FILE", "RunLockedError", "hold_run_lock", "lock_holder"]
+__all__ = ["LOCK_FILE", "RunLockedError", "held_since", "hold_run_lock", "lock_holder"]

@@ -9,13 +9,13 @@ from collections import defaultdict
 from dataclasses import dataclass
 from statistics import median
 
-from snapflow.jobs.runner import Job, JobProgress, is_done, is_recorded, is_started, read_record
+from snapflow.jobs.runner import Job, JobProgress, is_done, is_recorded, is_started, read_record, started_since
 from snapflow.jobs.sweep.data_jobs import CollectJob
 from snapflow.jobs.sweep.eval_jobs import EvalJob
 from snapflow.jobs.sweep.planning import jobs
 from snapflow.jobs.sweep.specs import SweepConfig
 from snapflow.jobs.sweep.training_jobs import TrainJob
-from snapflow.reporting.locks import lock_holder
+from snapflow.reporting.locks import held_since
 
 STATES = ("done", "kept", "running", "missing")
 # what a finished job's record says it took (s): a run's training, a collection, an evaluation's episodes
@@ -62,7 +62,7 @@ def measured_seconds(job: Job) -> float | None:
 
 def sweep_status(config: SweepConfig) -> list[JobStatus]:
     """Every job the sweep's tables need, in planning order, with its state and its (measured or estimated) time."""
-    running = lock_holder(config.output_dir) is not None
+    sweep_began = held_since(config.output_dir)  # a job started since the sweep holding the folder began runs now
     planned = jobs(config)
     states, seconds, started = {}, {}, {}
     for job in planned:
@@ -72,7 +72,8 @@ def sweep_status(config: SweepConfig) -> list[JobStatus]:
             states[job] = finished
             seconds[job] = measured_seconds(job)
         else:
-            states[job] = "running" if running and started[job] else "missing"
+            running = sweep_began is not None and started[job] and started_since(job, sweep_began)
+            states[job] = "running" if running else "missing"
     # each measured time counts for its kind and, where a kind has none yet, for every job of its type: per episode
     # for evaluations (a row of one suite's 100 episodes against one of four suites' 400)
     by_kind: dict[tuple[object, ...], list[float]] = defaultdict(list)
