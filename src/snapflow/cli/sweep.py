@@ -31,8 +31,9 @@ def add_parser(subparsers: Any) -> None:
     parser.add_argument(
         "--status",
         action="store_true",
-        help="run nothing: print each job as done, kept (in the committed records), running or missing, and the "
-        "machine time left, estimated from the measured times of finished jobs of each kind (on --workers)",
+        help="run nothing: print each job as done, kept (in the committed records), running or missing, how far an "
+        "unfinished one has come (episodes, steps), and the machine time left, estimated from the measured times of "
+        "finished jobs of each kind (on --workers)",
     )
     parser.add_argument(
         "--backend",
