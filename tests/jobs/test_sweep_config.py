@@ -26,7 +26,7 @@ from tests.jobs.tiny_sweep import ROOT, TINY_TRAIN, write_config
             (name, "metaworld")
             for name in ("mt10-state", "mt10-camera", "mt10-via-points", "mt10-levers", "mt50-state")
         ),
-        *((name, "libero") for name in ("libero-spatial", "libero-object")),
+        *((name, "libero") for name in ("libero-spatial", "libero-object", "smolvla-libero-four-suites")),
     ],
 )
 def test_the_committed_results_render_to_the_committed_markdown_byte_for_byte(monkeypatch, name, page):
