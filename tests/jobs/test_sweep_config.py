@@ -302,3 +302,16 @@ def test_replace_block_appends_a_missing_block_and_replaces_an_existing_one():
     assert once == "# R\n\ntext\n\n<!-- sweep:a/b -->\nfirst\n<!-- /sweep:a/b -->\n"
     assert replace_block(once, "a/b", "second") == once.replace("first", "second")
     assert replace_block(once, "a/b", "x\\1").count("x\\1") == 1  # bodies are literal text, not regex templates
+
+
+@pytest.mark.parametrize("default", ["paper", "modes-lean"])
+def test_every_committed_sweep_keeps_its_job_keys_whatever_the_default_recipe_becomes(monkeypatch, default):
+    """A sweep whose students took the default recipe would change every student's key (and lose its committed
+    records) the day the default changes: each names its recipe, so another default leaves every key as it is."""
+    import snapflow.jobs.sweep.schema as schema
+
+    monkeypatch.chdir(ROOT)
+    paths = sorted(Path("configs/sweeps").glob("*.toml"))
+    keys = {path.name: sorted(job.key for job in jobs(load_sweep(path))) for path in paths}
+    monkeypatch.setattr(schema, "DEFAULT_RECIPE", default)
+    assert {path.name: sorted(job.key for job in jobs(load_sweep(path))) for path in paths} == keys

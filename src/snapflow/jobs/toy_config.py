@@ -8,11 +8,15 @@ from typing import Any
 from snapflow.errors import InvalidInputError
 from snapflow.objective.settings import DistillSettings
 from snapflow.reporting.records import added_option, as_record
-from snapflow.training.recipes import DEFAULT_RECIPE, RECIPES, student_settings, teacher_passes_spent
+from snapflow.training.recipes import RECIPES, student_settings, teacher_passes_spent
 
 #: the distillation settings every toy run records, in this order among its own (the cache keys of the committed
 #: comparisons, docs/results/toy-targets*); another setting is recorded where it differs from the toy's default
 RECORDED_SETTINGS = ("alpha", "consistency_weight", "method", "target", "target_steps")
+
+#: the recipe the toy's settings start from, named rather than the default: its committed runs' records (their cache
+#: keys) list their settings against it, and stay valid whatever the default recipe becomes
+TOY_RECIPE = "snapflow"
 
 #: the toy's distributions (:mod:`snapflow.data.toy_shapes`): the mixture of ``num_modes`` Gaussians on a circle, and
 #: two concentric rings, held out from tuning
@@ -20,10 +24,10 @@ SHAPES = ("mixture", "rings")
 
 
 def toy_distill_settings(**given: Any) -> DistillSettings:
-    """The toy's distillation settings: snapflow's recipe (:data:`~snapflow.training.recipes.DEFAULT_RECIPE`) with
+    """The toy's distillation settings: snapflow's recipe (:data:`TOY_RECIPE`) with
     every parameter trained (``freeze_prefix`` false: the toy's MLP always trained its observation encoder too), each
     setting ``given`` overriding them."""
-    return student_settings(DEFAULT_RECIPE, distill={"freeze_prefix": False, **given})[1]
+    return student_settings(TOY_RECIPE, distill={"freeze_prefix": False, **given})[1]
 
 
 @dataclass(frozen=True)
