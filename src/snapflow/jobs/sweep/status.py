@@ -46,6 +46,14 @@ def kind_of(job: Job) -> tuple[object, ...]:
     return (job.kind,)
 
 
+def like_of(job: Job) -> tuple[object, ...] | None:
+    """The jobs of other kinds whose times estimate a job's next best, or None: another policy's evaluation with as
+    many network passes a chunk and actions a chunk on the same episodes (how often the policy runs, and how long)."""
+    if isinstance(job, EvalJob):
+        return ("eval-like", job.mode.num_steps, job.n_act, job.episodes_per_task, tuple(job.task_names))
+    return None
+
+
 def _units(job: Job) -> int:
     """What a job's time grows with, where jobs of its type but of other kinds estimate it: an evaluation's episodes."""
     return len(job.task_names) * job.episodes_per_task if isinstance(job, EvalJob) else 1
@@ -74,17 +82,19 @@ def sweep_status(config: SweepConfig) -> list[JobStatus]:
         else:
             running = sweep_began is not None and started[job] and started_since(job, sweep_began)
             states[job] = "running" if running else "missing"
-    # each measured time counts for its kind and, where a kind has none yet, for every job of its type: per episode
-    # for evaluations (a row of one suite's 100 episodes against one of four suites' 400)
-    by_kind: dict[tuple[object, ...], list[float]] = defaultdict(list)
+    # each measured time counts for its kind, then for the jobs like it, and, where neither has one yet, for every job
+    # of its type: per episode for evaluations (a row of one suite's 100 episodes against one of four suites' 400)
+    by_kind: dict[tuple[object, ...] | None, list[float]] = defaultdict(list)
     for job, value in seconds.items():
         if value is not None:
             by_kind[kind_of(job)].append(value)
+            by_kind[like_of(job)].append(value)
             by_kind[kind_of(job)[:1]].append(value / _units(job))
 
     def estimate(job: Job) -> float | None:
-        if measured := by_kind.get(kind_of(job)):
-            return median(measured)
+        for key in (kind_of(job), like_of(job)):
+            if key is not None and (measured := by_kind.get(key)):
+                return median(measured)
         measured = by_kind.get(kind_of(job)[:1])
         return median(measured) * _units(job) if measured else None
 
