@@ -141,6 +141,22 @@ def test_a_sweep_never_trains_again_what_history_keeps(repository: Path) -> None
     assert read_kept(kept.parent) == (kept, {"finished": True})
 
 
+def test_a_kept_lerobot_train_step_reads_with_its_weights_one_folder_down(repository: Path) -> None:
+    """A lerobot-train step kept for another machine holds its weights in ``pretrained_model/``: in place, it is
+    found; archived and not restored, it names the restore command."""
+    from snapflow.training.checkpoint import KEPT, read_kept
+
+    step = repository / CHECKPOINT.replace("step_0000010", "step_000500")
+    (step / "pretrained_model").mkdir(parents=True)
+    (step / "pretrained_model" / "model.safetensors").write_bytes(os.urandom(4096))
+    (step.parent / KEPT).write_text(json.dumps({"checkpoint": step.name, "run": {"flags": []}}))
+    assert snapflow(repository, "checkpoints", "archive").returncode == 0
+    assert read_kept(step.parent) == (step, {"run": {"flags": []}}), "its weights are there, one folder down"
+    (step / "pretrained_model" / "model.safetensors").unlink()
+    with pytest.raises(FileNotFoundError, match="lacks its weights"):
+        read_kept(step.parent)
+
+
 def test_the_repository_manifest_names_blobs_its_history_holds() -> None:
     """Every archived checkpoint of this repository is in main's history at the commit and path named, and none is
     in the tree."""

@@ -103,3 +103,18 @@ def test_a_runs_training_time_counts_every_attempt_on_every_machine(tmp_path):
     assert saved_after + time.time() - began >= second.elapsed >= elapsed_at(later)
     assert not (tmp_path / "machine-2" / "kept").exists(), "no kept folder given: stamped, nothing kept"
     assert elapsed_at(save(tmp_path / "old", 2, student)) == 0.0, "a checkpoint saved before stamps: time unknown"
+
+
+def test_an_attempt_cut_before_stamping_its_last_checkpoint_loses_no_time(tmp_path):
+    """A machine's end may come in the seconds between lerobot-train saving a checkpoint and the keeper stamping it:
+    the next attempt reads its time off the newest stamped checkpoint and the time between their savings."""
+    output, student = tmp_path / "run" / "lerobot-train", tmp_path / "run" / "student"
+    stamped = save(output, 2, student)
+    (stamped / "training_state" / ELAPSED).write_text(json.dumps({"seconds": 100.0}))
+    cut = save(output, 4, student)  # saved 30 s after step 2, never stamped
+    saved = time.time() - 600.0
+    os.utime(stamped / "training_state" / "training_step.json", (saved, saved))
+    os.utime(cut / "training_state" / "training_step.json", (saved + 30.0, saved + 30.0))
+    with CheckpointKeeper(output, None, student, RUN) as resumed:
+        assert resumed.before == 130.0, "step 2's 100 s and the 30 s to step 4"
+    assert elapsed_at(cut) == 130.0, "stamped as it was read, not as this attempt's start"

@@ -193,7 +193,10 @@ def is_started(job: Job) -> bool:
 def started_since(job: Job, moment: float) -> bool:
     """Whether ``job`` is started and its current run began at ``moment`` (a time stamp) or later: under a sweep that
     holds its folder since then, the job is running, not one an earlier run left interrupted."""
-    return is_started(job) and _pending_path(job).stat().st_mtime >= moment
+    try:
+        return is_started(job) and _pending_path(job).stat().st_mtime >= moment
+    except FileNotFoundError:  # finished between the two looks
+        return False
 
 
 def _remove(path: Path) -> None:

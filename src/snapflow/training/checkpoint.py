@@ -191,8 +191,9 @@ def read_kept(directory: Path) -> tuple[Path, dict[str, Any]] | None:
     except (FileNotFoundError, json.JSONDecodeError):
         return None
     checkpoint = Path(directory) / note.pop("checkpoint")
-    # a snapflow checkpoint's weights or a LeRobot policy folder's: archiving takes every safetensors file out
-    if checkpoint.is_dir() and not any(checkpoint.glob("*.safetensors")) and (hint := archived_hint(checkpoint)):
+    # a snapflow checkpoint's weights, a LeRobot policy folder's, or a lerobot-train step's (under pretrained_model/):
+    # archiving takes every safetensors file out
+    if checkpoint.is_dir() and not any(checkpoint.rglob("*.safetensors")) and (hint := archived_hint(checkpoint)):
         # never train again what history keeps: hours of work, where one command brings the weights back
         raise FileNotFoundError(f"the kept checkpoint {checkpoint} lacks its weights{hint}")
     return (checkpoint, note) if checkpoint.is_dir() else None

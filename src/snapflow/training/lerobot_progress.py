@@ -34,17 +34,44 @@ ELAPSED = "snapflow_elapsed.json"
 def newest_checkpoint(output: Path) -> Path | None:
     """The checkpoint lerobot-train's run folder ``output`` marks last (whole: it marks one once saved), or None."""
     last = Path(output) / "checkpoints" / "last"
-    if not last.is_symlink():
+    try:
+        checkpoint = last.parent / os.readlink(last)
+    except (FileNotFoundError, OSError):  # none yet, or being pointed at the next one this instant
         return None
-    checkpoint = last.parent / os.readlink(last)
     return checkpoint if (checkpoint / "training_state").is_dir() else None
 
 
+def _saved_at(checkpoint: Path) -> float:
+    """When lerobot-train saved ``checkpoint`` (its step file's modification time)."""
+    return (Path(checkpoint) / "training_state" / "training_step.json").stat().st_mtime
+
+
+def _stamp(checkpoint: Path) -> float | None:
+    path = Path(checkpoint) / "training_state" / ELAPSED
+    return json.loads(path.read_text())["seconds"] if path.is_file() else None
+
+
 def elapsed_at(checkpoint: Path | None) -> float:
-    """The training time, in seconds, of the run up to ``checkpoint``: 0 where there is none, or it was saved before
-    checkpoints were stamped (its time unknown)."""
-    stamp = Path(checkpoint) / "training_state" / ELAPSED if checkpoint is not None else None
-    return json.loads(stamp.read_text())["seconds"] if stamp is not None and stamp.is_file() else 0.0
+    """The training time, in seconds, of the run up to ``checkpoint``: its stamp; where it has none (its attempt was
+    cut before stamping it), the newest stamped checkpoint saved before it plus the time between their savings; 0
+    where there is none, or none is stamped (saved before checkpoints were stamped: its time unknown)."""
+    if checkpoint is None:
+        return 0.0
+    if (seconds := _stamp(checkpoint)) is not None:
+        return seconds
+    saved = _saved_at(checkpoint)
+    earlier = [
+        (_saved_at(other), stamp)
+        for other in Path(checkpoint).parent.iterdir()
+        if other.is_dir()
+        and not other.is_symlink()
+        and (stamp := _stamp(other)) is not None
+        and _saved_at(other) <= saved
+    ]
+    if not earlier:
+        return 0.0
+    stamped_at, stamp = max(earlier)
+    return stamp + saved - stamped_at
 
 
 def keep_lerobot_checkpoint(checkpoint: Path, kept: Path, student: Path, run: dict[str, Any]) -> Path:
@@ -100,9 +127,13 @@ class CheckpointKeeper:
         newest = newest_checkpoint(self.output)
         if newest is None or newest.name == self._kept_step:
             return
-        if not (newest / "training_state" / ELAPSED).is_file():  # saved by this attempt: its time is this one's
-            saved = (newest / "training_state" / "training_step.json").stat().st_mtime
-            write_json(newest / "training_state" / ELAPSED, {"seconds": self.before + max(saved - self.began, 0.0)})
+        if _stamp(newest) is None:
+            saved = _saved_at(newest)
+            # saved by this attempt: its time is this one's; by an earlier one cut before stamping it: read off others
+            # (a file's time comes from a coarser clock than time.time(): a second's slack)
+            this_attempt = saved >= self.began - 1.0
+            seconds = self.before + max(saved - self.began, 0.0) if this_attempt else elapsed_at(newest)
+            write_json(newest / "training_state" / ELAPSED, {"seconds": seconds})
         if self.kept is not None:
             keep_lerobot_checkpoint(newest, Path(self.kept), self.student, self.run)
         self._kept_step = newest.name

@@ -50,7 +50,12 @@ def like_of(job: Job) -> tuple[object, ...] | None:
     """The jobs of other kinds whose times estimate a job's next best, or None: another policy's evaluation with as
     many network passes a chunk and actions a chunk on the same episodes (how often the policy runs, and how long)."""
     if isinstance(job, EvalJob):
-        return ("eval-like", job.mode.num_steps, job.n_act, job.episodes_per_task, tuple(job.task_names))
+        how = (
+            job.evaluator,
+            job.max_episode_steps,
+            job.rtc,
+        )  # another evaluator, cut episodes or delays cost otherwise
+        return ("eval-like", job.mode.num_steps, job.n_act, job.episodes_per_task, tuple(job.task_names), *how)
     return None
 
 
@@ -84,11 +89,12 @@ def sweep_status(config: SweepConfig) -> list[JobStatus]:
             states[job] = "running" if running else "missing"
     # each measured time counts for its kind, then for the jobs like it, and, where neither has one yet, for every job
     # of its type: per episode for evaluations (a row of one suite's 100 episodes against one of four suites' 400)
-    by_kind: dict[tuple[object, ...] | None, list[float]] = defaultdict(list)
+    by_kind: dict[tuple[object, ...], list[float]] = defaultdict(list)
     for job, value in seconds.items():
         if value is not None:
             by_kind[kind_of(job)].append(value)
-            by_kind[like_of(job)].append(value)
+            if (like := like_of(job)) is not None:
+                by_kind[like].append(value)
             by_kind[kind_of(job)[:1]].append(value / _units(job))
 
     def estimate(job: Job) -> float | None:

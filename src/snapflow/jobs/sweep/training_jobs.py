@@ -120,9 +120,18 @@ class TrainJob(FolderJob):
             return None
         if kept is None or not kept[0].name.startswith(STEP_PREFIX):
             return None
-        if kept[1] != {"job": record(self), "finished": False} and not ("run" in kept[1] and is_started(self)):
+        if kept[1] != {"job": record(self), "finished": False} and not self._lerobot_progress_of_this_run(kept[1]):
             return None
         return JobProgress(int(kept[0].name.removeprefix(STEP_PREFIX)), self.train.steps, "steps")
+
+    def _lerobot_progress_of_this_run(self, note: dict[str, Any]) -> bool:
+        """Whether a kept lerobot-train checkpoint's ``note`` is this run's, started here: every training flag of this
+        run's settings among its run's flags (another run's progress stays kept until this one saves its own)."""
+        if "run" not in note or not is_started(self):
+            return False
+        from snapflow.training.lerobot_student import lerobot_train_arguments
+
+        return set(lerobot_train_arguments(self.train, None)) <= set(note["run"].get("flags", []))
 
     def restore_outputs(self) -> bool:
         checkpoint = self._kept_checkpoint(finished=True)
