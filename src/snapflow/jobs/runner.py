@@ -190,13 +190,13 @@ def is_started(job: Job) -> bool:
     return holds_record_of(_pending_path(job), job) and not is_done(job)
 
 
-def started_since(job: Job, moment: float) -> bool:
-    """Whether ``job`` is started and its current run began at ``moment`` (a time stamp) or later: under a sweep that
-    holds its folder since then, the job is running, not one an earlier run left interrupted."""
+def run_began(job: Job) -> float | None:
+    """When the current run of a started ``job`` began (a time stamp), or None where it is not started: a job begun
+    since the sweep that holds its folder began is running, not one an earlier run left interrupted."""
     try:
-        return is_started(job) and _pending_path(job).stat().st_mtime >= moment
+        return _pending_path(job).stat().st_mtime if is_started(job) else None
     except FileNotFoundError:  # finished between the two looks
-        return False
+        return None
 
 
 def _remove(path: Path) -> None:
@@ -214,7 +214,7 @@ def _start(job: Job) -> None:
             _remove(path)
         job.restore_progress()
         write_json(_pending_path(job), record(job))
-    os.utime(_pending_path(job))  # when this run began (:func:`started_since`), a resumed one's too
+    os.utime(_pending_path(job))  # when this run began (:func:`run_began`), a resumed one's too
 
 
 def _restored(job: Job) -> bool:
@@ -360,7 +360,7 @@ __all__ = [
     "is_done",
     "is_recorded",
     "is_started",
-    "started_since",
+    "run_began",
     "to_run",
     "run_jobs",
 ]

@@ -36,7 +36,7 @@ def newest_checkpoint(output: Path) -> Path | None:
     last = Path(output) / "checkpoints" / "last"
     try:
         checkpoint = last.parent / os.readlink(last)
-    except (FileNotFoundError, OSError):  # none yet, or being pointed at the next one this instant
+    except OSError:  # none yet, or being pointed at the next one this instant
         return None
     return checkpoint if (checkpoint / "training_state").is_dir() else None
 
@@ -60,14 +60,12 @@ def elapsed_at(checkpoint: Path | None) -> float:
     if (seconds := _stamp(checkpoint)) is not None:
         return seconds
     saved = _saved_at(checkpoint)
-    earlier = [
+    stamped = [
         (_saved_at(other), stamp)
         for other in Path(checkpoint).parent.iterdir()
-        if other.is_dir()
-        and not other.is_symlink()
-        and (stamp := _stamp(other)) is not None
-        and _saved_at(other) <= saved
+        if other.is_dir() and not other.is_symlink() and (stamp := _stamp(other)) is not None
     ]
+    earlier = [(stamped_at, stamp) for stamped_at, stamp in stamped if stamped_at <= saved]
     if not earlier:
         return 0.0
     stamped_at, stamp = max(earlier)
@@ -108,10 +106,11 @@ class CheckpointKeeper:
     time: the checkpoint it resumed from, then this attempt's. An error in keeping is raised on exit."""
 
     def __init__(self, output: Path, kept: Path | None, student: Path, run: dict[str, Any]) -> None:
-        self.output, self.kept, self.student, self.run = Path(output), kept, Path(student), run
+        self.output, self.student, self.run = Path(output), Path(student), run
+        self.kept = Path(kept) if kept is not None else None
         self.began = time.time()  # wall clock: a checkpoint's time is read from its files' modification times
         self.before = elapsed_at(newest_checkpoint(self.output))
-        found = read_kept(Path(kept)) if kept is not None else None
+        found = read_kept(self.kept) if self.kept is not None else None
         self._kept_step = found[0].name.removeprefix(STEP_PREFIX) if found and found[1] == {"run": run} else None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._watch, name="lerobot-train checkpoint keeper", daemon=True)
@@ -135,7 +134,7 @@ class CheckpointKeeper:
             seconds = self.before + max(saved - self.began, 0.0) if this_attempt else elapsed_at(newest)
             write_json(newest / "training_state" / ELAPSED, {"seconds": seconds})
         if self.kept is not None:
-            keep_lerobot_checkpoint(newest, Path(self.kept), self.student, self.run)
+            keep_lerobot_checkpoint(newest, self.kept, self.student, self.run)
         self._kept_step = newest.name
 
     def _watch(self) -> None:

@@ -9,7 +9,7 @@ from collections import defaultdict
 from dataclasses import dataclass
 from statistics import median
 
-from snapflow.jobs.runner import Job, JobProgress, is_done, is_recorded, is_started, read_record, started_since
+from snapflow.jobs.runner import Job, JobProgress, is_done, is_recorded, read_record, run_began
 from snapflow.jobs.sweep.data_jobs import CollectJob
 from snapflow.jobs.sweep.eval_jobs import EvalJob
 from snapflow.jobs.sweep.planning import jobs
@@ -50,11 +50,7 @@ def like_of(job: Job) -> tuple[object, ...] | None:
     """The jobs of other kinds whose times estimate a job's next best, or None: another policy's evaluation with as
     many network passes a chunk and actions a chunk on the same episodes (how often the policy runs, and how long)."""
     if isinstance(job, EvalJob):
-        how = (
-            job.evaluator,
-            job.max_episode_steps,
-            job.rtc,
-        )  # another evaluator, cut episodes or delays cost otherwise
+        how = (job.evaluator, job.max_episode_steps, job.rtc)  # another evaluator, cut episodes, delays: other costs
         return ("eval-like", job.mode.num_steps, job.n_act, job.episodes_per_task, tuple(job.task_names), *how)
     return None
 
@@ -79,13 +75,14 @@ def sweep_status(config: SweepConfig) -> list[JobStatus]:
     planned = jobs(config)
     states, seconds, started = {}, {}, {}
     for job in planned:
-        started[job] = is_started(job)
+        began = run_began(job)
+        started[job] = began is not None
         finished = "done" if is_done(job) else "kept" if is_recorded(job) else None
         if finished:
             states[job] = finished
             seconds[job] = measured_seconds(job)
         else:
-            running = sweep_began is not None and started[job] and started_since(job, sweep_began)
+            running = sweep_began is not None and began is not None and began >= sweep_began
             states[job] = "running" if running else "missing"
     # each measured time counts for its kind, then for the jobs like it, and, where neither has one yet, for every job
     # of its type: per episode for evaluations (a row of one suite's 100 episodes against one of four suites' 400)
